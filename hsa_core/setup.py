@@ -1,0 +1,26 @@
+"""ROS-free core library of hsa-ros (also buildable by colcon as an ament_python package)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "hsa_core"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["config/*.yaml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("hsa_core/config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="hsa-ros developers",
+    maintainer_email="hsa-ros@example.org",
+    description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
+    license="MIT",
+    entry_points={"console_scripts": []},
+)

@@ -1,0 +1,1 @@
+"""Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap sample."""

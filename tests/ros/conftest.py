@@ -1,0 +1,96 @@
+"""Fixtures for tests that run real rclpy processes: process groups, and an rclpy node in the test process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from hsa_core import rosenv
+
+PEERS = Path(__file__).parent / "peers"
+
+
+def start_process(args: list[str], **popen: object) -> subprocess.Popen:
+    """Start a ROS process in its own session with the project ROS environment (stop it with stop_process)."""
+    return subprocess.Popen(
+        args, env=rosenv.ros_environment(), start_new_session=True, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, **popen,
+    )
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int:
+    """SIGINT the process group, escalating to SIGTERM and SIGKILL after timeouts; return the exit code."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        if proc.poll() is not None:
+            break
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            break
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            continue
+    return proc.wait()
+
+
+def wait_for_line(proc: subprocess.Popen, text: str, timeout: float = 60.0) -> list[str]:
+    """Read the process output until a line contains ``text``; fail with the output so far on timeout or exit."""
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            if proc.poll() is not None:
+                break
+            continue
+        lines.append(line)
+        if text in line:
+            return lines
+    pytest.fail(f"{text!r} not seen from {proc.args} (exit {proc.poll()}):\n{''.join(lines)}")
+
+
+@pytest.fixture
+def peer() -> Iterator[Callable[[str], subprocess.Popen]]:
+    """Start peer scripts from tests/ros/peers by name; all are stopped at teardown."""
+    procs: list[subprocess.Popen] = []
+
+    def _start(name: str, *args: str) -> subprocess.Popen:
+        proc = start_process([sys.executable, str(PEERS / f"{name}.py"), *args])
+        procs.append(proc)
+        wait_for_line(proc, "ready")
+        return proc
+
+    yield _start
+    for proc in procs:
+        stop_process(proc)
+
+
+@pytest.fixture
+def ros_node() -> Iterator[Node]:
+    """An rclpy node in the test process, spun by a background executor thread."""
+    rclpy.init()
+    node = rclpy.create_node("test_probe")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        thread.join(timeout=5)
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Controller node: P-satI-D, P-satI-D + gravity cancellation and the task-space PID baseline at a fixed rate.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -21,6 +21,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Dynamixel driver: 4 MX-28 servos over Protocol 2.0 with one sync read and one sync write per cycle, limits and torque safety.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

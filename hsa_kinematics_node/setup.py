@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap sample.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Motion-capture bridge: PoseStamped of the platform (and base) rigid bodies -> validated planar end-effector pose in the base frame.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

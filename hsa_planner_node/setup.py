@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Planner node: steady-state setpoint planning service and a setpoint sequencer for step and contour trajectories.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -20,6 +20,6 @@ setup(
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
     description="Simulator node replacing the hardware: emulated MX-28 bus on a pseudo-terminal and mocap poses from the JAX model.",
-    license="MIT",
+    license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

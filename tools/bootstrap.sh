@@ -6,7 +6,7 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 V="$ROOT/.venv"
 PY="${HSA_PYTHON:-python3}"
 STAMPS="$V/.hsa_stamps"
-PACKAGES=(hsa_core hsa_mocap_bridge hsa_kinematics_node hsa_planner_node hsa_controller_node hsa_dynamixel_driver
+PACKAGES=(hsa_core hsa_common hsa_mocap_bridge hsa_kinematics_node hsa_planner_node hsa_controller_node hsa_dynamixel_driver
           hsa_sim_node)
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }

@@ -1,0 +1,1 @@
+"""ROS 2 glue shared by the hsa-ros nodes: QoS, parameters, diagnostics, node runner, and the venv launcher."""

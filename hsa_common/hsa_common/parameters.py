@@ -1,0 +1,118 @@
+"""Declarative node parameters: each one declared with a description and range, validated at start and at run time.
+
+A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` declares them (so ``ros2 param describe``
+shows units, ranges and whether they are read-only), validates the start values and raises
+:class:`ParameterValidationError` naming the first bad parameter. :func:`guard_updates` installs the on-set
+callback that refuses out-of-range or read-only updates at run time with a reason naming the parameter; the node
+keeps running with the old value. The callback has no side effects: accepted values are applied by the
+post-set callback the node passes in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+Validator = Callable[[Any], str | None]  # returns an error message, or None if the value is acceptable
+
+
+class ParameterValidationError(ValueError):
+    """A node parameter has a value the node refuses; the message names the parameter."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter: name, default, description with units, optional range/choices/length and validator."""
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: Sequence[str] | None = None
+    length: int | None = None  # required length of an array parameter
+    read_only: bool = False
+    validator: Validator | None = field(default=None, compare=False)
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The rcl descriptor (ranges only for scalars; rclpy then enforces them too)."""
+        desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
+        extra = []
+        if self.choices:
+            extra.append(f"one of {list(self.choices)}")
+        if self.length is not None:
+            extra.append(f"length {self.length}")
+        if self.low is not None or self.high is not None:
+            extra.append(f"range [{self.low}, {self.high}]")
+        desc.additional_constraints = "; ".join(extra)
+        is_scalar = isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
+        if is_scalar and self.low is not None and self.high is not None:
+            if isinstance(self.default, float):
+                desc.floating_point_range = [FloatingPointRange(from_value=float(self.low), to_value=float(self.high))]
+            else:
+                desc.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)]
+        return desc
+
+    def check(self, value: Any) -> str | None:
+        """Return why ``value`` is unacceptable for this parameter, or None."""
+        values = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else None
+        if self.length is not None and (values is None or len(values) != self.length):
+            return f"must be a list of length {self.length}, got {value!r}"
+        for v in values if values is not None else [value]:
+            if isinstance(v, float) and not math.isfinite(v):
+                return f"must be finite, got {value!r}"
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                if self.low is not None and v < self.low or self.high is not None and v > self.high:
+                    return f"must be within [{self.low}, {self.high}], got {value!r}"
+        if self.choices is not None and value not in self.choices:
+            return f"must be one of {list(self.choices)}, got {value!r}"
+        return self.validator(value) if self.validator else None
+
+
+def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare and validate all parameters; return their values by name (raises ParameterValidationError)."""
+    values: dict[str, Any] = {}
+    for spec in specs:
+        try:
+            param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        except Exception as exc:  # rclpy range/type rejection of an override: re-raise naming the parameter
+            raise ParameterValidationError(f"parameter '{spec.name}': {exc}") from exc
+        value = param.value
+        problem = spec.check(value)
+        if problem:
+            raise ParameterValidationError(f"parameter '{spec.name}' {problem}")
+        values[spec.name] = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+    return values
+
+
+def guard_updates(
+    node: Node, specs: Sequence[ParamSpec], apply: Callable[[dict[str, Any]], None] | None = None
+) -> None:
+    """Refuse invalid run-time updates with a reason; hand accepted ones to ``apply`` after they are set."""
+    by_name = {s.name: s for s in specs}
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            spec = by_name.get(p.name)
+            if spec is None:
+                continue  # e.g. use_sim_time, qos_overrides: rclpy validates those
+            if spec.read_only:
+                return SetParametersResult(successful=False, reason=f"parameter '{p.name}' is read-only")
+            problem = spec.check(p.value)
+            if problem:
+                node.get_logger().warning(f"refused update of '{p.name}': {problem}")
+                return SetParametersResult(successful=False, reason=f"parameter '{p.name}' {problem}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+    if apply is not None:
+        def post_set(params: list[Parameter]) -> None:
+            apply({p.name: p.value for p in params if p.name in by_name})
+
+        node.add_post_set_parameters_callback(post_set)

@@ -1,0 +1,152 @@
+"""Virtual-rod twists φ ↔ motor angles ψ ↔ Dynamixel ticks, and software goal limits (spec §7–§8).
+
+Conventions (planning_and_control.md §7):
+
+* Motor m drives virtual rod r(m) (0-based: rod 1 = index 0). By default motors [21, 22, 23, 24] drive rods
+  [2, 2, 1, 1], with rod handedness ρ = [+1, −1, +1, −1] and control handedness h = [+1, +1].
+* φ → ψ: ψ_m = φ_r(m) · h_r(m) · ρ_m, i.e. [+φ₂, −φ₂, +φ₁, −φ₁] by default.
+* ψ → φ: φ_i = h_i · mean over the motors m of rod i of ρ_m ψ_m (the mean of the two motors of a pair).
+* ψ → ticks: goal = neutral + trunc(ψ · 2048/π) as int32 (4096 ticks per revolution, truncation towards zero).
+  A guard of 1e-6 tick is added away from zero before truncating, so that ticks → ψ → ticks is exact despite
+  floating-point round-off (ψ·2048/π of an exact tick count can come out 1 ulp below the integer).
+* ticks → ψ: ψ = (ticks − neutral) · π/2048. Extended-position (multi-turn) mode: ticks never wrap.
+* Limits (``MotorLimits``): the goal of motor m is clamped to neutral_m + s_m·[0, φ_max]·2048/π, widened by ``margin``
+  on both ends, where s_m = h_r(m)·ρ_m is the sign of the motor; the bounds are rounded outwards to whole ticks so the
+  clamped goal is never outside the configured interval. The Max/Min Position Limit registers do not apply in
+  extended-position mode, so this clamp is the only limit.
+* Rate limit (``limit_goal_rate``): each goal moves by at most ⌊max_rate · dt · 2048/π⌋ ticks from the previous goal.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+TICKS_PER_RAD = 2048.0 / math.pi
+RAD_PER_TICK = math.pi / 2048.0
+_TRUNC_GUARD = 1e-6  # ticks
+
+
+def angles_to_ticks(psi: ArrayLike, neutral_ticks: ArrayLike) -> np.ndarray:
+    """Goal ticks neutral + trunc(ψ·2048/π) (int32) for motor angles ψ [rad]; ValueError if not finite or not int32."""
+    raw = np.asarray(psi, dtype=np.float64) * TICKS_PER_RAD
+    offset = np.trunc(raw + np.copysign(_TRUNC_GUARD, raw))
+    if not np.all(np.abs(offset) < 2**31):  # also catches NaN, which would otherwise cast to an arbitrary integer
+        raise ValueError(f"motor angles {psi} rad are not finite or exceed the int32 tick range")
+    ticks = np.asarray(neutral_ticks, dtype=np.int64) + offset.astype(np.int64)
+    if np.any((ticks < -(2**31)) | (ticks >= 2**31)):
+        raise ValueError("goal ticks exceed the int32 range")
+    return ticks.astype(np.int32)
+
+
+def ticks_to_angles(ticks: ArrayLike, neutral_ticks: ArrayLike) -> np.ndarray:
+    """Motor angles ψ = (ticks − neutral)·π/2048 [rad]."""
+    delta = np.asarray(ticks, dtype=np.int64) - np.asarray(neutral_ticks, dtype=np.int64)
+    return delta * RAD_PER_TICK
+
+
+@dataclass(frozen=True)
+class MotorMap:
+    """Wiring of the 4 motors to the 2 virtual rods, their handedness, neutral ticks and the twist limit."""
+
+    neutral_ticks: tuple[int, ...] = (0, 0, 0, 0)
+    ids: tuple[int, ...] = (21, 22, 23, 24)
+    rod: tuple[int, ...] = (1, 1, 0, 0)
+    rho: tuple[int, ...] = (1, -1, 1, -1)
+    h: tuple[int, ...] = (1, 1)
+    phi_max: float = math.radians(200.0)
+    margin: float = 0.02
+
+    def __post_init__(self) -> None:
+        """Validate sizes, signs and limits."""
+        n = len(self.ids)
+        if not (len(self.neutral_ticks) == len(self.rod) == len(self.rho) == n) or len(set(self.ids)) != n:
+            raise ValueError("ids, neutral_ticks, rod and rho need one distinct entry per motor")
+        if set(self.rod) != set(range(len(self.h))):
+            raise ValueError(f"rod must use every rod index 0 … {len(self.h) - 1}, got {self.rod}")
+        if any(s not in (-1, 1) for s in (*self.rho, *self.h)):
+            raise ValueError("rho and h entries must be +1 or -1")
+        if not (self.phi_max > 0.0 and self.margin >= 0.0):
+            raise ValueError("need phi_max > 0 and margin >= 0")
+
+    @cached_property
+    def sign(self) -> np.ndarray:
+        """Sign s_m = h_r(m)·ρ_m of each motor: ψ_m = s_m·φ_r(m)."""
+        return np.asarray(self.h)[list(self.rod)] * np.asarray(self.rho)
+
+    @cached_property
+    def _rod_index(self) -> np.ndarray:
+        """Rod index r(m) of each motor as an index array."""
+        return np.asarray(self.rod)
+
+    @cached_property
+    def _motors_to_rods(self) -> np.ndarray:
+        """Matrix (n_rods, n_motors) averaging s_m ψ_m over the motors of each rod."""
+        member = self._rod_index[None, :] == np.arange(len(self.h))[:, None]
+        return member * self.sign / member.sum(axis=1, keepdims=True)
+
+    def motor_angles(self, phi: ArrayLike) -> np.ndarray:
+        """Motor angles ψ (n_motors,) [rad] for virtual-rod twists φ (n_rods,) [rad]."""
+        return np.asarray(phi, dtype=np.float64)[self._rod_index] * self.sign
+
+    def rod_twists(self, psi: ArrayLike) -> np.ndarray:
+        """Virtual-rod twists φ (n_rods,) [rad]: mean of s_m·ψ_m over the motors of each rod."""
+        return self._motors_to_rods.dot(np.asarray(psi, dtype=np.float64))
+
+    def goal_ticks(self, phi: ArrayLike) -> np.ndarray:
+        """Unclamped Dynamixel goal ticks (int32) for twists φ [rad]."""
+        return angles_to_ticks(self.motor_angles(phi), self.neutral_ticks)
+
+    def present_twists(self, ticks: ArrayLike) -> np.ndarray:
+        """Virtual-rod twists φ [rad] from present motor ticks."""
+        return self.rod_twists(ticks_to_angles(ticks, self.neutral_ticks))
+
+    def neutral_deviation(self, present_ticks: ArrayLike) -> np.ndarray:
+        """Present minus stored neutral angle per motor [rad], for the start-up check of spec §7."""
+        return ticks_to_angles(present_ticks, self.neutral_ticks)
+
+
+@dataclass(frozen=True, eq=False)
+class MotorLimits:
+    """Per-motor goal bounds [lower, upper] in ticks derived from a MotorMap; ``clamp`` never leaves them."""
+
+    lower: np.ndarray = field(repr=False)
+    upper: np.ndarray = field(repr=False)
+
+    @classmethod
+    def from_map(cls, motor_map: MotorMap) -> MotorLimits:
+        """Bounds neutral + s_m·[0, φ_max]·2048/π ± margin, rounded outwards to whole ticks."""
+        neutral = np.asarray(motor_map.neutral_ticks, dtype=np.int64)
+        lo_rad = np.where(motor_map.sign > 0, 0.0, -motor_map.phi_max) - motor_map.margin
+        hi_rad = np.where(motor_map.sign > 0, motor_map.phi_max, 0.0) + motor_map.margin
+        lower = neutral + np.floor(lo_rad * TICKS_PER_RAD).astype(np.int64)
+        upper = neutral + np.ceil(hi_rad * TICKS_PER_RAD).astype(np.int64)
+        lower, upper = lower.astype(np.int32), upper.astype(np.int32)
+        lower.setflags(write=False)
+        upper.setflags(write=False)
+        return cls(lower, upper)
+
+    def clamp(self, goal_ticks: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Goals clamped into [lower, upper] (int32) and a per-motor flag of which were changed."""
+        goal = np.asarray(goal_ticks, dtype=np.int64)
+        clamped = np.clip(goal, self.lower, self.upper)
+        return clamped.astype(np.int32), clamped != goal
+
+    def contains(self, ticks: ArrayLike) -> np.ndarray:
+        """Per-motor flag: ticks within [lower, upper]."""
+        ticks = np.asarray(ticks, dtype=np.int64)
+        return (ticks >= self.lower) & (ticks <= self.upper)
+
+
+def limit_goal_rate(previous_goal: ArrayLike, new_goal: ArrayLike, dt: float, max_rate: float) -> np.ndarray:
+    """New goal ticks (int32) moved at most ⌊max_rate [rad/s] · dt [s] · 2048/π⌋ ticks from the previous goal."""
+    if not (dt >= 0.0 and max_rate > 0.0):
+        raise ValueError(f"need dt >= 0 and max_rate > 0, got dt={dt}, max_rate={max_rate}")
+    max_step = math.floor(max_rate * dt * TICKS_PER_RAD)
+    previous = np.asarray(previous_goal, dtype=np.int64)
+    step = np.clip(np.asarray(new_goal, dtype=np.int64) - previous, -max_step, max_step)
+    return (previous + step).astype(np.int32)

@@ -30,6 +30,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         return 2
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -9,6 +9,11 @@ STAMPS="$V/.hsa_stamps"
 PACKAGES=(hsa_core hsa_common hsa_mocap_bridge hsa_kinematics_node hsa_planner_node hsa_controller_node hsa_dynamixel_driver
           hsa_sim_node)
 
+# one bootstrap at a time per checkout (parallel test runs would otherwise install into the venv together)
+mkdir -p "$ROOT/build"
+exec 9> "$ROOT/build/.bootstrap.lock"
+flock 9
+
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
 digest() { (cd "$ROOT" && cat "$@" 2>/dev/null | sha256sum | cut -d' ' -f1); }
 fresh() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }

@@ -1,0 +1,1 @@
+"""MCAP record and replay of hsa-ros topics, and offline analysis of recorded runs."""

@@ -21,5 +21,10 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description="Planner node: steady-state setpoint planning service and a setpoint sequencer for step and contour trajectories.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "planner_node = hsa_planner_node.planner_node:main",
+            "setpoint_sequencer = hsa_planner_node.setpoint_sequencer:main",
+        ]
+    },
 )

@@ -1,0 +1,290 @@
+"""controller_node: one control law of planning_and_control.md §3 at a fixed rate, with stale-state supervision (§5).
+
+Per tick: no setpoint or no ready state (velocity_valid false) -> nothing is sent; a state received more than
+`stale_timeout` ago -> the last command is re-published unchanged and the controller is not stepped (no integral
+wind-up) for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog takes over);
+otherwise the controller steps and `phi_cmd` and `controller_info` are published. The math is hsa_core.control's
+Controller, compiled in the constructor; the integrators use the nominal dt = 1/rate.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.time import Time
+
+from hsa_common import qos
+from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
+from hsa_common.runner import run
+from hsa_core.actuation import MotorMap
+from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
+from hsa_core.planning import Setpoint as CoreSetpoint
+from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
+from hsa_planner_node.model_params import MODEL_SPECS, load_model
+
+FRAME_ID = "hsa_base"
+DEADLINE_FACTOR = 1.5
+"""A tick that starts more than 1.5 periods after the previous one counts as a deadline miss."""
+
+_COLLOCATED = default_gains(ControllerKind.PSATID)
+_PID = default_gains(ControllerKind.PID)
+_EE = EeIntegralGains()
+
+
+def _positive(value: Any) -> str | None:
+    """Strictly positive (ranges only give >= 0)."""
+    return None if value > 0.0 else f"must be > 0, got {value!r}"
+
+
+SPECS = (
+    *MODEL_SPECS,
+    ParamSpec("controller", ControllerKind.PSATID.value, "control law: P-satI-D, P-satI-D + gravity cancellation or "
+              "the task-space PID baseline", choices=tuple(k.value for k in ControllerKind), read_only=True),
+    ParamSpec("rate", 40.0, "[Hz] control rate; the integrators use dt = 1/rate", low=1.0, high=1000.0,
+              read_only=True),
+    ParamSpec("kp", _COLLOCATED.kp, "[rad^2/(N m)] P-satI-D(+GC) proportional gain", low=0.0, high=100.0),
+    ParamSpec("ki", _COLLOCATED.ki, "[rad/s] P-satI-D(+GC) integral gain", low=0.0, high=100.0),
+    ParamSpec("kd", _COLLOCATED.kd, "[rad^2 s/(N m)] P-satI-D(+GC) derivative gain", low=0.0, high=100.0),
+    ParamSpec("gamma", _COLLOCATED.gamma, "[rad/(N m)] P-satI-D(+GC) tanh compression of the integrand (> 0)",
+              low=0.0, high=1e5, validator=_positive),
+    ParamSpec("kp_pid", _PID.kp, "[rad/m] task-space PID proportional gain", low=0.0, high=1e4),
+    ParamSpec("ki_pid", _PID.ki, "[rad/(m s)] task-space PID integral gain", low=0.0, high=1e5),
+    ParamSpec("kd_pid", _PID.kd, "[rad s/m] task-space PID derivative gain", low=0.0, high=1e3),
+    ParamSpec("reset_integral_on_setpoint_change", False, "zero e_int when a new setpoint is accepted"),
+    ParamSpec("ee_integral", False, "EE-position integral extension (§3.8; collocated laws only)", read_only=True),
+    ParamSpec("ee_ki", _EE.ki_ee, "[1/s] EE-integral gain K_I,ee (time constant >= 3 s recommended)",
+              low=0.0, high=100.0),
+    ParamSpec("ee_e_on", _EE.e_on, "[m] EE integral runs only while |p^d - p_ee| is below this (> 0)",
+              low=0.0, high=0.1, validator=_positive),
+    ParamSpec("ee_z_max", _EE.z_max, "[m s] clamp of each EE integral state", low=0.0, high=1.0),
+    ParamSpec("ee_reset_on_setpoint_change", _EE.reset_on_setpoint_change,
+              "zero the EE integral state when a new setpoint is accepted", read_only=True),
+    ParamSpec("stale_timeout", 0.1, "[s] a state received longer ago than this is stale: hold the last command",
+              low=0.001, high=10.0, read_only=True),
+    ParamSpec("hold_timeout", 0.25, "[s] stop re-publishing the held command after states have been missing this "
+              "long (>= stale_timeout)", low=0.001, high=60.0, read_only=True),
+)
+GAIN_NAMES = ("kp", "ki", "kd", "gamma", "kp_pid", "ki_pid", "kd_pid", "ee_ki", "ee_e_on", "ee_z_max")
+
+_MODE_NAMES = {
+    ControllerInfo.STATE_WAITING_FOR_SETPOINT: "waiting for setpoint", ControllerInfo.STATE_WAITING_FOR_STATE:
+    "waiting for state", ControllerInfo.STATE_TRACKING: "tracking", ControllerInfo.STATE_HOLD_STALE: "holding (stale)",
+}
+
+
+class ControllerNode(Node):
+    """Runs the selected law on a timer; publishes phi_cmd and controller_info; reports timing on /diagnostics."""
+
+    def __init__(self) -> None:
+        """Declare and validate parameters, build and compile the controller, then start the timer."""
+        super().__init__("controller_node")
+        self._p = declare(self, SPECS)
+        if self._p["hold_timeout"] < self._p["stale_timeout"]:
+            raise ParameterValidationError(
+                f"parameter 'hold_timeout' ({self._p['hold_timeout']} s) must be >= stale_timeout "
+                f"({self._p['stale_timeout']} s)")
+        self._kind = ControllerKind(self._p["controller"])
+        if self._p["ee_integral"] and self._kind is ControllerKind.PID:
+            raise ParameterValidationError("parameter 'ee_integral' applies to the collocated laws only, not 'pid'")
+        params = load_model(self._p)
+        self._controller = Controller(
+            self._kind, params, self._gains(self._p), dt=1.0 / self._p["rate"],
+            ee_integral=self._ee_gains(self._p) if self._p["ee_integral"] else None,
+            reset_integral_on_setpoint_change=self._p["reset_integral_on_setpoint_change"],
+        )
+        guard_updates(self, SPECS, self._apply)
+        self._motor_map = MotorMap(h=tuple(int(v) for v in np.asarray(params.h)))
+        self._period = 1.0 / self._p["rate"]
+        self._stale_ns = int(self._p["stale_timeout"] * 1e9)
+        self._hold_ns = int(self._p["hold_timeout"] * 1e9)
+        self._state: PlanarState | None = None
+        self._state_rx: Time | None = None
+        self._setpoint_msg: Setpoint | None = None
+        self._last_cmd: PlanarActuation | None = None
+        self._last_info: ControllerInfo | None = None
+        self._mode = ControllerInfo.STATE_WAITING_FOR_SETPOINT
+        self._last_tick: Time | None = None
+        self._stats = {"ticks": 0, "deadline_misses": 0, "stale_events": 0, "held_ticks": 0, "saturated": 0,
+                       "setpoints": 0, "rejected_setpoints": 0}
+        self._window: dict[str, Any] = {"ticks": 0, "compute": [], "start": self.get_clock().now()}
+        self._cmd_pub = self.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND,
+                                              qos_overriding_options=qos.overridable())
+        self._info_pub = self.create_publisher(ControllerInfo, "controller_info", qos.INFO,
+                                               qos_overriding_options=qos.overridable())
+        self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,
+                                 qos_overriding_options=qos.overridable())
+        self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED,
+                                 qos_overriding_options=qos.overridable())
+        self.create_timer(self._period, self._tick)
+        diagnostics = Diagnostics(self)
+        diagnostics.add("control loop", self._report)
+        self.get_logger().info(f"'{self._kind.value}' at {self._p['rate']:g} Hz, waiting for setpoint")
+
+    def _gains(self, v: dict[str, Any]) -> CollocatedGains | PidGains:
+        """Gains of the selected law from parameter values."""
+        if self._kind is ControllerKind.PID:
+            return PidGains(kp=v["kp_pid"], ki=v["ki_pid"], kd=v["kd_pid"])
+        return CollocatedGains(kp=v["kp"], ki=v["ki"], kd=v["kd"], gamma=v["gamma"])
+
+    @staticmethod
+    def _ee_gains(v: dict[str, Any]) -> EeIntegralGains:
+        """EE-integral gains from parameter values."""
+        return EeIntegralGains(ki_ee=v["ee_ki"], e_on=v["ee_e_on"], z_max=v["ee_z_max"],
+                               reset_on_setpoint_change=v["ee_reset_on_setpoint_change"])
+
+    def _apply(self, changes: dict[str, Any]) -> None:
+        """Apply accepted run-time updates to the running controller; the integrator state is kept."""
+        if not changes:
+            return
+        self._p.update(changes)
+        if any(name in GAIN_NAMES for name in changes):
+            self._controller.gains = self._gains(self._p)
+            if self._controller.ee_integral is not None:
+                self._controller.ee_integral = self._ee_gains(self._p)
+        self._controller.reset_integral_on_setpoint_change = self._p["reset_integral_on_setpoint_change"]
+        self.get_logger().info(f"parameters updated: {changes}")
+
+    def _on_state(self, msg: PlanarState) -> None:
+        """Keep the latest state and when it arrived (staleness is judged on the receive time)."""
+        self._state = msg
+        self._state_rx = self.get_clock().now()
+
+    def _on_setpoint(self, msg: Setpoint) -> None:
+        """Activate a setpoint after the controller's sanity checks; a rejected one leaves the previous active."""
+        setpoint = CoreSetpoint(
+            np.array([msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta]),
+            np.array([msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax]),
+            np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error,
+        )
+        try:
+            self._controller.set_setpoint(setpoint)
+        except ValueError as exc:
+            self._stats["rejected_setpoints"] += 1
+            kept = "keeping the previous setpoint" if self._setpoint_msg is not None else "no setpoint active"
+            self.get_logger().warning(f"rejected setpoint {msg.trajectory_index}: {exc}; {kept}")
+            return
+        self._setpoint_msg = msg
+        self._stats["setpoints"] += 1
+        self.get_logger().debug(f"setpoint {msg.trajectory_index}/{msg.trajectory_length} active")
+
+    def _tick(self) -> None:
+        """One control period: decide the mode, then step and publish, re-publish the held command, or send nothing."""
+        now = self.get_clock().now()
+        self._count_tick(now)
+        state = self._state
+        if self._setpoint_msg is None:
+            self._set_mode(ControllerInfo.STATE_WAITING_FOR_SETPOINT)
+        elif state is None or not state.velocity_valid:
+            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE)
+        elif (now - self._state_rx).nanoseconds > self._stale_ns:
+            self._hold(now, (now - self._state_rx).nanoseconds)
+        else:
+            self._set_mode(ControllerInfo.STATE_TRACKING)
+            self._step(now, state)
+
+    def _step(self, now: Time, state: PlanarState) -> None:
+        """Step the controller on the state and publish the command and the tick's info."""
+        t0 = time.perf_counter()
+        phi, info = self._controller.step(
+            _q(state.q), _q(state.q_dot), _pose(state.chiee), _pose(state.chiee_dot))
+        compute_time = time.perf_counter() - t0
+        self._window["compute"].append(compute_time)
+        self._stats["saturated"] += int(info.saturated)
+        stamp = now.to_msg()
+        cmd = PlanarActuation(phi=np.asarray(phi, dtype=np.float64))
+        cmd.header.stamp, cmd.header.frame_id = stamp, FRAME_ID
+        cmd.source_stamp = state.header.stamp
+        out = ControllerInfo(
+            state_stamp=state.header.stamp, controller=self._kind.value, state=ControllerInfo.STATE_TRACKING,
+            setpoint=self._setpoint_msg, chiee=_pose_msg(info.chiee), chiee_des=_pose_msg(info.chiee_des),
+            q=_q_msg(info.q), q_des=_q_msg(info.q_des), q_dot=state.q_dot, varphi=info.varphi,
+            varphi_des=info.varphi_des, e_int=info.e_int, z_ee=info.z_ee, phi_ss=info.phi_ss,
+            phi_des_unsat=info.phi_des_unsat, phi_des_sat=info.phi_des_sat,
+            motor_goal_angles=self._motor_map.motor_angles(phi), saturated=bool(info.saturated),
+            state_age=(now - Time.from_msg(state.header.stamp)).nanoseconds * 1e-9, compute_time=compute_time,
+        )
+        out.header.stamp, out.header.frame_id = stamp, FRAME_ID
+        self._cmd_pub.publish(cmd)
+        self._info_pub.publish(out)
+        self._last_cmd, self._last_info = cmd, out
+
+    def _hold(self, now: Time, stale_ns: int) -> None:
+        """Re-publish the last command (same phi and source stamp) while the hold lasts; afterwards send nothing."""
+        if self._last_cmd is None or stale_ns > self._hold_ns:
+            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE)
+            return
+        if self._mode != ControllerInfo.STATE_HOLD_STALE:
+            self._stats["stale_events"] += 1
+        self._set_mode(ControllerInfo.STATE_HOLD_STALE)
+        self._stats["held_ticks"] += 1
+        stamp = now.to_msg()
+        self._last_cmd.header.stamp = stamp
+        info = self._last_info
+        info.header.stamp, info.state, info.compute_time = stamp, ControllerInfo.STATE_HOLD_STALE, 0.0
+        info.state_age = (now - Time.from_msg(info.state_stamp)).nanoseconds * 1e-9
+        self._cmd_pub.publish(self._last_cmd)
+        self._info_pub.publish(info)
+
+    def _set_mode(self, mode: int) -> None:
+        """Record the controller state; log changes (WARN when commands stop or are held)."""
+        if mode == self._mode:
+            return
+        text = f"{_MODE_NAMES[self._mode]} -> {_MODE_NAMES[mode]}"
+        if mode == ControllerInfo.STATE_TRACKING or self._mode == ControllerInfo.STATE_WAITING_FOR_SETPOINT:
+            self.get_logger().info(text)
+        else:
+            self.get_logger().warning(text)
+        self._mode = mode
+
+    def _count_tick(self, now: Time) -> None:
+        """Tick counters and deadline misses (tick interval > DEADLINE_FACTOR periods)."""
+        if self._last_tick is not None and (now - self._last_tick).nanoseconds * 1e-9 > DEADLINE_FACTOR * self._period:
+            self._stats["deadline_misses"] += 1
+        self._last_tick = now
+        self._stats["ticks"] += 1
+        self._window["ticks"] += 1
+
+    def _report(self) -> Report:
+        """Tick rate and compute time over the last diagnostics period; cumulative counters."""
+        now = self.get_clock().now()
+        elapsed = (now - self._window["start"]).nanoseconds * 1e-9
+        compute = self._window["compute"]
+        rate = self._window["ticks"] / elapsed if elapsed > 0.0 else 0.0
+        self._window = {"ticks": 0, "compute": [], "start": now}
+        values = {
+            "mode": _MODE_NAMES[self._mode], "controller": self._kind.value, "tick rate [Hz]": f"{rate:.1f}",
+            "nominal rate [Hz]": f"{self._p['rate']:g}", **self._stats,
+            "compute time mean [ms]": f"{1e3 * np.mean(compute):.3f}" if compute else "-",
+            "compute time max [ms]": f"{1e3 * np.max(compute):.3f}" if compute else "-",
+        }
+        degraded = self._mode == ControllerInfo.STATE_HOLD_STALE or rate < 0.9 * self._p["rate"]
+        return Report(WARN if degraded else OK, _MODE_NAMES[self._mode], values)
+
+
+def _q(msg: CsConfiguration) -> np.ndarray:
+    """[kappa_be, sigma_sh, sigma_ax] of a CsConfiguration."""
+    return np.array([msg.kappa_be, msg.sigma_sh, msg.sigma_ax])
+
+
+def _pose(msg: PlanarPose) -> np.ndarray:
+    """[x, y, theta] of a PlanarPose."""
+    return np.array([msg.x, msg.y, msg.theta])
+
+
+def _q_msg(q: np.ndarray) -> CsConfiguration:
+    """CsConfiguration of [kappa_be, sigma_sh, sigma_ax]."""
+    return CsConfiguration(kappa_be=float(q[0]), sigma_sh=float(q[1]), sigma_ax=float(q[2]))
+
+
+def _pose_msg(chiee: np.ndarray) -> PlanarPose:
+    """PlanarPose of [x, y, theta]."""
+    return PlanarPose(x=float(chiee[0]), y=float(chiee[1]), theta=float(chiee[2]))
+
+
+def main() -> None:
+    """Console script `controller_node`."""
+    raise SystemExit(run(ControllerNode, "controller_node"))

@@ -1,0 +1,50 @@
+"""The common model parameters of the nodes that need the robot model (docs/ros_interfaces.md): material, params_file,
+sigma_a_eq; and loading the HsaParams they select. Used by planner_node and controller_node."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rclpy.parameter import Parameter
+
+from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_core.params import HsaParams, ParameterError, load_params
+
+MATERIALS = ("fpu", "epu")
+
+
+def _check_sigma_a_eq(value: Any) -> str | None:
+    """Unset/empty, or two finite positive strains."""
+    if value is None or len(value) == 0:
+        return None
+    if len(value) != 2 or not all(isinstance(v, float) and math.isfinite(v) and v > 0.0 for v in value):
+        return f"must be empty or 2 finite strains > 0, got {list(value)!r}"
+    return None
+
+
+MODEL_SPECS = (
+    ParamSpec("material", "fpu", "HSA material of the rods, selects the packaged exp2023 parameter set",
+              choices=MATERIALS, read_only=True),
+    ParamSpec("params_file", "", "path of a parameter YAML replacing the packaged set (empty = packaged set)",
+              read_only=True),
+    ParamSpec("sigma_a_eq", Parameter.Type.DOUBLE_ARRAY,
+              "[-] calibrated axial rest strains of virtual rods 1 and 2 (unset or empty = from the parameter set)",
+              read_only=True, validator=_check_sigma_a_eq),
+)
+
+
+def load_model(values: dict[str, Any]) -> HsaParams:
+    """HsaParams selected by the declared MODEL_SPECS values (raises ParameterValidationError naming the parameter)."""
+    source = values["params_file"] or values["material"]
+    overrides = {"sigma_a_eq": list(values["sigma_a_eq"])} if values["sigma_a_eq"] else {}
+    try:
+        params = load_params(source, **overrides)
+    except ParameterError as exc:
+        name = "params_file" if values["params_file"] else "sigma_a_eq"
+        raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
+    if params.material != values["material"]:
+        raise ParameterValidationError(
+            f"parameter 'params_file': {source} is a '{params.material}' set but material is '{values['material']}'"
+        )
+    return params

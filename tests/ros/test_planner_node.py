@@ -1,0 +1,139 @@
+"""planner_node and setpoint_sequencer as real processes: service answers, schedule, failure reporting and finish."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from std_msgs.msg import String
+
+from hsa_common import qos
+from hsa_common.launcher import find_executable
+from hsa_core.trajectories import FPU_STEPS_20230925
+from hsa_msgs.msg import Setpoint
+from hsa_msgs.srv import PlanSetpoint
+
+from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+
+pytestmark = pytest.mark.ros
+
+# planning_and_control.md §2.2, FPU, exact model
+P_DES = (0.00479247, 0.12781018)
+PHI_SS = (1.9846028, 1.6323408)
+Q_DES = (-1.1352565, 0.0080816386, 0.30410104)
+THETA = -0.066980133
+UNREACHABLE = (0.2, 0.05)
+
+
+def _exe(name: str) -> str:
+    """Installed console script of hsa_planner_node."""
+    return find_executable("hsa_planner_node", name)
+
+
+@pytest.fixture(scope="module")
+def planner() -> Iterator[None]:
+    """One planner_node (FPU, static planner) in the root namespace for the whole module."""
+    proc = start_process([_exe("planner_node")])
+    wait_for_line(proc, "ready", timeout=180.0)
+    yield
+    assert stop_process(proc) == 0
+
+
+def _sequencer(ns: str, *params: str) -> object:
+    """A setpoint_sequencer in namespace ns using the root planner's service."""
+    args = ["--ros-args", "-r", f"__ns:={ns}", "-r", "plan_setpoint:=/plan_setpoint"]
+    for p in params:
+        args += ["-p", p]
+    return start_process([_exe("setpoint_sequencer"), *args])
+
+
+def test_plan_setpoint_service(planner, ros_node) -> None:
+    diagnostics: list[DiagnosticArray] = []
+    ros_node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+    client = ros_node.create_client(PlanSetpoint, "/plan_setpoint")
+    assert client.wait_for_service(timeout_sec=10.0)
+
+    ok = client.call(PlanSetpoint.Request(x=P_DES[0], y=P_DES[1]), timeout_sec=10.0)
+    assert ok.success and ok.status == PlanSetpoint.Response.STATUS_OK and ok.planner_used == "static"
+    np.testing.assert_allclose(ok.setpoint.phi_ss, PHI_SS, atol=2e-7)
+    sp = ok.setpoint
+    np.testing.assert_allclose([sp.q_des.kappa_be, sp.q_des.sigma_sh, sp.q_des.sigma_ax], Q_DES, rtol=1e-6)
+    assert (sp.chiee_des.x, sp.chiee_des.y) == P_DES and sp.chiee_des.theta == pytest.approx(THETA, abs=1e-8)
+    assert sp.header.frame_id == "hsa_base" and sp.header.stamp.sec > 0 and sp.optimality_error <= 1e-3
+    assert ok.iterations > 0 and 0.0 < ok.solve_time < 5.0
+
+    far = client.call(PlanSetpoint.Request(x=UNREACHABLE[0], y=UNREACHABLE[1]), timeout_sec=10.0)
+    assert not far.success and far.status == PlanSetpoint.Response.STATUS_UNREACHABLE and far.message
+    nan = client.call(PlanSetpoint.Request(x=math.nan, y=0.12), timeout_sec=10.0)
+    assert not nan.success and nan.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "finite" in nan.message
+    code = client.call(PlanSetpoint.Request(x=0.0, y=0.12, planner=9), timeout_sec=10.0)
+    assert code.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "planner code 9" in code.message
+    rollout = client.call(PlanSetpoint.Request(x=0.0, y=0.12, planner=PlanSetpoint.Request.PLANNER_ROLLOUT),
+                          timeout_sec=10.0)
+    assert rollout.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "'planners'" in rollout.message
+
+    deadline = time.monotonic() + 5.0
+    report = None
+    while report is None and time.monotonic() < deadline:
+        for array in list(diagnostics):
+            for status in array.status:
+                values = {kv.key: kv.value for kv in status.values}
+                if status.name == "planner_node: planning" and int(values["requests"]) >= 5:
+                    report = values
+        time.sleep(0.1)
+    assert report is not None, "no planner diagnostics counting the requests"
+    assert report["failures UNREACHABLE"] == "1" and report["failures INVALID_REQUEST"] == "3"
+
+
+def test_sequencer_schedule_failure_and_finish(planner, ros_node) -> None:
+    received: dict[str, list[tuple[float, object]]] = {"a_sp": [], "a_st": [], "b_sp": []}
+
+    def keep(key: str):  # noqa: ANN202 - tiny closure
+        return lambda msg: received[key].append((time.monotonic(), msg))
+
+    ros_node.create_subscription(Setpoint, "/a/setpoint", keep("a_sp"), qos.LATCHED)
+    ros_node.create_subscription(String, "/a/sequencer_status", keep("a_st"), qos.LATCHED)
+    ros_node.create_subscription(Setpoint, "/b/setpoint", keep("b_sp"), qos.LATCHED)
+    points = [*P_DES, *UNREACHABLE, *FPU_STEPS_20230925[2]]
+    custom = _sequencer("/a", f"points:={points}", "rate:=2.0", "start_delay:=0.5", "exit_on_finish:=true",
+                        "finish_hold:=0.5")
+    steps = _sequencer("/b", "rate:=2.0", "start_delay:=0.5")
+    bad = _sequencer("/c", "trajectory:=contour")
+    try:
+        assert bad.wait(timeout=60.0) == 2
+        assert "image_path" in bad.stdout.read()
+
+        assert custom.wait(timeout=60.0) == 0, "exit_on_finish did not end the sequencer"
+        log = custom.stdout.read()
+        assert "point 1 (0.2, 0.05) not planned: UNREACHABLE" in log and "setpoint 0 stays active" in log
+
+        sp = received["a_sp"]
+        assert [m.trajectory_index for _, m in sp] == [0, 2], "the failed point must not be published"
+        assert all(m.trajectory_length == 3 for _, m in sp)
+        np.testing.assert_allclose(sp[0][1].phi_ss, PHI_SS, atol=2e-7)
+        assert sp[1][0] - sp[0][0] == pytest.approx(1.0, abs=0.3), "point 2 is due at t = 2 / rate"
+
+        statuses = [(t, json.loads(m.data)) for t, m in received["a_st"]]
+        failed = [s for _, s in statuses if s["index"] == 1]
+        assert failed and failed[0]["failures"] == 1 and failed[0]["setpoint_index"] == 0
+        assert failed[0]["last_failure"]["status"] == "UNREACHABLE" and not failed[0]["finished"]
+        t_end, last = statuses[-1]
+        assert last["finished"] and last["setpoint_index"] == 2 and last["length"] == 3 and last["failures"] == 1
+        assert t_end - sp[0][0] == pytest.approx(1.5, abs=0.3), "finished after the last slot (t = 3 / rate)"
+
+        deadline = time.monotonic() + 20.0
+        while len(received["b_sp"]) < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        b = received["b_sp"]
+        assert [m.trajectory_index for _, m in b[:3]] == [0, 1, 2] and b[0][1].trajectory_length == 11
+        for (_, msg), expected in zip(b[:3], FPU_STEPS_20230925[:3]):
+            assert (msg.chiee_des.x, msg.chiee_des.y) == pytest.approx(expected)
+        assert np.diff([t for t, _ in b[:3]]) == pytest.approx([0.5, 0.5], abs=0.2)
+    finally:
+        for proc in (custom, steps, bad):
+            stop_process(proc)

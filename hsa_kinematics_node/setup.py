@@ -21,5 +21,5 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description="Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap sample.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["kinematics_node = hsa_kinematics_node.node:main"]},
 )

@@ -1,0 +1,197 @@
+"""kinematics_node: per ``ee_pose`` sample, q by closed-form IK and causal Savitzky–Golay rates → ``state``.
+
+One ``state`` (hsa_msgs/PlanarState) per accepted ``ee_pose`` sample, with the mocap stamp (spec §6.3–6.4). q̇ and χ̇_ee
+are the end-point derivative of a polynomial fit over the last ``window`` samples of [q, χ_ee]; until the window is
+full (after start-up or a stamp gap) ``velocity_valid`` is false and both rates are NaN, never a made-up zero. Samples
+the estimator rejects (non-finite, duplicate or out-of-order stamps) produce no ``state`` and are counted on
+/diagnostics. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.time import Time
+
+from hsa_common import qos
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
+from hsa_common.runner import run
+from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
+from hsa_core.mocap import REST_POSE
+from hsa_core.params import HsaParams, ParameterError, load_params
+from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
+
+NOT_AVAILABLE = (math.nan,) * 6  # rates [q̇, χ̇_ee] while the estimator is not ready
+
+
+def _empty_or_pair(value: list[float] | None) -> str | None:
+    """sigma_a_eq is either unset/empty or one value per virtual rod."""
+    return None if not value or len(value) == 2 else f"must be empty or a list of 2 values, got {list(value)}"
+
+
+SPECS = (
+    ParamSpec("material", "fpu", "robot material, selects the packaged parameter set", choices=("fpu", "epu"),
+              read_only=True),
+    ParamSpec("params_file", "", "path of a parameter YAML used instead of the packaged set (its material must "
+              "match); empty = packaged", read_only=True),
+    ParamSpec("sigma_a_eq", Parameter.Type.DOUBLE_ARRAY, "[-] calibrated axial rest strains of virtual rods 1 and "
+              "2; empty = from the parameter set", low=0.5, high=2.0, validator=_empty_or_pair, read_only=True),
+    ParamSpec("window", 20, "[samples] Savitzky-Golay window N (at least order + 2)", low=3, high=200,
+              read_only=True),
+    ParamSpec("order", 3, "[-] degree of the Savitzky-Golay polynomial", low=1, high=6, read_only=True),
+    ParamSpec("mocap_rate", 200.0, "[Hz] nominal ee_pose rate; the estimator period is T = 1/mocap_rate",
+              low=1.0, high=2000.0, read_only=True),
+    ParamSpec("gap_factor", 1.5, "[-] a stamp interval longer than gap_factor * T restarts the window",
+              low=1.01, high=100.0),
+    ParamSpec("regular_tol", 1e-3, "[-] stamp jitter, relative to T, up to which the precomputed coefficients are "
+              "used (else a fit on the true stamps)", low=0.0, high=0.5),
+    ParamSpec("stale_timeout", 0.25, "[s] diagnostics ERROR when no ee_pose arrived for this long",
+              low=0.001, high=60.0),
+    ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
+              read_only=True),
+)
+
+
+def _load_model(p: dict[str, Any]) -> HsaParams:
+    """The robot parameters named by material / params_file / sigma_a_eq (raises naming the parameter)."""
+    name = "params_file" if p["params_file"] else "material"
+    overrides = {"sigma_a_eq": p["sigma_a_eq"]} if p["sigma_a_eq"] else {}
+    try:
+        params = load_params(p[name], **overrides)
+    except ParameterError as exc:
+        raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
+    if params.material != p["material"]:
+        raise ParameterValidationError(
+            f"parameter 'params_file': {p['params_file']} holds material {params.material!r}, "
+            f"but material is {p['material']!r}")
+    return params
+
+
+def _seconds(duration: Any) -> float:
+    """rclpy Duration → float seconds."""
+    return duration.nanoseconds * 1e-9
+
+
+class KinematicsNode(Node):
+    """Turns each ``ee_pose`` into a ``state``: q by IK, rates of q and χ_ee by Savitzky–Golay differentiation."""
+
+    def __init__(self) -> None:
+        super().__init__("kinematics_node")
+        self._p = declare(self, SPECS)
+        self._params = _load_model(self._p)
+        self._estimator = self._make_estimator()
+        configuration_from_pose(self._params, REST_POSE)  # JIT-compile the IK now, not on the first sample
+        guard_updates(self, SPECS, self._update)
+        self._received = self._published = self._restarts = 0
+        self._rejected: Counter[str] = Counter()
+        self._origin_ns: int | None = None  # first stamp; estimator times are seconds since it (float precision)
+        self._last_stamp: Time | None = None
+        self._last_received_at: Time | None = None
+        self._mode = "no data"
+        self._level: bytes | None = None  # diagnostics level last reported
+        self._report_at = self.get_clock().now()
+        self._reported = (0, 0)
+        self._pub = self.create_publisher(PlanarState, "state", qos.SENSOR, qos_overriding_options=qos.overridable())
+        self.create_subscription(PlanarPoseStamped, "ee_pose", self._on_pose, qos.SENSOR,
+                                 qos_overriding_options=qos.overridable())
+        self._diagnostics = Diagnostics(self, self._p["diagnostics_period"])
+        self._diagnostics.add("estimator", self._report)
+
+    def _make_estimator(self) -> SavitzkyGolayDifferentiator:
+        """A fresh differentiator of [q, χ_ee] (dim 6) from the current parameters (raises naming the parameter)."""
+        p = self._p
+        try:
+            return SavitzkyGolayDifferentiator(
+                window=p["window"], order=p["order"], dim=6, nominal_period=1.0 / p["mocap_rate"],
+                regular_tol=p["regular_tol"], gap_factor=p["gap_factor"])
+        except ValueError as exc:
+            raise ParameterValidationError(f"parameter 'window': {exc}") from exc
+
+    def _update(self, changes: dict[str, Any]) -> None:
+        """Apply accepted run-time updates; estimator settings restart the window."""
+        self._p.update(changes)
+        if {"gap_factor", "regular_tol"} & changes.keys():
+            self._estimator = self._make_estimator()
+            self.get_logger().info(f"estimator settings changed ({sorted(changes)}): window restarted")
+
+    def _on_pose(self, msg: PlanarPoseStamped) -> None:
+        """IK and rate estimate for one pose sample; publish the state unless the estimator rejects the sample."""
+        self._received += 1
+        self._last_received_at = self.get_clock().now()
+        stamp_ns = Time.from_msg(msg.header.stamp).nanoseconds
+        if self._origin_ns is None:
+            self._origin_ns = stamp_ns
+        chiee = (msg.pose.x, msg.pose.y, msg.pose.theta)
+        q = configuration_from_pose(self._params, chiee)
+        estimate = self._estimator.update((stamp_ns - self._origin_ns) * 1e-9, np.concatenate([q, chiee]))
+        self._mode = estimate.mode
+        if estimate.mode == MODE_REJECTED:
+            self._rejected[estimate.reason.split(" (")[0]] += 1
+            self.get_logger().warning(f"dropped ee_pose sample: {estimate.reason}", throttle_duration_sec=5.0)
+            return
+        if estimate.reason:  # a stamp gap restarted the window
+            self._restarts += 1
+            self.get_logger().warning(estimate.reason, throttle_duration_sec=5.0)
+        self._last_stamp = Time.from_msg(msg.header.stamp)
+        rates = estimate.derivative if estimate.derivative is not None else NOT_AVAILABLE
+        out = PlanarState()
+        out.header = msg.header
+        out.chiee = msg.pose
+        out.chiee_dot = PlanarPose(x=float(rates[3]), y=float(rates[4]), theta=float(rates[5]))
+        out.q = _configuration(estimate.value)
+        out.q_dot = _configuration(rates)
+        out.velocity_valid = estimate.ready
+        out.window_samples = self._estimator.n_samples
+        self._pub.publish(out)
+        self._published += 1
+
+    def _report(self) -> Report:
+        """Input silence level, estimator mode and window fill, counts of rejected samples and window restarts."""
+        now = self.get_clock().now()
+        elapsed = max(_seconds(now - self._report_at), 1e-9)
+        counts = (self._received, self._published)
+        rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
+        self._report_at, self._reported = now, counts
+        values: dict[str, object] = {
+            "received": counts[0], "published": counts[1], "rejected": sum(self._rejected.values()),
+            **{f"rejected: {reason}": n for reason, n in sorted(self._rejected.items())},
+            "window_restarts": self._restarts, "mode": self._mode,
+            "window_samples": f"{self._estimator.n_samples}/{self._estimator.window}",
+            "input_rate_hz": round(rates[0], 1), "output_rate_hz": round(rates[1], 1),
+            "material": self._params.material, "sigma_a_eq": np.asarray(self._params.sigma_a_eq).tolist(),
+        }
+        if self._last_stamp is not None:
+            values["last_sample_age_s"] = round(_seconds(now - self._last_stamp), 4)
+        if self._last_received_at is None:
+            level, message = WARN, "waiting for ee_pose"
+        elif (silence := _seconds(now - self._last_received_at)) > self._p["stale_timeout"]:
+            level, message = ERROR, f"stale: no ee_pose for {silence:.3g} s"
+        elif self._estimator.n_samples < self._estimator.window:
+            level, message = WARN, f"velocity not ready (window {values['window_samples']})"
+        else:
+            level, message = OK, f"estimating ({self._mode})"
+        if level != self._level:  # log state changes only (one call site per severity, as rclpy requires)
+            self._level = level
+            if level == OK:
+                self.get_logger().info(message)
+            elif level == WARN:
+                self.get_logger().warning(message)
+            else:
+                self.get_logger().error(message)
+        return Report(level, message, values)
+
+
+def _configuration(values: Any) -> CsConfiguration:
+    """CsConfiguration from the first three entries [kappa_be, sigma_sh, sigma_ax]."""
+    return CsConfiguration(kappa_be=float(values[0]), sigma_sh=float(values[1]), sigma_ax=float(values[2]))
+
+
+def main() -> None:
+    """Console script ``kinematics_node``."""
+    raise SystemExit(run(KinematicsNode, "kinematics_node"))

@@ -1,0 +1,293 @@
+"""mocap_bridge: motion-capture PoseStamped of the platform (and base) rigid bodies → validated planar pose ``ee_pose``.
+
+Each platform sample is projected to χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published
+with its mocap stamp in frame ``hsa_base``, unless a check drops it. Checks, in this order: non-finite values, a
+non-unit quaternion, a stamp older ("stale") or newer ("future") than ``max_age`` against the node clock, a stamp equal
+to ("duplicate") or older than ("out_of_order") the newest accepted one, no base pose yet (``use_base_pose``), a pose
+outside the workspace box, an implausible jump from the last accepted pose. Every drop is counted per reason on
+/diagnostics. Parameters and topics: docs/nodes/hsa_mocap_bridge.md.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rclpy.time import Time
+
+from hsa_common import qos
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.parameters import ParamSpec, declare, guard_updates
+from hsa_common.runner import run
+from hsa_core import mocap
+from hsa_msgs.msg import PlanarPoseStamped
+
+FRAME_ID = "hsa_base"
+REASONS = ("non_finite", "quaternion", "stale", "future", "duplicate", "out_of_order", "no_base", "workspace", "jump")
+
+
+def _unit_quaternion(value: list[float]) -> str | None:
+    """Refuse quaternions hsa_core.mocap refuses (not of unit norm)."""
+    try:
+        mocap.MocapConfig(base_quaternion=tuple(value))
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def _interval(value: list[float]) -> str | None:
+    """Refuse a [low, high] pair that is empty."""
+    return None if value[0] < value[1] else f"must be [low, high] with low < high, got {list(value)}"
+
+
+SPECS = (
+    ParamSpec("platform_topic", "/mocap/platform/pose",
+              "geometry_msgs/PoseStamped topic of the platform rigid body, world frame", read_only=True),
+    ParamSpec("base_topic", "/mocap/base/pose",
+              "geometry_msgs/PoseStamped topic of the base rigid body (subscribed only if use_base_pose)",
+              read_only=True),
+    ParamSpec("use_base_pose", False,
+              "true: base position and orientation measured on base_topic; false: base_position parameter",
+              read_only=True),
+    ParamSpec("base_position", [0.0, 0.0, 0.0],
+              "[m] world position of the base markers (used if use_base_pose is false)", low=-100.0, high=100.0,
+              length=3),
+    ParamSpec("base_quaternion", list(mocap.BASE_QUATERNION),
+              "[-] (x, y, z, w) rotation of {0} in the world (use_base_pose false) or relative to the measured base "
+              "body (true); also re-aligns the platform body frame", low=-1.0, high=1.0, length=4,
+              validator=_unit_quaternion),
+    ParamSpec("base_offset", list(mocap.BASE_OFFSET),
+              "[m] origin of {0} relative to the base markers, in {0}", low=-0.5, high=0.5, length=3),
+    ParamSpec("marker_offset", list(mocap.MARKER_OFFSET),
+              "[m] platform pivot marker relative to the end effector, in the platform body frame",
+              low=-0.5, high=0.5, length=3),
+    ParamSpec("mocap_rate", 200.0, "[Hz] nominal mocap frame rate (jump bound, staleness warning)",
+              low=1.0, high=2000.0),
+    ParamSpec("quaternion_tolerance", 0.01, "[-] accepted deviation of a measured quaternion norm from 1",
+              low=1e-6, high=0.5),
+    ParamSpec("max_age", 0.5, "[s] drop samples stamped more than this before or after the node clock; 0 disables",
+              low=0.0, high=60.0),
+    ParamSpec("stale_timeout", 0.25, "[s] diagnostics ERROR when no sample was accepted for this long",
+              low=0.001, high=60.0),
+    ParamSpec("max_jump", 0.02,
+              "[m] largest plausible EE position change per mocap period, scaled by the time since the last "
+              "accepted sample; 0 disables", low=0.0, high=1.0),
+    ParamSpec("max_jump_angle", 0.2,
+              "[rad] largest plausible EE angle change per mocap period, scaled likewise; 0 disables",
+              low=0.0, high=math.pi),
+    ParamSpec("workspace_x", [-0.08, 0.08], "[m] accepted [low, high] of the EE x in {0}",
+              low=-1.0, high=1.0, length=2, validator=_interval),
+    ParamSpec("workspace_y", [0.06, 0.18], "[m] accepted [low, high] of the EE y in {0} (down the backbone)",
+              low=-1.0, high=1.0, length=2, validator=_interval),
+    ParamSpec("workspace_theta", [-math.pi / 2, math.pi / 2], "[rad] accepted [low, high] of the EE angle in {0}",
+              low=-math.pi, high=math.pi, length=2, validator=_interval),
+    ParamSpec("rest_check", False,
+              "compare the first valid sample with rest_pose (robot hanging straight, phi = 0); result on "
+              "/diagnostics", read_only=True),
+    ParamSpec("rest_pose", list(mocap.REST_POSE), "[m, m, rad] expected EE pose at rest",
+              low=-1.0, high=1.0, length=3, read_only=True),
+    ParamSpec("rest_tolerance", [0.01, 0.1], "[m, rad] accepted position and angle deviation from rest_pose",
+              low=0.0, high=1.0, length=2, read_only=True),
+    ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
+              read_only=True),
+)
+
+
+def _plain(value: Any) -> Any:
+    """Parameter value with arrays as plain lists."""
+    return list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+
+
+def _seconds(duration: Any) -> float:
+    """rclpy Duration → float seconds."""
+    return duration.nanoseconds * 1e-9
+
+
+class MocapBridge(Node):
+    """Projects platform poses to the plane, drops and counts implausible samples, publishes ``ee_pose``."""
+
+    def __init__(self) -> None:
+        super().__init__("mocap_bridge")
+        self._p = declare(self, SPECS)
+        self._configure()
+        guard_updates(self, SPECS, self._update)
+        self._counts = dict.fromkeys(("received", "published", "base_received", "base_rejected", *REASONS), 0)
+        self._last_rejection = ""
+        self._last_stamp: Time | None = None  # mocap stamp of the newest accepted sample
+        self._last_chiee: np.ndarray | None = None
+        self._last_accepted_at: Time | None = None  # node-clock time it arrived
+        self._base: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._rest: str | None = None  # rest-check result: None = pending, "" = fine, else the problem
+        self._level: bytes | None = None  # diagnostics level last reported
+        self._report_at = self.get_clock().now()
+        self._reported = (0, 0)
+        self._pub = self.create_publisher(
+            PlanarPoseStamped, "ee_pose", qos.SENSOR, qos_overriding_options=qos.overridable())
+        self.create_subscription(PoseStamped, self._p["platform_topic"], self._on_platform, qos.SENSOR,
+                                 qos_overriding_options=qos.overridable())
+        if self._p["use_base_pose"]:
+            self.create_subscription(PoseStamped, self._p["base_topic"], self._on_base, qos.SENSOR,
+                                     qos_overriding_options=qos.overridable())
+        self._diagnostics = Diagnostics(self, self._p["diagnostics_period"], hardware_id="mocap")
+        self._diagnostics.add("platform", self._report)
+        if self._p["rest_check"]:
+            self._diagnostics.add("rest pose", self._rest_report)
+
+    def _configure(self) -> None:
+        """Build the frame chain and workspace box from the current parameter values."""
+        p = self._p
+        self._config = mocap.MocapConfig(
+            tuple(p["base_quaternion"]), tuple(p["base_offset"]), tuple(p["marker_offset"]),
+            use_base_orientation=p["use_base_pose"])
+        self._workspace = mocap.WorkspaceBox(
+            tuple(p["workspace_x"]), tuple(p["workspace_y"]), tuple(p["workspace_theta"]))
+
+    def _update(self, changes: dict[str, Any]) -> None:
+        """Apply accepted run-time parameter updates."""
+        self._p.update({name: _plain(value) for name, value in changes.items()})
+        self._configure()
+
+    def _on_base(self, msg: PoseStamped) -> None:
+        """Keep the newest valid base pose."""
+        position, quaternion = _pose(msg)
+        problem = mocap.pose_problem(position, quaternion, self._p["quaternion_tolerance"])
+        if problem:
+            self._counts["base_rejected"] += 1
+            self._last_rejection = f"base: {problem}"
+            return
+        if self._base is None:
+            self.get_logger().info(f"receiving base poses on {self._p['base_topic']}")
+        self._counts["base_received"] += 1
+        self._base = position, quaternion
+
+    def _on_platform(self, msg: PoseStamped) -> None:
+        """Check, project and publish one platform sample, or count why it was dropped."""
+        self._counts["received"] += 1
+        now = self.get_clock().now()
+        stamp = Time.from_msg(msg.header.stamp)
+        position, quaternion = _pose(msg)
+        problem = self._input_problem(now, stamp, position, quaternion)
+        if problem is None:
+            base_position, base_quaternion = self._base if self._p["use_base_pose"] else (
+                self._p["base_position"], None)
+            chiee = mocap.world_to_planar(base_position, position, quaternion, self._config, base_quaternion)
+            if self._p["rest_check"] and self._rest is None:
+                self._check_rest(chiee)
+            problem = self._pose_problem(stamp, chiee)
+        if problem is not None:
+            reason, text = problem
+            self._counts[reason] += 1
+            self._last_rejection = f"{reason}: {text}"
+            self.get_logger().warning(f"dropped platform sample ({reason}: {text})", throttle_duration_sec=5.0)
+            return
+        if self._last_accepted_at is None:
+            self.get_logger().info(f"receiving platform poses on {self._p['platform_topic']}")
+        self._last_stamp, self._last_chiee, self._last_accepted_at = stamp, chiee, now
+        out = PlanarPoseStamped()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = FRAME_ID
+        out.pose.x, out.pose.y, out.pose.theta = (float(v) for v in chiee)
+        self._pub.publish(out)
+        self._counts["published"] += 1
+
+    def _input_problem(
+        self, now: Time, stamp: Time, position: tuple[float, ...], quaternion: tuple[float, ...]
+    ) -> tuple[str, str] | None:
+        """Reason and text why a raw sample is unusable (values, stamp, missing base), or None."""
+        if mocap.pose_problem(position, quaternion, norm_tol=math.inf):  # an infinite tolerance checks finiteness
+            return "non_finite", "non-finite position or quaternion"
+        problem = mocap.pose_problem(position, quaternion, self._p["quaternion_tolerance"])
+        if problem:
+            return "quaternion", problem
+        max_age, age = self._p["max_age"], _seconds(now - stamp)
+        if max_age and age > max_age:
+            return "stale", f"stamp {age:.3g} s old (max_age {max_age} s)"
+        if max_age and -age > max_age:
+            return "future", f"stamp {-age:.3g} s ahead of the node clock (max_age {max_age} s)"
+        if self._last_stamp is not None and stamp == self._last_stamp:
+            return "duplicate", "stamp equals the newest accepted one"
+        if self._last_stamp is not None and stamp < self._last_stamp:
+            return "out_of_order", f"stamp {_seconds(self._last_stamp - stamp):.3g} s older than the newest accepted"
+        if self._p["use_base_pose"] and self._base is None:
+            return "no_base", f"no valid base pose on {self._p['base_topic']} yet"
+        return None
+
+    def _pose_problem(self, stamp: Time, chiee: np.ndarray) -> tuple[str, str] | None:
+        """Reason and text why a projected pose is implausible (workspace, jump), or None."""
+        problem = self._workspace.problem(chiee)
+        if problem:
+            return "workspace", problem
+        if self._last_chiee is None:
+            return None
+        rate = self._p["mocap_rate"]  # bounds per period → speed bounds; a bound of 0 disables (→ inf)
+        problem = mocap.jump_problem(
+            self._last_chiee, chiee, _seconds(stamp - self._last_stamp),
+            max_speed=self._p["max_jump"] * rate or math.inf,
+            max_angular_speed=self._p["max_jump_angle"] * rate or math.inf)
+        return ("jump", problem) if problem else None
+
+    def _check_rest(self, chiee: np.ndarray) -> None:
+        """Start-up check of the sign chain on the first valid sample; the result goes to /diagnostics."""
+        position_tol, angle_tol = self._p["rest_tolerance"]
+        self._rest = mocap.rest_pose_problem(chiee, self._p["rest_pose"], position_tol, angle_tol) or ""
+        if self._rest:
+            self.get_logger().error(f"rest-pose check failed: {self._rest}")
+        else:
+            self.get_logger().info(f"rest-pose check passed: {np.round(chiee, 4).tolist()}")
+
+    def _report(self) -> Report:
+        """Staleness level, counts per drop reason, rates and the age of the newest accepted sample."""
+        now = self.get_clock().now()
+        elapsed = max(_seconds(now - self._report_at), 1e-9)
+        counts = (self._counts["received"], self._counts["published"])
+        rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
+        self._report_at, self._reported = now, counts
+        values: dict[str, object] = {
+            "received": counts[0], "published": counts[1],
+            **{f"rejected_{reason}": self._counts[reason] for reason in REASONS},
+            "input_rate_hz": round(rates[0], 1), "output_rate_hz": round(rates[1], 1),
+            "last_rejection": self._last_rejection,
+        }
+        if self._p["use_base_pose"]:
+            values.update(base_received=self._counts["base_received"], base_rejected=self._counts["base_rejected"])
+        if self._last_accepted_at is None:
+            level, message = WARN, "no valid platform pose yet"
+        else:
+            silence = _seconds(now - self._last_accepted_at)
+            values["time_since_last_sample_s"] = round(silence, 4)
+            values["last_sample_age_s"] = round(_seconds(now - self._last_stamp), 4)
+            if silence > self._p["stale_timeout"]:
+                level, message = ERROR, f"stale: no valid platform pose for {silence:.3g} s"
+            elif silence > 3.0 / self._p["mocap_rate"]:
+                level, message = WARN, f"no valid platform pose for {silence:.3g} s"
+            else:
+                level, message = OK, "publishing ee_pose"
+        if level != self._level:  # log state changes only (one call site per severity, as rclpy requires)
+            self._level = level
+            if level == OK:
+                self.get_logger().info(message)
+            elif level == WARN:
+                self.get_logger().warning(message)
+            else:
+                self.get_logger().error(message)
+        return Report(level, message, values)
+
+    def _rest_report(self) -> Report:
+        """Result of the start-up rest-pose check."""
+        if self._rest is None:
+            return Report(WARN, "waiting for the first valid sample", {})
+        return Report(ERROR, self._rest, {}) if self._rest else Report(OK, "rest pose as expected", {})
+
+
+def _pose(msg: PoseStamped) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Position (x, y, z) and quaternion (x, y, z, w) of a PoseStamped."""
+    p, o = msg.pose.position, msg.pose.orientation
+    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w)
+
+
+def main() -> None:
+    """Console script ``mocap_bridge``."""
+    raise SystemExit(run(MocapBridge, "mocap_bridge"))

@@ -24,7 +24,7 @@ from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
 from hsa_core.planning import Setpoint as CoreSetpoint
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
-from hsa_planner_node.model_params import MODEL_SPECS, load_model
+from hsa_common.model_params import MODEL_SPECS, load_model
 
 FRAME_ID = "hsa_base"
 DEADLINE_FACTOR = 1.5

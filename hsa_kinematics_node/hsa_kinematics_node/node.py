@@ -20,28 +20,18 @@ from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
-from hsa_core.params import HsaParams, ParameterError, load_params
 from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
 
 NOT_AVAILABLE = (math.nan,) * 6  # rates [q̇, χ̇_ee] while the estimator is not ready
 
 
-def _empty_or_pair(value: list[float] | None) -> str | None:
-    """sigma_a_eq is either unset/empty or one value per virtual rod."""
-    return None if not value or len(value) == 2 else f"must be empty or a list of 2 values, got {list(value)}"
-
-
 SPECS = (
-    ParamSpec("material", "fpu", "robot material, selects the packaged parameter set", choices=("fpu", "epu"),
-              read_only=True),
-    ParamSpec("params_file", "", "path of a parameter YAML used instead of the packaged set (its material must "
-              "match); empty = packaged", read_only=True),
-    ParamSpec("sigma_a_eq", Parameter.Type.DOUBLE_ARRAY, "[-] calibrated axial rest strains of virtual rods 1 and "
-              "2; empty = from the parameter set", low=0.5, high=2.0, validator=_empty_or_pair, read_only=True),
+    *MODEL_SPECS,
     ParamSpec("window", 20, "[samples] Savitzky-Golay window N (at least order + 2)", low=3, high=200,
               read_only=True),
     ParamSpec("order", 3, "[-] degree of the Savitzky-Golay polynomial", low=1, high=6, read_only=True),
@@ -58,21 +48,6 @@ SPECS = (
 )
 
 
-def _load_model(p: dict[str, Any]) -> HsaParams:
-    """The robot parameters named by material / params_file / sigma_a_eq (raises naming the parameter)."""
-    name = "params_file" if p["params_file"] else "material"
-    overrides = {"sigma_a_eq": p["sigma_a_eq"]} if p["sigma_a_eq"] else {}
-    try:
-        params = load_params(p[name], **overrides)
-    except ParameterError as exc:
-        raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
-    if params.material != p["material"]:
-        raise ParameterValidationError(
-            f"parameter 'params_file': {p['params_file']} holds material {params.material!r}, "
-            f"but material is {p['material']!r}")
-    return params
-
-
 def _seconds(duration: Any) -> float:
     """rclpy Duration → float seconds."""
     return duration.nanoseconds * 1e-9
@@ -84,7 +59,7 @@ class KinematicsNode(Node):
     def __init__(self) -> None:
         super().__init__("kinematics_node")
         self._p = declare(self, SPECS)
-        self._params = _load_model(self._p)
+        self._params = load_model(self._p)
         self._estimator = self._make_estimator()
         configuration_from_pose(self._params, REST_POSE)  # JIT-compile the IK now, not on the first sample
         guard_updates(self, SPECS, self._update)

@@ -21,7 +21,7 @@ from hsa_common.runner import run
 from hsa_core.planning import DEFAULT_PLANNER, MAX_OPTIMALITY_ERROR, PLANNER_KINDS, Planner, PlanResult, PlanStatus
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
-from hsa_planner_node.model_params import MODEL_SPECS, load_model
+from hsa_common.model_params import MODEL_SPECS, load_model
 
 FRAME_ID = "hsa_base"
 REQUEST_KINDS = {PlanSetpoint.Request.PLANNER_STATIC: "static", PlanSetpoint.Request.PLANNER_ROLLOUT: "rollout"}

@@ -28,7 +28,7 @@ from hsa_core import trajectories
 from hsa_core.trajectories import TimedReference
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
-from hsa_planner_node.model_params import MODEL_SPECS
+from hsa_common.model_params import MODEL_SPECS
 
 TRAJECTORIES = ("steps", "star", "circle", "contour")
 PLANNER_CODES = {

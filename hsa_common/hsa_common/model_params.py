@@ -1,5 +1,5 @@
 """The common model parameters of the nodes that need the robot model (docs/ros_interfaces.md): material, params_file,
-sigma_a_eq; and loading the HsaParams they select. Used by planner_node and controller_node."""
+sigma_a_eq; and loading the HsaParams they select. Shared by every node that needs the robot model."""
 
 from __future__ import annotations
 

@@ -6,6 +6,7 @@ One GroupSyncWrite (goals) and one GroupSyncRead (present positions) per control
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import termios
@@ -25,12 +26,14 @@ ADDR_OPERATING_MODE = 11
 ADDR_TORQUE_ENABLE = 64
 ADDR_HARDWARE_ERROR_STATUS = 70
 ADDR_GOAL_POSITION = 116
+ADDR_PRESENT_VELOCITY = 128  # followed by Present Position: one 8-byte sync read gets both
 ADDR_PRESENT_POSITION = 132
 MX28_MODEL_NUMBER = 30
 POSITION_MODE = 3
 EXTENDED_POSITION_MODE = 4
 EXTENDED_GOAL_LIMIT = 1_048_575  # ±256 rev: larger goals are refused by the servo, silently in a sync write
 TICKS_PER_REV = 4096
+VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0  # Present Velocity (128) unit: 0.229 rev/min
 ERRBIT_ALERT = 0x80
 HARDWARE_ERROR_BITS = {
     0x01: "input voltage",
@@ -83,10 +86,12 @@ class ServoStatusError(BusError):
 
 @dataclass(frozen=True)
 class PositionReading:
-    """Present positions of one sync read; ``alerts`` are IDs whose status carried the hardware-error bit."""
+    """Present positions (ticks) and velocities (raw, VELOCITY_UNIT_RAD_S) of one sync read; ``alerts`` are IDs
+    whose status carried the hardware-error bit."""
 
     ticks: dict[int, int]
     alerts: frozenset[int]
+    velocities: dict[int, int]
 
 
 @dataclass(frozen=True)
@@ -270,6 +275,13 @@ class DynamixelBus:
         try:
             if self._port is None:
                 return frozenset(self._ids)
+            # A transaction interrupted by an exception (e.g. KeyboardInterrupt from a signal) leaves the SDK's busy
+            # flag set and a partial status in the input buffer; either would silently block this torque-off.
+            self._port.is_using = False
+            try:
+                self._port.clearPort()
+            except (serial.SerialException, OSError, termios.error):
+                pass
             try:
                 torque_off = GroupSyncWrite(self._port, self._ph, ADDR_TORQUE_ENABLE, 1)
                 for dxl_id in self._ids:
@@ -301,15 +313,16 @@ class DynamixelBus:
 
     # ---------------------------------------------------------------- cyclic I/O
     def read_positions(self) -> PositionReading:
-        """Present Position of every servo with one Sync Read instruction.
+        """Present Velocity and Present Position of every servo with one Sync Read instruction (addresses 128-135).
 
         GroupSyncRead builds and sends the instruction; the statuses are collected with readRx because
         GroupSyncRead.rxPacket drops their error byte and with it the hardware-error alert.
         """
-        data = self._group_read("read_positions", ADDR_PRESENT_POSITION, 4)
-        ticks = {dxl_id: int.from_bytes(raw, "little", signed=True) for dxl_id, (raw, _) in data.items()}
+        data = self._group_read("read_positions", ADDR_PRESENT_VELOCITY, 8)
+        ticks = {dxl_id: int.from_bytes(raw[4:], "little", signed=True) for dxl_id, (raw, _) in data.items()}
+        velocities = {dxl_id: int.from_bytes(raw[:4], "little", signed=True) for dxl_id, (raw, _) in data.items()}
         alerts = frozenset(dxl_id for dxl_id, (_, error) in data.items() if error & ERRBIT_ALERT)
-        return PositionReading(ticks, alerts)
+        return PositionReading(ticks, alerts, velocities)
 
     def write_goals(self, goals: Mapping[int, int]) -> None:
         """Goal Position (signed ticks) for some or all servos with one Sync Write instruction (no status returns)."""

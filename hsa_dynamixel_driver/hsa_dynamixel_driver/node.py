@@ -1,0 +1,581 @@
+"""dynamixel_driver: lifecycle node between ``phi_cmd`` and the 4 MX-28 servos (one sync write + one sync read a cycle).
+
+Safety (planning_and_control.md §5, §7; ecosystem.md §2): goals are clipped to [0, φ_max] and clamped around the
+neutral ticks whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM and uncaught
+exceptions; torque is enabled only while the servos answer and their present positions are sane; bus errors are
+counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
+docs/nodes/hsa_dynamixel_driver.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.timer import Timer
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
+
+from hsa_common import qos
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
+from hsa_common.runner import run
+from hsa_core.actuation import MotorLimits, MotorMap, limit_goal_rate, ticks_to_angles
+from hsa_core.params import ParameterError, load_params
+from hsa_dynamixel_driver.bus import (
+    SDK_BAUDRATES,
+    VELOCITY_UNIT_RAD_S,
+    BusError,
+    CommError,
+    DynamixelBus,
+    PortError,
+    ServoStatusError,
+    describe_hardware_error,
+)
+from hsa_msgs.msg import PlanarActuation
+
+SUCCESS = TransitionCallbackReturn.SUCCESS
+
+
+def _signs(value: list[int]) -> str | None:
+    return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
+
+
+def _ids(value: list[int]) -> str | None:
+    return None if len(set(value)) == len(value) else "IDs must be distinct"
+
+
+SPECS = (
+    ParamSpec("autostart", True, "configure and activate at start (no lifecycle manager needed)", read_only=True),
+    ParamSpec("port", "/dev/ttyUSB0", "serial device of the U2D2 (a stable udev symlink is best)", read_only=True),
+    ParamSpec("baudrate", 4_000_000, "bus speed [bit/s]; must equal the servos' Baud Rate register", read_only=True,
+              validator=lambda v: None if v in SDK_BAUDRATES else f"must be one of {SDK_BAUDRATES}"),
+    ParamSpec("motor_ids", [21, 22, 23, 24], "Dynamixel IDs; motors 1-2 drive rod 2 (+24 mm), 3-4 rod 1",
+              low=0, high=252, length=4, read_only=True, validator=_ids),
+    ParamSpec("rho", [1, -1, 1, -1], "rod handedness of each motor [+1|-1]", length=4, read_only=True,
+              validator=_signs),
+    ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
+              validator=_signs),
+    ParamSpec("material", "fpu", "parameter set giving phi_max", choices=("fpu", "epu"), read_only=True),
+    ParamSpec("params_file", "", "parameter YAML overriding the packaged set (empty = packaged)", read_only=True),
+    ParamSpec("phi_max", 0.0, "twist limit [rad]; 0 = the smaller phi_max of the parameter set", low=0.0,
+              high=2.0 * math.pi, read_only=True),
+    ParamSpec("goal_margin", 0.02, "goal clamp widening beyond [0, phi_max] on both ends [rad]", low=0.0, high=0.5,
+              read_only=True),
+    ParamSpec("neutral_source", "read", "neutral ticks: read at configure, the neutral_ticks list, or neutral_file",
+              choices=("read", "param", "file"), read_only=True),
+    ParamSpec("neutral_ticks", [0, 0, 0, 0], "neutral positions [ticks] when neutral_source is 'param'", length=4,
+              low=-1_000_000, high=1_000_000, read_only=True),
+    ParamSpec("neutral_file", "", "YAML of stored neutral ticks; written from the present positions if absent",
+              read_only=True),
+    ParamSpec("neutral_tolerance", 0.1, "largest |present - stored neutral| at start-up for torque-on [rad]",
+              low=0.0, high=math.pi, read_only=True),
+    ParamSpec("return_delay", 0, "Return Delay Time written at configure [2 us units]", low=0, high=254,
+              read_only=True),
+    ParamSpec("rate", 100.0, "control cycle rate: one sync write + one sync read [Hz]", low=1.0, high=500.0,
+              read_only=True),
+    ParamSpec("max_goal_rate", 0.0, "largest goal speed of a motor [rad/s]; 0 = no rate limit", low=0.0,
+              high=100.0),
+    ParamSpec("command_timeout", 0.1, "hold the last goal when phi_cmd is older than this [s]; 0 = off", low=0.0,
+              high=10.0),
+    ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
+              read_only=True),
+    ParamSpec("error_limit", 10, "consecutive failed cycles before the bus counts as lost", low=1, high=10_000,
+              read_only=True),
+)
+
+
+def read_neutral_file(path: Path, ids: list[int]) -> list[int]:
+    """Neutral ticks stored in ``path`` for ``ids``; ValueError says what is wrong with the file."""
+    data = yaml.safe_load(path.read_text())
+    if not isinstance(data, dict) or data.get("ids") != ids:
+        raise ValueError(f"{path} is not a neutral file for motor IDs {ids}")
+    ticks = data.get("neutral_ticks")
+    if not (isinstance(ticks, list) and len(ticks) == len(ids) and all(type(t) is int for t in ticks)):
+        raise ValueError(f"{path}: neutral_ticks must be {len(ids)} integers, got {ticks!r}")
+    return ticks
+
+
+def write_neutral_file(path: Path, ids: list[int], ticks: list[int]) -> None:
+    """Store the neutral ticks (atomic replace) so later starts can check the robot starts untwisted."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.with_name(path.name + ".tmp")
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+    staging.write_text(f"# neutral ticks of the HSA motors, stored by dynamixel_driver at {stamp}\n"
+                       + yaml.safe_dump({"ids": ids, "neutral_ticks": ticks}, default_flow_style=None))
+    staging.replace(path)
+
+
+class DynamixelDriver(LifecycleNode):
+    """Writes the newest phi_cmd as clamped goal ticks and publishes the servos' present state, at ``rate``."""
+
+    def __init__(self) -> None:
+        super().__init__("dynamixel_driver")
+        self._p: dict[str, Any] = declare(self, SPECS)
+        guard_updates(self, SPECS, self._p.update)
+        self._ids: list[int] = self._p["motor_ids"]
+        self._phi_max = self._twist_limit()
+        self._stored_neutral = self._configured_neutral()
+        self._bus: DynamixelBus | None = None
+        self._map: MotorMap | None = None
+        self._limits: MotorLimits | None = None
+        self._sane: MotorLimits | None = None
+        self._cycle_timer: Timer | None = None
+        self._reconnect_timer: Timer | None = None
+        self._active = False
+        self._link_up = False
+        self._torque_on = False
+        self._torque_wanted = False
+        self._startup_checked = False
+        self._torque_note = "not configured"
+        self._last_bus_problem = ""
+        self._last_error = ""
+        self._latency = "not checked"
+        self._hw_errors: dict[int, int] = {}
+        self._alerts: frozenset[int] = frozenset()
+        self._command: PlanarActuation | None = None
+        self._command_time: float | None = None
+        self._pending = False
+        self._target: np.ndarray | None = None
+        self._target_source = None
+        self._last_goal: np.ndarray | None = None
+        self._last_cycle = time.monotonic()
+        self._watchdog = "waiting for the first command"
+        self._consecutive_failures = 0
+        self._counts = dict.fromkeys(
+            ("cycles", "writes", "reads", "commands", "rejected", "clamped", "reconnect_attempts", "port_errors",
+             "comm_errors", "status_errors"), 0)
+        self._rate_base = (time.monotonic(), dict(self._counts))
+
+        options = qos.overridable()
+        self._pub_states = self.create_publisher(JointState, "motor_states", qos.SENSOR,
+                                                 qos_overriding_options=options)
+        self._pub_phi = self.create_publisher(PlanarActuation, "phi_present", qos.SENSOR,
+                                              qos_overriding_options=options)
+        self._pub_goal = self.create_publisher(PlanarActuation, "motor_goal_stamp", qos.SENSOR,
+                                               qos_overriding_options=options)
+        self.create_subscription(PlanarActuation, "phi_cmd", self._on_command, qos.COMMAND,
+                                 qos_overriding_options=options)
+        self.create_service(SetBool, "set_torque", self._on_set_torque)
+        diagnostics = Diagnostics(self, hardware_id=self._p["port"])
+        diagnostics.add("bus", self._bus_report)
+        diagnostics.add("servos", self._servo_report)
+        diagnostics.add("control", self._control_report)
+        if self._p["autostart"]:  # from the executor, so torque is never on outside the runner's shutdown guard
+            self._autostart_timer: Timer | None = self.create_timer(0.0, self._autostart)
+
+    def _autostart(self) -> None:
+        """One-shot: configure and activate without a lifecycle manager."""
+        self.destroy_timer(self._autostart_timer)
+        try:
+            if self.trigger_configure() == SUCCESS:
+                self.trigger_activate()
+        except _rclpy.RCLError:
+            if self.context.ok():
+                raise  # otherwise a signal shut the context down mid-transition: the runner's hook follows
+
+    # ------------------------------------------------------------------ start-up checks
+    def _twist_limit(self) -> float:
+        """φ_max [rad]: the parameter, or the smaller rod limit of the parameter set."""
+        if self._p["phi_max"] > 0.0:
+            return float(self._p["phi_max"])
+        name = "params_file" if self._p["params_file"] else "material"
+        try:
+            params = load_params(self._p["params_file"] or self._p["material"])
+        except ParameterError as exc:
+            raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
+        return float(np.min(np.asarray(params.phi_max)))
+
+    def _configured_neutral(self) -> list[int] | None:
+        """Neutral ticks fixed before the bus is opened (param or existing file), or None (read at configure)."""
+        source, path = self._p["neutral_source"], self._p["neutral_file"]
+        if source == "param":
+            return list(self._p["neutral_ticks"])
+        if source == "file":
+            if not path:
+                raise ParameterValidationError("parameter 'neutral_file' must be set when neutral_source is 'file'")
+            if Path(path).exists():
+                try:
+                    return read_neutral_file(Path(path), self._ids)
+                except (OSError, ValueError, yaml.YAMLError) as exc:
+                    raise ParameterValidationError(f"parameter 'neutral_file': {exc}") from exc
+        return None
+
+    def _set_neutral(self, ticks: list[int]) -> None:
+        """Build the motor map, the goal clamp and the wider 'sane position' range around these neutral ticks."""
+        self._map = MotorMap(tuple(ticks), tuple(self._ids), rho=tuple(self._p["rho"]), h=tuple(self._p["h"]),
+                             phi_max=self._phi_max, margin=self._p["goal_margin"])
+        self._limits = MotorLimits.from_map(self._map)
+        wider = dataclasses.replace(self._map, margin=self._p["goal_margin"] + self._p["neutral_tolerance"])
+        self._sane = MotorLimits.from_map(wider)
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Create the bus and try to open it; while it is absent the reconnect timer keeps trying."""
+        self._bus = DynamixelBus(self._p["port"], self._p["baudrate"], self._ids)
+        self._map = self._limits = self._sane = None
+        if self._stored_neutral is not None:
+            self._set_neutral(self._stored_neutral)
+        self._startup_checked = self._stored_neutral is None  # read neutrals are trivially the present positions
+        self._torque_note = "inactive"
+        self._reconnect_timer = self.create_timer(self._p["reconnect_period"], self._reconnect)
+        self._connect()
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Enable torque holding the present position (if sane) and start the control cycle."""
+        self._active = True
+        self._torque_wanted = True
+        self._clear_command()
+        if self._link_up:
+            self._enable_torque()
+        self._last_cycle = time.monotonic()
+        self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop the cycle and switch torque off."""
+        self._stop_cycle()
+        self._disable_torque("deactivated")
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Torque off and close the bus."""
+        self._release("cleaned up")
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
+        """Torque off and close the bus: the lifecycle transition, and the runner's exit hook (signals, exceptions)."""
+        self._release("shut down")
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised: torque off, close the bus, go back to unconfigured."""
+        self.get_logger().error("lifecycle transition failed: torque off, bus closed")
+        self._release("error")
+        return SUCCESS
+
+    def _stop_cycle(self) -> None:
+        self._active = False
+        self._torque_wanted = False
+        if self._cycle_timer is not None:
+            self.destroy_timer(self._cycle_timer)
+            self._cycle_timer = None
+
+    def _release(self, reason: str) -> None:
+        """Switch torque off (best effort, no ROS needed), close the port and stop the timers; idempotent."""
+        self._disable_torque(reason)
+        if self._bus is not None:
+            self._bus.close()
+        self._link_up = False
+        self._stop_cycle()
+        if self._reconnect_timer is not None:
+            self.destroy_timer(self._reconnect_timer)
+            self._reconnect_timer = None
+
+    # ------------------------------------------------------------------ connection and torque
+    def _connect(self) -> None:
+        """Open the bus, configure the servos (torque off, return delay, extended position mode), fix neutrals."""
+        assert self._bus is not None
+        try:
+            self._bus.close()
+            self._bus.open()
+            self._bus.configure(return_delay=self._p["return_delay"])
+            if self._map is None:
+                self._adopt_present_as_neutral()
+        except BusError as exc:
+            self._count_error(exc)
+            self._bus.close()
+            if str(exc) != self._last_bus_problem:
+                self.get_logger().warning(f"bus not ready ({exc}); retrying every {self._p['reconnect_period']} s")
+                self._last_bus_problem = str(exc)
+            return
+        self._link_up = True
+        self._last_bus_problem = ""
+        self._consecutive_failures = 0
+        latency = self._bus.latency_timer()
+        self._latency = latency.describe()
+        if latency.slow:
+            self.get_logger().warning(self._latency)
+        self.get_logger().info(f"bus open: {self._p['port']} at {self._p['baudrate']} baud, IDs {self._ids}")
+        if self._active and self._torque_wanted:
+            self._enable_torque()
+
+    def _adopt_present_as_neutral(self) -> None:
+        """neutral_source 'read' (or a missing neutral file): the present positions become the neutral ticks."""
+        assert self._bus is not None
+        present = self._bus.read_positions().ticks
+        ticks = [present[i] for i in self._ids]
+        self._set_neutral(ticks)
+        path = self._p["neutral_file"]
+        if self._p["neutral_source"] == "file":
+            try:
+                write_neutral_file(Path(path), self._ids, ticks)
+            except OSError as exc:
+                self.get_logger().error(f"cannot store neutral ticks {ticks} in {path}: {exc}")
+                return
+            self._stored_neutral = ticks
+            self.get_logger().info(f"stored neutral ticks {ticks} in {path}")
+        else:
+            self.get_logger().info(f"neutral ticks read from the servos: {ticks}")
+
+    def _reconnect(self) -> None:
+        """Reconnect timer: reopen the bus while it is down."""
+        if not self._link_up:
+            self._counts["reconnect_attempts"] += 1
+            self._connect()
+
+    def _position_problem(self, ticks: np.ndarray) -> str | None:
+        """Why torque must not be enabled at these present positions, or None."""
+        assert self._map is not None and self._sane is not None
+        if not self._startup_checked:
+            deviation = self._map.neutral_deviation(ticks)
+            if np.any(np.abs(deviation) > self._p["neutral_tolerance"]):
+                return (f"present positions deviate from the stored neutral ticks by {np.round(deviation, 3).tolist()}"
+                        f" rad (tolerance {self._p['neutral_tolerance']} rad): untwist the robot or re-home")
+            self._startup_checked = True
+        inside = self._sane.contains(ticks)
+        if not np.all(inside):
+            outside = [i for i, ok in zip(self._ids, inside) if not ok]
+            return f"present positions of IDs {outside} are outside the goal limits (servo power-cycled or turned?)"
+        return None
+
+    def _enable_torque(self) -> str | None:
+        """Torque on holding the present positions if they are sane; returns why not otherwise."""
+        assert self._bus is not None
+        try:
+            reading = self._bus.read_positions()
+            if reading.alerts:
+                self._hw_errors = {i: b for i, b in self._bus.read_hardware_errors().items() if b}
+            self._alerts = reading.alerts
+            ticks = self._present_ticks(reading.ticks)
+            problem = self._hardware_problem() or self._position_problem(ticks)
+            if problem is None:
+                self._bus.enable_torque()
+        except BusError as exc:
+            self._count_error(exc)
+            self._bus.disable_torque(verify=False)  # servos enabled before the failure must not stay on
+            problem = f"torque-on failed: {exc}"
+        if problem is not None:
+            if problem != self._torque_note:
+                self.get_logger().error(f"torque stays off: {problem}")
+            self._torque_note = problem
+            return problem
+        self._torque_on = True
+        self._torque_note = "on"
+        self._last_goal = ticks
+        self._clear_command()
+        self.get_logger().info("torque on, holding the present positions")
+        return None
+
+    def _disable_torque(self, reason: str) -> None:
+        """Best-effort torque off (one sync write, then read back); logs servos that did not confirm."""
+        was_on = self._torque_on
+        self._torque_on = False
+        self._torque_note = f"off ({reason})"
+        if self._bus is None or not self._bus.is_open:
+            return
+        unconfirmed = self._bus.disable_torque()
+        if unconfirmed:  # once more after a pause, so a half-finished exchange (e.g. cut by a signal) has died out
+            time.sleep(0.1)
+            unconfirmed = self._bus.disable_torque()
+        if unconfirmed:
+            self.get_logger().error(f"torque off ({reason}) not confirmed by IDs {sorted(unconfirmed)}")
+        elif was_on:
+            self.get_logger().info(f"torque off ({reason})")
+
+    def _hardware_problem(self) -> str | None:
+        if not self._hw_errors:
+            return None
+        described = {i: describe_hardware_error(b) for i, b in self._hw_errors.items()}
+        return f"hardware error {described}: reboot or power-cycle the servo"
+
+    def _lose_link(self, exc: BusError) -> None:
+        """The bus stopped answering: torque off where still possible, close, let the reconnect timer retry."""
+        assert self._bus is not None
+        self.get_logger().error(f"bus lost ({exc}); torque off, reconnecting every {self._p['reconnect_period']} s")
+        self._last_bus_problem = str(exc)
+        self._disable_torque("bus lost")
+        self._bus.close()
+        self._link_up = False
+
+    def _count_error(self, exc: BusError) -> None:
+        self._last_error = str(exc)
+        kind = ("port_errors" if isinstance(exc, PortError) else "comm_errors" if isinstance(exc, CommError)
+                else "status_errors" if isinstance(exc, ServoStatusError) else "comm_errors")
+        self._counts[kind] += 1
+
+    # ------------------------------------------------------------------ commands and service
+    def _on_command(self, msg: PlanarActuation) -> None:
+        """Keep the newest finite command; the cycle writes it."""
+        if not np.all(np.isfinite(msg.phi)):
+            self._counts["rejected"] += 1
+            return
+        self._counts["commands"] += 1
+        self._command, self._command_time, self._pending = msg, time.monotonic(), True
+
+    def _clear_command(self) -> None:
+        self._command = self._command_time = self._target = None
+        self._pending = False
+        self._watchdog = "waiting for the first command"
+
+    def _on_set_torque(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        """Torque on (if active, connected and sane) or off."""
+        if not request.data:
+            self._torque_wanted = False
+            self._disable_torque("set_torque service")
+            response.success, response.message = True, "torque off"
+        elif not self._active:
+            response.success, response.message = False, "node is not active"
+        elif self._torque_on:
+            response.success, response.message = True, "torque already on"
+        elif not self._link_up:
+            response.success, response.message = False, f"bus not connected: {self._last_bus_problem}"
+        else:
+            problem = self._enable_torque()
+            self._torque_wanted = problem is None
+            response.success, response.message = problem is None, problem or "torque on"
+        return response
+
+    # ------------------------------------------------------------------ control cycle
+    def _cycle(self) -> None:
+        """One control cycle: at most one sync write of the newest command, then one sync read."""
+        now = time.monotonic()
+        dt, self._last_cycle = now - self._last_cycle, now
+        self._counts["cycles"] += 1
+        if not self._link_up:
+            return
+        self._update_watchdog(now)
+        try:
+            self._write_goal(dt)
+            reading = self._bus.read_positions()
+            self._counts["reads"] += 1
+            self._publish_state(reading.ticks, reading.velocities)
+            if reading.alerts != self._alerts:
+                self._on_alerts(reading.alerts)
+        except BusError as exc:
+            self._count_error(exc)
+            self._consecutive_failures += 1
+            if isinstance(exc, PortError) or self._consecutive_failures >= self._p["error_limit"]:
+                self._lose_link(exc)
+            return
+        self._consecutive_failures = 0
+
+    def _update_watchdog(self, now: float) -> None:
+        """Command watchdog: no fresh phi_cmd for > command_timeout → hold the last goal (log once per change)."""
+        timeout = self._p["command_timeout"]
+        if self._command_time is None:
+            return
+        if timeout > 0.0 and now - self._command_time > timeout:
+            if self._watchdog != "expired":
+                self.get_logger().warning(f"no phi_cmd for > {timeout} s: holding the last goal")
+            self._watchdog, self._target, self._pending = "expired", None, False
+        elif self._watchdog != "fresh":
+            if self._watchdog == "expired":
+                self.get_logger().info("phi_cmd resumed")
+            self._watchdog = "fresh"
+
+    def _write_goal(self, dt: float) -> None:
+        """Sync-write the clamped (and rate-limited) goal of the newest command, if there is something to write."""
+        if not self._torque_on:
+            self._pending = False
+            return
+        assert self._map is not None and self._limits is not None and self._bus is not None
+        fresh = self._pending
+        if fresh:
+            phi = np.asarray(self._command.phi)
+            clipped = np.clip(phi, 0.0, self._phi_max)
+            self._target, clamped = self._limits.clamp(self._map.goal_ticks(clipped))
+            self._counts["clamped"] += bool(np.any(clipped != phi) or np.any(clamped))
+            self._target_source, self._pending = self._command.source_stamp, False
+        if self._target is None:
+            return
+        goal = self._target
+        if self._p["max_goal_rate"] > 0.0:
+            goal = self._limits.clamp(limit_goal_rate(self._last_goal, goal, dt, self._p["max_goal_rate"]))[0]
+        if not fresh and np.array_equal(goal, self._last_goal):
+            return
+        self._bus.write_goals({i: int(t) for i, t in zip(self._ids, goal)})
+        self._last_goal = goal
+        self._counts["writes"] += 1
+        msg = PlanarActuation(phi=self._map.present_twists(goal), source_stamp=self._target_source)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pub_goal.publish(msg)
+
+    def _publish_state(self, ticks_by_id: dict[int, int], velocities: dict[int, int]) -> None:
+        assert self._map is not None
+        ticks = self._present_ticks(ticks_by_id)
+        stamp = self.get_clock().now().to_msg()
+        joints = JointState(name=[f"motor_{i}" for i in self._ids],
+                            position=ticks_to_angles(ticks, self._map.neutral_ticks).tolist(),
+                            velocity=[velocities[i] * VELOCITY_UNIT_RAD_S for i in self._ids])
+        joints.header.stamp = stamp
+        self._pub_states.publish(joints)
+        phi = PlanarActuation(phi=self._map.present_twists(ticks))
+        phi.header.stamp = stamp
+        self._pub_phi.publish(phi)
+
+    def _present_ticks(self, ticks_by_id: dict[int, int]) -> np.ndarray:
+        return np.array([ticks_by_id[i] for i in self._ids], dtype=np.int64)
+
+    def _on_alerts(self, alerts: frozenset[int]) -> None:
+        """The set of alerting servos changed: read their Hardware Error Status; on a new error, torque off for all."""
+        assert self._bus is not None
+        errors = {i: b for i, b in self._bus.read_hardware_errors().items() if b} if alerts else {}
+        self._alerts = alerts
+        if errors == self._hw_errors:
+            return
+        self._hw_errors = errors
+        if errors:
+            self._torque_wanted = False
+            self._disable_torque("hardware error")
+            self._torque_note = self._hardware_problem() or ""
+            self.get_logger().error(f"torque off: {self._torque_note}")
+        else:
+            self.get_logger().info("hardware errors cleared")
+
+    # ------------------------------------------------------------------ diagnostics
+    def _bus_report(self) -> Report:
+        values = {"port": self._p["port"], "baudrate": self._p["baudrate"], "latency_timer": self._latency,
+                  **{k: self._counts[k] for k in ("reconnect_attempts", "port_errors", "comm_errors", "status_errors")},
+                  "consecutive_failures": self._consecutive_failures, "last_error": self._last_error}
+        if self._bus is None:
+            return Report(WARN, "not configured", values)
+        if not self._link_up:
+            return Report(ERROR, f"disconnected: {self._last_bus_problem}", values)
+        return Report(WARN if self._consecutive_failures else OK, "connected", values)
+
+    def _servo_report(self) -> Report:
+        values = {"torque": self._torque_note, "neutral_ticks": list(self._map.neutral_ticks) if self._map else [],
+                  "neutral_source": self._p["neutral_source"],
+                  **{f"hardware_error_{i}": describe_hardware_error(self._hw_errors.get(i, 0)) for i in self._ids}}
+        if self._hw_errors:
+            return Report(ERROR, self._hardware_problem() or "", values)
+        if self._active and not self._torque_on:
+            return Report(ERROR if self._torque_wanted else WARN, f"torque off: {self._torque_note}", values)
+        return Report(OK, f"torque {'on' if self._torque_on else 'off'}", values)
+
+    def _control_report(self) -> Report:
+        now = time.monotonic()
+        since, base = self._rate_base
+        elapsed = max(now - since, 1e-9)
+        rates = {f"{k}_per_s": round((self._counts[k] - base[k]) / elapsed, 1) for k in ("cycles", "writes", "reads")}
+        self._rate_base = (now, dict(self._counts))
+        age = "none" if self._command_time is None else f"{now - self._command_time:.3f} s"
+        values = {**rates, **{k: self._counts[k] for k in ("commands", "rejected", "clamped")},
+                  "watchdog": self._watchdog, "command_age": age, "max_goal_rate": self._p["max_goal_rate"],
+                  "phi_max": self._phi_max}
+        level = WARN if self._watchdog == "expired" and self._torque_on else OK
+        return Report(level, f"watchdog: {self._watchdog}", values)
+
+
+def main() -> None:
+    """Console entry point ``dynamixel_driver``."""
+    raise SystemExit(run(DynamixelDriver, "dynamixel_driver"))

@@ -1,0 +1,93 @@
+"""sim_node as a real process: mocap poses of the resting plant at 200 Hz, and motion when the driver commands φ."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+
+from hsa_common import qos
+from hsa_common.launcher import find_executable
+from hsa_core.mocap import world_to_planar
+from hsa_msgs.msg import PlanarActuation
+
+from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+
+pytestmark = pytest.mark.ros
+
+BASE = (0.1, -0.2, 1.0)  # world position of the base body [m]
+REST_FPU = (0.0, 0.11014, 0.0)  # χ_ee of the FPU model at rest (model.md §3)
+JAX_CACHE = Path(__file__).resolve().parents[2] / ".jax_cache"  # git-ignored
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One sim_node for the module (JAX compilation is the slow part); yields its emulated port."""
+    port = tmp_path_factory.mktemp("sim") / "ttyDXL"
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(JAX_CACHE)  # later runs skip most of the compilation
+    try:
+        proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", f"port:={port}",
+                              "-p", f"base_position:={list(BASE)}"])
+    finally:
+        del os.environ["JAX_COMPILATION_CACHE_DIR"]
+    wait_for_line(proc, "ready", timeout=180.0)
+    yield port
+    stop_process(proc)
+    assert not port.exists(), "the emulated bus outlived the simulator"
+
+
+def planar(msg: PoseStamped) -> np.ndarray:
+    p, q = msg.pose.position, msg.pose.orientation
+    return world_to_planar(BASE, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+
+def collect(node, topic: str, seconds: float) -> list[PoseStamped]:
+    received: list[PoseStamped] = []
+    subscription = node.create_subscription(PoseStamped, topic, received.append, qos.SENSOR)
+    deadline = time.monotonic() + 20.0
+    while not received and time.monotonic() < deadline:
+        time.sleep(0.02)
+    received.clear()
+    time.sleep(seconds)
+    node.destroy_subscription(subscription)
+    return list(received)
+
+
+def test_resting_plant_is_published_at_the_mocap_rate(sim, ros_node) -> None:
+    poses = collect(ros_node, "/mocap/platform/pose", 3.0)
+    assert len(poses) > 0.6 * 200 * 3.0, f"only {len(poses)} poses in 3 s"
+    stamps = [p.header.stamp.sec + 1e-9 * p.header.stamp.nanosec for p in poses]
+    assert all(b > a for a, b in zip(stamps, stamps[1:])) and poses[-1].header.frame_id == "world"
+    np.testing.assert_allclose(planar(poses[-1]), REST_FPU, atol=2e-5)
+    base = collect(ros_node, "/mocap/base/pose", 0.5)[-1].pose.position
+    assert (base.x, base.y, base.z) == pytest.approx(BASE)
+
+
+def test_equal_twist_commanded_through_the_driver_elongates_the_robot(sim, ros_node) -> None:
+    driver = start_process([find_executable("hsa_dynamixel_driver", "dynamixel_driver"), "--ros-args",
+                            "-p", f"port:={sim}"])
+    try:
+        wait_for_line(driver, "torque on", timeout=60.0)
+        pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
+        poses: list[PoseStamped] = []
+        ros_node.create_subscription(PoseStamped, "/mocap/platform/pose", poses.append, qos.SENSOR)
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and not (poses and planar(poses[-1])[1] > REST_FPU[1] + 0.004):
+            pub.publish(PlanarActuation(phi=np.array([1.0, 1.0])))
+            time.sleep(0.05)
+        chiee = planar(poses[-1])
+        assert chiee[1] > REST_FPU[1] + 0.004, f"no elongation: χ_ee = {chiee}"
+        assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, f"equal twist bent the robot: χ_ee = {chiee}"
+    finally:
+        assert stop_process(driver) in (0, 1)
+
+
+def test_bad_parameter_exits_2_naming_it() -> None:
+    proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", "disturbance:=strong"])
+    output, _ = proc.communicate(timeout=60.0)
+    assert proc.returncode == 2 and "'disturbance'" in output, output

@@ -68,7 +68,8 @@ def test_resting_plant_is_published_at_the_mocap_rate(sim, ros_node) -> None:
     assert (base.x, base.y, base.z) == pytest.approx(BASE)
 
 
-def test_equal_twist_commanded_through_the_driver_elongates_the_robot(sim, ros_node) -> None:
+def test_driver_commands_move_the_simulated_robot(sim, ros_node) -> None:
+    """Equal twists elongate (y grows); φ₁ > φ₂ bends towards x > 0 with θ < 0 (model.md §3 sign convention)."""
     driver = start_process([find_executable("hsa_dynamixel_driver", "dynamixel_driver"), "--ros-args",
                             "-p", f"port:={sim}"])
     try:
@@ -76,13 +77,19 @@ def test_equal_twist_commanded_through_the_driver_elongates_the_robot(sim, ros_n
         pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
         poses: list[PoseStamped] = []
         ros_node.create_subscription(PoseStamped, "/mocap/platform/pose", poses.append, qos.SENSOR)
-        deadline = time.monotonic() + 20.0
-        while time.monotonic() < deadline and not (poses and planar(poses[-1])[1] > REST_FPU[1] + 0.004):
-            pub.publish(PlanarActuation(phi=np.array([1.0, 1.0])))
-            time.sleep(0.05)
-        chiee = planar(poses[-1])
-        assert chiee[1] > REST_FPU[1] + 0.004, f"no elongation: χ_ee = {chiee}"
-        assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, f"equal twist bent the robot: χ_ee = {chiee}"
+
+        def drive(phi: tuple[float, float], reached) -> np.ndarray:
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline and not (poses and reached(planar(poses[-1]))):
+                pub.publish(PlanarActuation(phi=np.array(phi)))
+                time.sleep(0.05)
+            return planar(poses[-1])
+
+        chiee = drive((1.0, 1.0), lambda c: c[1] > REST_FPU[1] + 0.006)
+        assert chiee[1] > REST_FPU[1] + 0.006, f"no elongation: χ_ee = {chiee}"
+        assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, f"equal twists bent the robot: χ_ee = {chiee}"
+        chiee = drive((2.0, 0.5), lambda c: c[0] > 0.01)
+        assert chiee[0] > 0.01 and chiee[2] < -0.1, f"φ₁ > φ₂ did not bend towards +x: χ_ee = {chiee}"
     finally:
         assert stop_process(driver) in (0, 1)
 

@@ -1,0 +1,345 @@
+"""Dynamics of the planar HSA robot: M q_ddot + C q_dot + G + K + D q_dot = alpha (model.md §7).
+
+Inertia and gravity are sums over mass points: 8 Gauss-Legendre nodes on each virtual rod (model.md §9.1), the platform
+CoG and the payload, all handled as one vectorised array. The point Jacobians are written in closed form with the
+smooth function E(x) = S(x) + i x C(x) (§8.2) and its derivatives, which come from forward-mode autodiff of S and C.
+From them a single contraction gives M (§7.2), C (the Christoffel-symbol matrix of §7.3, as sum m J^T J_dot) and
+G = dU_g/dxi (§7.4). K, D, alpha and A are closed forms (§7.5-7.7), the collocated map follows planning_and_control.md
+§3.2. The layout keeps the compiled graph small (a dozen fused kernels), which is what makes the simulator fast.
+
+With `params.kappa_rule == "exp2023_shift"`, M, C, G, K, alpha, A and q_ddot are evaluated at
+kappa_dyn = kappa + sign(kappa) 0.01 (model.md §8.4(1)); the collocated map is always exact.
+"""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from hsa_core.kinematics import apply_kappa_rule, end_effector_offset, points_in_base, rotate, strains
+from hsa_core.params import HsaParams
+from hsa_core.smooth import C, S
+
+KAPPA_SHIFT_DYN = 1e-2
+"""exp2023 curvature shift of the dynamics [1/m] (model.md §8.1)."""
+
+N_GAUSS = 8
+"""Gauss-Legendre nodes per rod; 8 nodes reproduce the symbolic integrals to <= 1e-14 for |kappa| <= 50 1/m (§9.1)."""
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(N_GAUSS)
+
+
+class DynamicalMatrices(NamedTuple):
+    """All terms of the equation of motion at one state (model.md §7.8 for units)."""
+
+    M: Array
+    C: Array
+    G: Array
+    K: Array
+    D: Array
+    alpha: Array
+    A: Array
+
+
+class MassPoints(NamedTuple):
+    """Point masses that discretise the moving bodies: arc length s, mass m, local offset d, plus rod/platform rotation."""
+
+    s: Array
+    m: Array
+    d: Array
+    inertia_kk: Array
+
+
+def mass_points(params: HsaParams) -> MassPoints:
+    """Quadrature points of both rods, platform CoG and payload; computed once per parameter set (model.md §7.2)."""
+    l = params.l
+    s_nodes = l * (_GL_X + 1.0) / 2.0
+    w_nodes = l * _GL_W / 2.0
+    rod_density = params.rho_r * params.area  # linear density of each virtual rod [kg/m]
+    s_rods = jnp.broadcast_to(s_nodes, (2, N_GAUSS)).reshape(-1)
+    m_rods = (rod_density[:, None] * w_nodes[None, :]).reshape(-1)
+    d_rods = jnp.repeat(jnp.stack([params.roff, jnp.zeros(2)], axis=-1), N_GAUSS, axis=0)
+    d_platform = jnp.stack([jnp.zeros(()), params.y_c])
+    d_payload = end_effector_offset(params) + rotate(params.chiee_off[2], params.CoG_pl)
+    # rotational inertia about the out-of-plane axis: rods rho_r I int s^2 ds, platform I_p l^2 (J_o = [s, 0, 0])
+    inertia_kk = jnp.sum(params.rho_r * params.second_moment) * l**3 / 3.0 + params.I_p * l**2
+    return MassPoints(
+        s=jnp.concatenate([s_rods, jnp.stack([l, l])]),
+        m=jnp.concatenate([m_rods, jnp.stack([params.m_p, params.m_pl])]),
+        d=jnp.concatenate([d_rods, d_platform[None], d_payload[None]]),
+        inertia_kk=inertia_kk,
+    )
+
+
+def _arc_functions(x: Array) -> tuple[Array, Array, Array, Array]:
+    """E(x) = S(x) + i x C(x) = (e^{ix} - 1)/(ix), its first two derivatives, and e^{ix}, as (re, im) pairs (2, n)."""
+
+    def e(y: Array) -> Array:
+        return jnp.stack([S(y), y * C(y)])
+
+    ones = jnp.ones_like(x)
+    (E, E1), (_, E2) = jax.jvp(lambda y: jax.jvp(e, (y,), (ones,)), (x,), (ones,))
+    # materialise all per-point functions in one kernel instead of one per consumer (fewer XLA kernels, faster calls)
+    B = jax.lax.optimization_barrier(jnp.stack([E, E1, E2, jnp.stack([jnp.cos(x), jnp.sin(x)])]))
+    return B[0], B[1], B[2], B[3]
+
+
+def _cmul(a: Array, b: Array) -> Array:
+    """Complex product of planar vectors stored as (re, im) along axis 0."""
+    return jnp.stack([a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]])
+
+
+def _rot90(a: Array) -> Array:
+    """i * a for planar vectors stored as (re, im) along axis 0."""
+    return jnp.stack([-a[1], a[0]])
+
+
+def _point_jacobians(mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array]:
+    """Jacobians J = dp/dxi and their time derivatives J_dot of all mass points, each (3 columns, 2, n points).
+
+    In complex notation a point at arc s with local offset d sits at p = i l_pc + w F(s) + e^{i kappa s} d, with
+    w = sigma_sh + i sigma_ax and F(s) = s E(kappa s) (model.md §6.1-6.2). Hence J_sh = F, J_ax = i F,
+    J_kappa = w F_kappa + i s e^{i kappa s} d, with F_kappa = s^2 E'(kappa s) and F_kappa,kappa = s^3 E''(kappa s).
+    """
+    s = mp.s
+    w, w_dot, kappa_dot = xi[1:, None], xi_dot[1:, None], xi_dot[0]
+    E, E1, E2, e_ix = _arc_functions(xi[0] * s)
+    F, F_k, F_kk = s * E, s * s * E1, s**3 * E2
+    e_d = _cmul(e_ix, mp.d.T)
+    J = jnp.stack([_cmul(w, F_k) + s * _rot90(e_d), F, _rot90(F)])
+    dJ_kappa_dkappa = _cmul(w, F_kk) - s * s * e_d
+    J_dot = jnp.stack(
+        [_cmul(w_dot, F_k) + kappa_dot * dJ_kappa_dkappa, kappa_dot * F_k, kappa_dot * _rot90(F_k)]
+    )
+    return J, J_dot
+
+
+def _project(params: HsaParams, mp: MassPoints, J: Array, vectors: Array) -> Array:
+    """sum_k m_k J_k^T [J_k | vectors_k | g] (3, 3 + m + 1); the rotational inertia is added to entry (0, 0)."""
+    g = jnp.broadcast_to(params.g[None, :, None], (1, 2, mp.s.shape[0]))
+    V = jnp.concatenate([J, vectors, g])
+    rotation = jnp.zeros((3, V.shape[0])).at[0, 0].set(mp.inertia_kk)
+    return jnp.sum(J[:, None] * V[None] * mp.m, axis=(2, 3)) + rotation
+
+
+def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
+    """M, C and G in one contraction: [M | C | -G] = sum_k m_k J_k^T [J_k | J_dot_k | g] (+ rotational inertia).
+
+    C = sum_k m_k J_k^T J_dot_k is exactly the Christoffel-symbol matrix of model.md §7.3 for this M, because
+    Gamma_ijk = sum_k m <J_i, d^2 p / dxi_j dxi_k> for a sum of point masses plus a constant rotational Jacobian.
+    G = -sum_k m_k J_k^T g is the gradient of U_g = -sum_k m_k g^T p_k (§7.4).
+    """
+    J, J_dot = _point_jacobians(mp, xi, xi_dot)
+    R = _project(params, mp, J, J_dot)
+    return R[:, :3], R[:, 3:6], -R[:, 6]
+
+
+def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
+    """M, C q_dot and G, with C q_dot = sum_k m_k J_k^T (J_dot_k q_dot) from the same single contraction."""
+    J, J_dot = _point_jacobians(mp, xi, xi_dot)
+    R = _project(params, mp, J, jnp.sum(J_dot * xi_dot[:, None, None], axis=0)[None])
+    return R[:, :3], R[:, 3], -R[:, 4]
+
+
+def _strain_deviation(params: HsaParams, xi: Array) -> Array:
+    """beta_i - beta_eq,i for both rods, shape (2, 3) (model.md §6.4)."""
+    kappa, sigma_sh, sigma_ax = xi[0], xi[1], xi[2]
+    return jnp.stack(
+        [kappa - params.kappa_b_eq, sigma_sh - params.sigma_sh_eq, sigma_ax + params.roff * kappa - params.sigma_a_eq],
+        axis=-1,
+    )
+
+
+def _to_generalized(params: HsaParams, f_local: Array) -> Array:
+    """sum_i J_beta,i^T f_i for per-rod local forces f (2, 3): [f_b + roff f_a, f_sh, f_a] summed over rods."""
+    return jnp.stack(
+        [jnp.sum(f_local[:, 0] + params.roff * f_local[:, 2]), jnp.sum(f_local[:, 1]), jnp.sum(f_local[:, 2])]
+    )
+
+
+def _elastic_of(params: HsaParams, xi: Array) -> Array:
+    """K(xi) = sum_i J_beta,i^T S_hat_i (beta_i - beta_eq,i) (model.md §7.5)."""
+    dev = _strain_deviation(params, xi)
+    f = jnp.stack(
+        [
+            params.S_b_hat * dev[:, 0] + params.S_b_sh * dev[:, 1],
+            params.S_b_sh * dev[:, 0] + params.S_sh_hat * dev[:, 1],
+            params.S_a_hat * dev[:, 2],
+        ],
+        axis=-1,
+    )
+    return _to_generalized(params, f)
+
+
+def _actuation_of(params: HsaParams, xi: Array, phi: Array) -> Array:
+    """alpha(xi, phi) = sum_i J_beta,i^T [-S_delta,i (beta_i - beta_eq,i) + S_i [0, 0, eps_i]] (model.md §7.7)."""
+    dev = _strain_deviation(params, xi)
+    t = params.h * phi / params.l  # h_i phi_i / l
+    f = jnp.stack(
+        [
+            -params.C_S_b * t * dev[:, 0],
+            -params.C_S_sh * t * dev[:, 1],
+            (params.S_a_hat + params.C_S_a * t) * params.C_eps * t - params.C_S_a * t * dev[:, 2],
+        ],
+        axis=-1,
+    )
+    return _to_generalized(params, f)
+
+
+def _actuation_jacobian_of(params: HsaParams, xi: Array, phi: Array) -> Array:
+    """A = d alpha / d phi (3x2) in closed form: column i is J_beta,i^T a_i (model.md §7.7)."""
+    dev = _strain_deviation(params, xi)
+    l, h = params.l, params.h
+    a = (h / l)[:, None] * jnp.stack(
+        [
+            -params.C_S_b * dev[:, 0],
+            -params.C_S_sh * dev[:, 1],
+            params.S_a_hat * params.C_eps + 2.0 * params.C_S_a * params.C_eps * h * phi / l - params.C_S_a * dev[:, 2],
+        ],
+        axis=-1,
+    )
+    return jnp.stack([a[:, 0] + params.roff * a[:, 2], a[:, 1], a[:, 2]])
+
+
+def _forward_dynamics_of(params: HsaParams, mp: MassPoints, D: Array, xi: Array, q_dot: Array, phi: Array) -> Array:
+    """q_ddot at (already rule-adjusted) strains xi from precomputed mass points and damping matrix."""
+    M, C_q_dot, G = _inertial_forces(params, mp, xi, q_dot)
+    rhs = _actuation_of(params, xi, phi) - C_q_dot - G - _elastic_of(params, xi) - jnp.sum(D * q_dot, axis=1)
+    return jnp.linalg.solve(M, rhs)
+
+
+def _constants(params: HsaParams) -> tuple[MassPoints, Array]:
+    """Mass points and D, folded to compile-time constants when params are concrete (closed over), else traced."""
+    with jax.ensure_compile_time_eval():
+        return mass_points(params), damping_matrix(params)
+
+
+def _dynamic_strains(params: HsaParams, q: ArrayLike) -> Array:
+    """Strains at which M, C, G, K, alpha and A are evaluated (shifted kappa in "exp2023_shift" mode)."""
+    return apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_DYN)
+
+
+def _as_f64(v: ArrayLike) -> Array:
+    """Convert an input vector to a float64 JAX array."""
+    return jnp.asarray(v, dtype=jnp.float64)
+
+
+def mass_matrix(params: HsaParams, q: ArrayLike) -> Array:
+    """Inertia matrix M(xi) (3x3, symmetric positive definite) of rods, platform and payload (model.md §7.2)."""
+    return _inertial_terms(params, _constants(params)[0], _dynamic_strains(params, q), jnp.zeros(3))[0]
+
+
+def coriolis_matrix(params: HsaParams, q: ArrayLike, q_dot: ArrayLike) -> Array:
+    """Coriolis/centrifugal matrix C(xi, q_dot) = sum_k Gamma_ijk q_dot_k; M_dot - 2C is skew-symmetric (§7.3)."""
+    return _inertial_terms(params, _constants(params)[0], _dynamic_strains(params, q), _as_f64(q_dot))[1]
+
+
+def gravity_vector(params: HsaParams, q: ArrayLike) -> Array:
+    """G = dU_g/dxi, the gravitational generalized force of rods, platform and payload (model.md §7.4)."""
+    return _inertial_terms(params, _constants(params)[0], _dynamic_strains(params, q), jnp.zeros(3))[2]
+
+
+def gravitational_potential(params: HsaParams, q: ArrayLike) -> Array:
+    """U_g(xi) = -sum_k m_k g^T p_k (J), the potential whose gradient is G; used for energy checks."""
+    mp = _constants(params)[0]
+    p = points_in_base(params, _dynamic_strains(params, q), mp.s, mp.d)
+    return -jnp.sum(mp.m * (p @ params.g))
+
+
+def elastic_potential(params: HsaParams, q: ArrayLike) -> Array:
+    """U_e = sum_i (beta_i - beta_eq,i)^T S_hat_i (beta_i - beta_eq,i) / 2 (J), the potential of K at phi = 0."""
+    dev = _strain_deviation(params, _dynamic_strains(params, q))
+    quad = (
+        params.S_b_hat * dev[:, 0] ** 2
+        + 2.0 * params.S_b_sh * dev[:, 0] * dev[:, 1]
+        + params.S_sh_hat * dev[:, 1] ** 2
+        + params.S_a_hat * dev[:, 2] ** 2
+    )
+    return 0.5 * jnp.sum(quad)
+
+
+def kinetic_energy(params: HsaParams, q: ArrayLike, q_dot: ArrayLike) -> Array:
+    """T = q_dot^T M q_dot / 2 (J)."""
+    q_dot = _as_f64(q_dot)
+    return 0.5 * q_dot @ mass_matrix(params, q) @ q_dot
+
+
+def elastic_force(params: HsaParams, q: ArrayLike) -> Array:
+    """Twist-independent elastic force K(xi), linear in xi and zero at xi_eq (model.md §7.5)."""
+    return _elastic_of(params, _dynamic_strains(params, q))
+
+
+def damping_matrix(params: HsaParams) -> Array:
+    """Constant damping matrix D = sum_i J_beta,i^T diag(zeta_b, zeta_sh, zeta_a)_i J_beta,i (model.md §7.6)."""
+    roff, zeta_a = params.roff, params.zeta_a
+    d02 = jnp.sum(roff * zeta_a)
+    zero = jnp.zeros(())
+    return jnp.stack(
+        [
+            jnp.stack([jnp.sum(params.zeta_b + roff**2 * zeta_a), zero, d02]),
+            jnp.stack([zero, jnp.sum(params.zeta_sh), zero]),
+            jnp.stack([d02, zero, jnp.sum(zeta_a)]),
+        ]
+    )
+
+
+def actuation_force(params: HsaParams, q: ArrayLike, phi: ArrayLike) -> Array:
+    """Actuation force alpha(xi, phi), quadratic in phi and zero at phi = 0 (model.md §7.7)."""
+    return _actuation_of(params, _dynamic_strains(params, q), _as_f64(phi))
+
+
+def actuation_jacobian(params: HsaParams, q: ArrayLike, phi: ArrayLike) -> Array:
+    """A = d alpha / d phi (3x2) in closed form; column i is J_beta,i^T a_i (model.md §7.7)."""
+    return _actuation_jacobian_of(params, _dynamic_strains(params, q), _as_f64(phi))
+
+
+def collocated_map(params: HsaParams, q: ArrayLike, phi_ss: ArrayLike) -> Array:
+    """Collocated coordinates varphi = h(xi; phi_ss) = [varphi_1, varphi_2, sigma_sh], always at the exact xi (P&C §3.2)."""
+    xi = strains(params, q)
+    kappa, sigma_sh, sigma_ax = xi[0], xi[1], xi[2]
+    l, h = params.l, params.h
+    s_ax = sigma_ax + params.roff * kappa
+    varphi_rods = (h / l) * (
+        (params.S_a_hat * params.C_eps + 2.0 * params.C_S_a * params.C_eps * h * _as_f64(phi_ss) / l) * s_ax
+        - params.C_S_a * (s_ax**2 / 2.0 - params.sigma_a_eq * s_ax)
+        - params.C_S_b * (kappa**2 / 2.0 - params.kappa_b_eq * kappa)
+        - params.C_S_sh * (sigma_sh**2 / 2.0 - params.sigma_sh_eq * sigma_sh)
+    )
+    return jnp.concatenate([varphi_rods, sigma_sh[None]])
+
+
+def collocated_jacobian(params: HsaParams, q: ArrayLike, phi_ss: ArrayLike) -> Array:
+    """J_h = d varphi / d q (3x3) by autodiff; rows 1-2 equal A^T at the exact xi, row 3 is [0, 1, 0] (P&C §3.2)."""
+    return jax.jacfwd(collocated_map, argnums=1)(params, _as_f64(q), phi_ss)
+
+
+def static_residual(params: HsaParams, q: ArrayLike, phi: ArrayLike) -> Array:
+    """G + K - alpha: zero at a static equilibrium of configuration q under the constant twist phi."""
+    xi = _dynamic_strains(params, q)
+    G = _inertial_terms(params, _constants(params)[0], xi, jnp.zeros(3))[2]
+    return G + _elastic_of(params, xi) - _actuation_of(params, xi, _as_f64(phi))
+
+
+def dynamical_matrices(params: HsaParams, q: ArrayLike, q_dot: ArrayLike, phi: ArrayLike) -> DynamicalMatrices:
+    """All terms M, C, G, K, D, alpha, A of the equation of motion at (q, q_dot, phi) in one pass (model.md §7)."""
+    xi = _dynamic_strains(params, q)
+    phi = _as_f64(phi)
+    M, C, G = _inertial_terms(params, _constants(params)[0], xi, _as_f64(q_dot))
+    return DynamicalMatrices(
+        M=M,
+        C=C,
+        G=G,
+        K=_elastic_of(params, xi),
+        D=_constants(params)[1],
+        alpha=_actuation_of(params, xi, phi),
+        A=_actuation_jacobian_of(params, xi, phi),
+    )
+
+
+def forward_dynamics(params: HsaParams, q: ArrayLike, q_dot: ArrayLike, phi: ArrayLike) -> Array:
+    """q_ddot = M^-1 (alpha - C q_dot - G - K - D q_dot) by a linear solve, never an explicit inverse (§7.1)."""
+    mp, D = _constants(params)
+    return _forward_dynamics_of(params, mp, D, _dynamic_strains(params, q), _as_f64(q_dot), _as_f64(phi))

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -30,11 +31,15 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         return 2
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
     try:
+        node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass  # SIGINT/SIGTERM: rclpy shut the context down; an uncaught exception propagates after `finally`
+    except RCLError:
+        if rclpy.ok():
+            raise
+        # a signal shut the context down while a callback was publishing: an orderly stop, not a failure
     finally:
         hook = getattr(node, "on_shutdown", None)
         if hook is not None:

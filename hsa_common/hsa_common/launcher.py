@@ -154,7 +154,7 @@ class LaunchFile:
         name = sub(spec.get("name", spec["exec"]))
         cmd += ["-r", f"__node:={name}"]
         if "namespace" in spec:
-            cmd += ["-r", f"__ns:={sub(spec['namespace'])}"]
+            cmd += ["-r", f"__ns:=/{sub(spec['namespace']).lstrip('/')}"]  # launch_ros makes it absolute too
         for param in spec.get("param", []):
             if "from" in param:
                 file = Path(sub(param["from"]))
@@ -185,7 +185,7 @@ class Launcher:
 
     def run(self) -> int:
         """Start everything, wait for a stop condition, stop everything; return the worst child exit code."""
-        env = rosenv.ros_environment()
+        env = rosenv.ros_environment()  # inherits this process's reserved domain (rosenv.apply in main)
         signal.signal(signal.SIGINT, self._request_stop)
         signal.signal(signal.SIGTERM, self._request_stop)
         for proc in self.procs:
@@ -239,6 +239,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, dict[str, str]]:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (``hsa_launch file.launch.yaml name:=value ...``)."""
     opts, launch_args = parse_args(sys.argv[1:] if argv is None else argv)
+    rosenv.apply()  # before substitutions: $(env ROS_DOMAIN_ID) must name the domain the nodes will use
     try:
         procs = LaunchFile(opts.launch_file, launch_args).processes()
     except (LaunchError, OSError, KeyError, yaml.YAMLError) as exc:

@@ -1,8 +1,10 @@
 """sim_node: replaces the hardware — an emulated MX-28 bus for the driver and mocap poses from the JAX plant.
 
-Each tick (mocap rate) it reads the emulated servos' present ticks, converts them to φ, advances the plant by the
-ROS time elapsed since the previous tick (φ held; at most 2 periods, so the stamps and the plant stay consistent)
-and publishes the platform pose in the world frame, stamped with the tick time. See docs/nodes/hsa_sim_node.md.
+Mocap samples lie on a regular grid of stamps (period 1/rate of the node clock), as a camera system's do. Each timer
+callback reads the emulated servos' present ticks, converts them to φ and, for every sample due by now, advances the
+plant by one period (φ held) and publishes the platform pose in the world frame with that sample's stamp. A callback
+that comes late catches up (up to MAX_CATCH_UP samples); a longer stall skips samples, counted in diagnostics.
+See docs/nodes/hsa_sim_node.md.
 """
 
 from __future__ import annotations
@@ -24,17 +26,18 @@ from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
-from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
+from hsa_common.model_params import MODEL_SPECS, load_model
+from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
 from hsa_core.actuation import MotorMap
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.kinematics import end_effector_pose
 from hsa_core.mocap import planar_to_world
-from hsa_core.params import HsaParams, ParameterError, load_params
 from hsa_core.simulation import simulate, steady_state_rollout
 from hsa_sim_node.mx28_emulator import BAUD_RATE_CODES, MX28Emulator
 
-MAX_CATCH_UP = 2.0  # largest plant advance per tick, in mocap periods (RK4 stability bounds the step)
+SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
+MAX_CATCH_UP = 4  # most mocap samples produced in one timer callback; a longer stall skips samples (counted)
 
 
 def _signs(value: list[int]) -> str | None:
@@ -63,13 +66,10 @@ SPECS = (
               validator=_signs),
     ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
               validator=_signs),
-    ParamSpec("material", "fpu", "parameter set of the plant", choices=("fpu", "epu"), read_only=True),
-    ParamSpec("params_file", "", "parameter YAML overriding the packaged set (empty = packaged)", read_only=True),
-    ParamSpec("sigma_a_eq", Parameter.Type.DOUBLE_ARRAY, "[-] axial rest strains of the plant's virtual rods 1, 2 "
-              "(unset or empty = from the parameter set)", read_only=True, validator=_strains),
+    *MODEL_SPECS,
     ParamSpec("rate", 200.0, "mocap rate: plant ticks and published poses [Hz]", low=10.0, high=1000.0,
               read_only=True),
-    ParamSpec("substeps", 4, "RK4 steps per tick (step = elapsed time / substeps)", low=1, high=100,
+    ParamSpec("substeps", 4, "RK4 steps per mocap period", low=1, high=100,
               read_only=True),
     ParamSpec("base_position", [0.0, 0.0, 0.0], "world position of the base rigid body [m]", length=3,
               read_only=True),
@@ -102,7 +102,7 @@ class SimNode(Node):
         self._p: dict[str, Any] = declare(self, SPECS)
         self._period = 1.0 / self._p["rate"]
         ids, ticks = self._p["motor_ids"], self._p["initial_ticks"]
-        model = self._model()
+        model = load_model(self._p)
         self._disturbance = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
             else DisturbanceModel.none()
         plant = self._disturbance.plant_params(model)
@@ -126,53 +126,47 @@ class SimNode(Node):
                                                    qos_overriding_options=options)
         self._pub_base = (self.create_publisher(PoseStamped, self._p["base_topic"], qos.SENSOR,
                                                 qos_overriding_options=options) if self._p["base_topic"] else None)
-        self._stats = {"ticks": 0, "sim_time": 0.0, "overruns": 0, "compute_max": 0.0, "compute_sum": 0.0}
+        self._stats = {"ticks": 0, "sim_time": 0.0, "overruns": 0, "skipped": 0, "compute_max": 0.0,
+                       "compute_sum": 0.0}
         self._report_base = (time.monotonic(), dict(self._stats))
         self._diverged = False
-        self._last: Time | None = None
+        self._period_ns = round(self._period * 1e9)
+        self._next_ns: int | None = None  # stamp of the next mocap sample [ns, node clock]
         self.create_timer(self._period, self._tick)
         diagnostics = Diagnostics(self, hardware_id=port)
         diagnostics.add("plant", self._plant_report)
         diagnostics.add("emulator", self._emulator_report)
 
-    def _model(self) -> HsaParams:
-        """Parameters selected by material, params_file and sigma_a_eq (before the disturbance's mismatch)."""
-        overrides = {"sigma_a_eq": list(self._p["sigma_a_eq"])} if self._p["sigma_a_eq"] else {}
-        name = "params_file" if self._p["params_file"] else "sigma_a_eq" if overrides else "material"
-        try:
-            params = load_params(self._p["params_file"] or self._p["material"], **overrides)
-        except ParameterError as exc:
-            raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
-        if params.material != self._p["material"]:
-            raise ParameterValidationError(f"parameter 'params_file': a '{params.material}' set, but material is "
-                                           f"'{self._p['material']}'")
-        return params
-
     def _tick(self) -> None:
-        """Advance the plant to now with the servos' present twist and publish the mocap poses."""
+        """Produce every mocap sample due by now, on a regular grid of stamps like a camera system's."""
         started = time.perf_counter()
-        now = self.get_clock().now()
-        if self._last is None:
-            self._last = now
-        elapsed = (now - self._last).nanoseconds * 1e-9
-        if elapsed <= 0.0 or self._diverged:
-            self._publish(now)
+        now = self.get_clock().now().nanoseconds
+        if self._next_ns is None:
+            self._next_ns = now
+        due = (now - self._next_ns) // self._period_ns + 1
+        if due <= 0:
             return
-        self._last = now
-        advance = min(elapsed, MAX_CATCH_UP * self._period)
-        self._stats["overruns"] += elapsed > 1.5 * self._period
+        if due > MAX_CATCH_UP:  # stalled for longer than the catch-up budget: skip, as a dropped mocap frame would
+            skipped = due - MAX_CATCH_UP
+            self._stats["skipped"] += skipped
+            self._next_ns += skipped * self._period_ns
+            due = MAX_CATCH_UP
+        self._stats["overruns"] += due > 1
         self._phi = self._map.present_twists([self._emulator.present_ticks()[i] for i in self._map.ids])
-        x, chiee = self._step(self._x, self._phi, advance / self._p["substeps"])
-        chiee = np.asarray(chiee)
-        if not np.all(np.isfinite(chiee)):
-            self._diverged = True
-            self.get_logger().error(f"plant diverged at φ = {self._phi.tolist()}; holding the last finite pose")
-        else:
-            self._x, self._chiee = x, chiee
-            self._stats["sim_time"] += advance
-        self._publish(now)
+        for _ in range(due):
+            if not self._diverged:
+                x, chiee = self._step(self._x, self._phi, self._period / self._p["substeps"])
+                chiee = np.asarray(chiee)
+                if np.all(np.isfinite(chiee)):
+                    self._x, self._chiee = x, chiee
+                    self._stats["sim_time"] += self._period
+                else:
+                    self._diverged = True
+                    self.get_logger().error(f"plant diverged at φ = {self._phi.tolist()}; holding the last finite pose")
+            self._publish(Time(nanoseconds=self._next_ns))
+            self._next_ns += self._period_ns
+            self._stats["ticks"] += 1
         compute = time.perf_counter() - started
-        self._stats["ticks"] += 1
         self._stats["compute_sum"] += compute
         self._stats["compute_max"] = max(self._stats["compute_max"], compute)
 
@@ -203,7 +197,7 @@ class SimNode(Node):
         wall = max(now - since, 1e-9)
         rtf = (self._stats["sim_time"] - base["sim_time"]) / wall
         values = {"rate_hz": round(ticks / wall, 1), "real_time_factor": round(rtf, 3),
-                  "overruns": self._stats["overruns"],
+                  "late_callbacks": self._stats["overruns"], "skipped_samples": self._stats["skipped"],
                   "compute_mean_ms": round(1e3 * (self._stats["compute_sum"] - base["compute_sum"]) / max(ticks, 1), 3),
                   "compute_max_ms": round(1e3 * base["compute_max"], 3), "phi": np.round(self._phi, 4).tolist(),
                   "chiee": np.round(self._chiee, 5).tolist(), "disturbance": self._p["disturbance"]}
@@ -220,7 +214,8 @@ class SimNode(Node):
         return Report(OK if stats.crc_errors == 0 else WARN, "serving", values)
 
     def on_shutdown(self) -> None:
-        """Runner exit hook: remove the emulated bus (a driver then sees the device unplugged)."""
+        """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off."""
+        time.sleep(SHUTDOWN_GRACE)
         self._emulator.stop()
 
 

@@ -18,5 +18,12 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description="MCAP record and replay of hsa-ros topics and offline analysis of recorded runs.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "bag_recorder = hsa_bag.recorder:main",
+            "bag_player = hsa_bag.player:main",
+            "bag_recover = hsa_bag.recover:main",
+            "hsa_analyze = hsa_bag.analysis:main",
+        ]
+    },
 )

@@ -1,0 +1,284 @@
+"""bag_player: publish a bag into the live graph with the recorded timing.
+
+``bag_player BAG [--topics T ...] [--remap FROM:=TO ...] [--rate R] [--start-offset S] [--loop [N]] [--clock [HZ]]
+[--delay S] [--wait-for-subscribers [TIMEOUT]] [--busy-wait-ms MS] [--ros-args ...]``
+
+* **Order and timing.** Messages are published in timestamp order across all files of the bag (:mod:`hsa_bag.bagio`),
+  whatever the order of files and chunks. Message i of pass k is due at monotonic time
+  ``t0 + (t_i + k·loop_span − t_first) / rate``, where ``t_first = bag start + start offset``; the player sleeps
+  until ``busy_wait`` before that and busy-waits the rest (the OS wakes sleepers up to a scheduler tick late), and
+  pacing uses ``time.monotonic`` only, so wall-clock jumps do not matter.
+* **Loop.** ``--loop`` repeats forever, ``--loop N`` plays N passes. Pass k is shifted by ``k·loop_span`` with
+  ``loop_span`` = played span + one mean message period, so playback time and /clock never go backwards. Message
+  contents (header stamps included) are published as recorded.
+* **/clock.** With ``--clock [HZ]`` (default 40 Hz, as ``ros2 bag play --clock``) rosgraph_msgs/Clock carries the
+  playback time, first at the start time, then every 1/HZ s of wall time, reliable keep-last 1 (compatible with
+  best-effort and reliable subscribers).
+* **Topics.** ``--topics`` selects by recorded name; ``--remap FROM:=TO`` publishes FROM under TO. Messages go out as
+  the recorded bytes; each type's class comes from ``importlib`` (``<pkg>.msg``) and the QoS from the offers stored in
+  the bag (:func:`hsa_bag.qos.publisher_profile`).
+* **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 2 for a bad bag or argument.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+
+from hsa_bag.bagio import Bag, BagError
+from hsa_bag.msgtypes import message_class
+from hsa_bag.qos import publisher_profile
+from hsa_core import rosenv
+
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+ACK_TIMEOUT = Duration(seconds=5.0)
+
+
+@dataclass(frozen=True)
+class Options:
+    """What to play and how (see the module docstring)."""
+
+    topics: tuple[str, ...]  # recorded names; empty = all
+    remap: dict[str, str]
+    rate: float = 1.0
+    start_offset: float = 0.0  # s of bag time skipped at the start of every pass
+    loops: int = 1  # passes; 0 = forever
+    clock_hz: float = 0.0  # 0 = no /clock
+    delay: float = 0.0  # s before the first message
+    wait_for_subscribers: float = 0.0  # s to wait for a subscriber on every played topic; 0 = don't
+    busy_wait: float = 1e-3  # s busy-waited before each due time
+
+
+@dataclass(frozen=True)
+class Result:
+    """What a play run did: messages published, passes completed, wall time and the worst lateness [s]."""
+
+    published: int
+    passes: int
+    elapsed: float
+    max_late: float
+
+
+def message_classes(bag: Bag, options: Options) -> dict[str, type]:
+    """The message class of every topic to play; BagError naming a topic not in the bag or a type not installed."""
+    topics = list(options.topics) or sorted(bag.topics)
+    for name in [*topics, *options.remap]:
+        bag.topic(name)
+    classes = {}
+    for name in topics:
+        msgtype = bag.topics[name].msgtype
+        try:
+            classes[name] = message_class(msgtype)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise BagError(f"type {msgtype} of topic {name} is not installed ({exc})") from exc
+    return classes
+
+
+class Player:
+    """Publishes one bag through one node; :meth:`play` returns when done or when ``stop`` is set."""
+
+    def __init__(
+        self, bag: Bag, options: Options, classes: dict[str, type], node: Node, stop: threading.Event
+    ) -> None:
+        self.bag = bag
+        self.options = options
+        self.stop = stop
+        self.topics = list(classes)
+        self.publishers: dict[str, Publisher] = {
+            name: node.create_publisher(cls, options.remap.get(name, name), publisher_profile(bag.topics[name].qos))
+            for name, cls in classes.items()
+        }
+        self.clock: Publisher | None = None
+        if options.clock_hz > 0:
+            self.clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+        self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
+        mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
+        self.loop_span = max(bag.end - self.first, 0) + mean_period
+        self._t0 = 0.0
+        self._next_clock = 0.0
+
+    def _playback_ns(self, when: float) -> int:
+        """Playback (bag) time [ns] at monotonic time ``when``."""
+        return self.first + round((when - self._t0) * self.options.rate * 1e9)
+
+    def _wait(self, target: float) -> bool:
+        """Sleep until ``busy_wait`` before monotonic time ``target``, then busy-wait; False if stopped."""
+        remaining = target - time.monotonic() - self.options.busy_wait
+        if remaining > 0 and self.stop.wait(remaining):
+            return False
+        while time.monotonic() < target:
+            pass
+        return not self.stop.is_set()
+
+    def _publish_clock(self, when: float) -> None:
+        """Publish the playback time of monotonic time ``when`` on /clock."""
+        assert self.clock is not None
+        ns = self._playback_ns(when)
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
+        self.clock.publish(msg)
+
+    def _sleep_until(self, due: float) -> bool:
+        """Wait for ``due``, publishing the /clock ticks that fall before it; False if stopped."""
+        while self.clock is not None and self._next_clock <= due:
+            if not self._wait(self._next_clock):
+                return False
+            self._publish_clock(self._next_clock)
+            self._next_clock += 1.0 / self.options.clock_hz
+        return self._wait(due)
+
+    def _wait_for_subscribers(self) -> None:
+        """Wait (bounded) until every played topic has a matched subscription; report the ones that have none."""
+        deadline = time.monotonic() + self.options.wait_for_subscribers
+        while time.monotonic() < deadline and not self.stop.is_set():
+            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
+                return
+            self.stop.wait(0.05)
+        missing = [n for n, p in self.publishers.items() if p.get_subscription_count() == 0]
+        if missing:
+            print(f"bag_player: no subscriber for {', '.join(missing)}; playing anyway", flush=True)
+
+    def play(self) -> Result:
+        """Publish the selected messages, pass after pass; return counts and timing."""
+        if self.options.wait_for_subscribers > 0:
+            self._wait_for_subscribers()
+        if self.options.delay > 0 and self.stop.wait(self.options.delay):
+            return Result(0, 0, 0.0, 0.0)
+        published = passes = 0
+        max_late = 0.0
+        self._t0 = self._next_clock = time.monotonic()
+        scale = 1e-9 / self.options.rate
+        while not self.stop.is_set() and (self.options.loops == 0 or passes < self.options.loops):
+            offset = passes * self.loop_span - self.first
+            before = published
+            for topic, stamp, data in self.bag.messages(self.topics, start=self.first):
+                due = self._t0 + (stamp + offset) * scale
+                if not self._sleep_until(due):
+                    break
+                self.publishers[topic].publish(data)
+                max_late = max(max_late, time.monotonic() - due)
+                published += 1
+            else:
+                passes += 1
+            if published == before:
+                break  # nothing after the start offset: another pass would spin
+        elapsed = time.monotonic() - self._t0
+        for pub in self.publishers.values():
+            if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
+                pub.wait_for_all_acked(ACK_TIMEOUT)
+        return Result(published, passes, elapsed, max_late)
+
+
+def _remap(text: str) -> tuple[str, str]:
+    """argparse type for FROM:=TO."""
+    source, sep, target = text.partition(":=")
+    if not sep or not source or not target:
+        raise argparse.ArgumentTypeError(f"expected FROM:=TO, got {text!r}")
+    return source, target
+
+
+def _positive(text: str) -> float:
+    """argparse type for a finite number > 0."""
+    value = float(text)
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    """argparse type for a finite number >= 0."""
+    value = float(text)
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def parse_args(argv: list[str]) -> tuple[Path, Options]:
+    """Bag path and options from the command line (without ROS arguments)."""
+    parser = argparse.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
+    parser.add_argument("bag", type=Path, help="rosbag2 directory or .mcap file")
+    parser.add_argument("--topics", nargs="+", default=[], metavar="TOPIC",
+                        help="recorded topics to play (default all)")
+    parser.add_argument("--remap", action="append", type=_remap, default=[], metavar="FROM:=TO",
+                        help="publish recorded topic FROM as TO (repeatable)")
+    parser.add_argument("--rate", type=_positive, default=1.0, help="playback speed factor (2 = twice as fast)")
+    parser.add_argument("--start-offset", type=_non_negative, default=0.0, metavar="S",
+                        help="skip the first S seconds of the bag")
+    parser.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
+                        help="play N passes; without N, repeat until stopped")
+    parser.add_argument("--clock", type=_positive, nargs="?", const=40.0, default=0.0, metavar="HZ",
+                        help="publish the playback time on /clock at HZ (default 40)")
+    parser.add_argument("--delay", type=_non_negative, default=0.0, metavar="S", help="wait S seconds before playing")
+    parser.add_argument("--wait-for-subscribers", type=_positive, nargs="?", const=30.0, default=0.0,
+                        metavar="TIMEOUT", help="first wait up to TIMEOUT s (default 30) for a subscriber per topic")
+    parser.add_argument("--busy-wait-ms", type=_non_negative, default=1.0, metavar="MS",
+                        help="busy-wait this long before each message instead of sleeping (default 1)")
+    args = parser.parse_args(argv)
+    if args.loop < 0:
+        parser.error("--loop N needs N >= 0")
+    options = Options(
+        topics=tuple(args.topics), remap=dict(args.remap), rate=args.rate, start_offset=args.start_offset,
+        loops=args.loop, clock_hz=args.clock, delay=args.delay, wait_for_subscribers=args.wait_for_subscribers,
+        busy_wait=args.busy_wait_ms * 1e-3,
+    )  # fmt: skip
+    return args.bag, options
+
+
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(our arguments, ``--ros-args … [--]`` for rclpy); FROM:=TO stays ours (rcl would take it for a remap rule)."""
+    if "--ros-args" not in argv:
+        return argv, []
+    start = argv.index("--ros-args")
+    end = argv.index("--", start) if "--" in argv[start:] else len(argv)
+    return argv[:start] + argv[end + 1 :], argv[start:end]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``bag_player``."""
+    ours, ros_args = split_ros_args(sys.argv[1:] if argv is None else argv)
+    path, options = parse_args(ours)
+    rosenv.ensure_for_node()
+    try:
+        bag = Bag(path)
+    except BagError as exc:
+        print(f"bag_player: {exc}", file=sys.stderr)
+        return 2
+    try:
+        classes = message_classes(bag, options)
+    except BagError as exc:
+        bag.close()
+        print(f"bag_player: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    node = rclpy.create_node("bag_player")
+    try:
+        player = Player(bag, options, classes, node, stop)
+        span = (bag.end - player.first) / 1e9
+        topics = ", ".join(player.topics)
+        print(f"playing {path}: {topics}; {span:.3f} s of bag time at rate {options.rate}", flush=True)
+        result = player.play()
+        print(
+            f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; "
+            f"latest {result.max_late * 1e3:.2f} ms behind schedule", flush=True,
+        )  # fmt: skip
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        bag.close()
+    return 0

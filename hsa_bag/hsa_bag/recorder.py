@@ -1,0 +1,212 @@
+"""bag_recorder: record topics of the live graph into a rosbag2 MCAP bag (rosbags Writer, metadata version 9).
+
+Every selected topic is subscribed with ``raw=True`` as soon as it has a publisher, and the serialized bytes go
+straight into the bag. The graph is searched again every ``discovery_period`` so late publishers are caught. The
+subscription QoS is adapted to the publishers' offers and the offers are stored in the bag (see
+:mod:`hsa_bag.qos`); a publisher that appears later with a weaker offer (best effort, volatile) gets the topic
+re-subscribed so it is not silently missed. Types come from the Jazzy typestore and from the ``.msg`` files that
+interface packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
+
+**Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with ``use_sim_time``)
+read in the subscription callback, in ns. Header stamps inside the messages are untouched.
+
+Files, splitting and crash safety: :mod:`hsa_bag.storage`. The pending chunk is flushed at ``chunk_size`` bytes and
+every ``flush_period`` s, so a SIGKILL loses at most the last ``flush_period`` (``bag_recover`` then completes the
+unfinished split). SIGINT/SIGTERM close the bag cleanly (runner ``on_shutdown`` hook). The bag directory is logged
+at start and at the end.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import rclpy.logging
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSCompatibility, QoSProfile, qos_check_compatible
+from rclpy.subscription import Subscription
+from rclpy.topic_endpoint_info import TopicEndpointInfo
+
+from hsa_bag.msgtypes import TypeRegistry, UnknownTypeError, message_class
+from hsa_bag.qos import subscription_profile, to_bag
+from hsa_bag.storage import MAX_CHUNK_SIZE, SplitBagWriter
+from hsa_common import runner
+from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
+
+EXCLUDED = frozenset({"/rosout", "/parameter_events"})
+
+SPECS = (
+    ParamSpec("topics", Parameter.Type.STRING_ARRAY,
+              "topics to record (relative names resolve in the node namespace); unset or empty = every topic on "
+              "the graph except /rosout, /parameter_events and hidden topics", read_only=True),
+    ParamSpec("output", "", "bag directory to create; empty = out/bags/<YYYYmmdd-HHMMSS> (relative to the working "
+              "directory); an existing path is refused", read_only=True),
+    ParamSpec("max_bag_size", 0, "[bytes] start a new split before a file would exceed this; 0 = never",
+              low=0, high=2**62, read_only=True),
+    ParamSpec("max_bag_duration", 0.0, "[s] start a new split after this much receive time; 0 = never",
+              low=0.0, high=1e9, read_only=True),
+    ParamSpec("chunk_size", 64 * 1024, "[bytes] MCAP chunk size; a full chunk is written and flushed at once",
+              low=1024, high=MAX_CHUNK_SIZE, read_only=True),
+    ParamSpec("flush_period", 1.0, "[s] flush the pending chunk this often (bounds what a killed recorder loses)",
+              low=0.05, high=60.0, read_only=True),
+    ParamSpec("discovery_period", 1.0, "[s] search the graph for new topics and publishers this often",
+              low=0.05, high=60.0, read_only=True),
+)  # fmt: skip
+
+
+def default_output() -> Path:
+    """out/bags/<local date-time>, relative to the working directory."""
+    return Path("out", "bags", time.strftime("%Y%m%d-%H%M%S"))
+
+
+def is_hidden(topic: str) -> bool:
+    """Hidden topics have a name token starting with an underscore (e.g. action internals), as in rosbag2."""
+    return any(token.startswith("_") for token in topic.split("/"))
+
+
+@dataclass
+class Recording:
+    """A topic being recorded: bag handle, message class, subscription and the publishers (gids) its QoS suits."""
+
+    handle: int
+    message_class: type
+    profile: QoSProfile
+    subscription: Subscription
+    publishers: frozenset[bytes]
+
+
+def describe(profile: QoSProfile) -> str:
+    """'reliable, transient_local' style summary of a subscription profile."""
+    return f"{profile.reliability.name.lower()}, {profile.durability.name.lower()}"
+
+
+class BagRecorder(Node):
+    """Records the selected topics into one bag directory; see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__("bag_recorder")
+        params = declare(self, SPECS)
+        guard_updates(self, SPECS)
+        self._wanted = {self.resolve_topic_name(t) for t in params["topics"] or [] if t}
+        self._types = TypeRegistry()
+        self._bag = SplitBagWriter(
+            Path(params["output"]) if params["output"] else default_output(),
+            self._types.store,
+            max_bytes=params["max_bag_size"],
+            max_duration=round(params["max_bag_duration"] * 1e9),
+            chunk_size=params["chunk_size"],
+            custom_data={"hsa_bag.timestamps": "receive time, node clock [ns]"},
+        )
+        try:
+            self._bag.open()
+        except FileExistsError as exc:
+            raise ParameterValidationError(
+                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it"
+            ) from exc
+        self._recording: dict[str, Recording] = {}
+        self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
+        self.create_timer(params["discovery_period"], self._discover)
+        self.create_timer(params["flush_period"], self._bag.flush)
+        Diagnostics(self).add("recording", self._report)
+        self.get_logger().info(f"recording to {self._bag.path.resolve()}")
+        self._discover()
+
+    def _selected(self, topic: str) -> bool:
+        """Whether ``topic`` is to be recorded."""
+        if self._wanted:
+            return topic in self._wanted
+        return topic not in EXCLUDED and not is_hidden(topic)
+
+    def _discover(self) -> None:
+        """Subscribe to selected topics that have publishers now; re-adapt QoS where publishers changed."""
+        for topic, types in self.get_topic_names_and_types():
+            if not self._selected(topic) or topic in self._skipped:
+                continue
+            offers = self.get_publishers_info_by_topic(topic)
+            if not offers:
+                continue  # nothing offers QoS yet: wait for a publisher
+            if topic in self._recording:
+                self._adapt(topic, offers)
+            else:
+                self._start(topic, types, offers)
+
+    def _skip(self, topic: str, reason: str) -> None:
+        """Leave ``topic`` out of the bag and say why, once."""
+        self._skipped[topic] = reason
+        self.get_logger().warning(f"not recording {topic}: {reason}")
+
+    def _start(self, topic: str, types: list[str], offers: list[TopicEndpointInfo]) -> None:
+        """Register ``topic`` in the bag and subscribe to it."""
+        if len(types) != 1:
+            self._skip(topic, f"it has {len(types)} types ({', '.join(types)})")
+            return
+        msgtype = types[0]
+        try:
+            self._types.ensure(msgtype)
+            cls = message_class(msgtype)
+        except (UnknownTypeError, ImportError, AttributeError, ValueError) as exc:
+            self._skip(topic, f"type {msgtype} is unavailable ({exc})")
+            return
+        profiles = [o.qos_profile for o in offers]
+        handle = self._bag.add_topic(topic, msgtype, [to_bag(p) for p in profiles])
+        profile = subscription_profile(profiles)
+        sub = self.create_subscription(cls, topic, partial(self._write, handle), profile, raw=True)
+        self._recording[topic] = Recording(
+            handle, cls, profile, sub, frozenset(bytes(o.endpoint_gid) for o in offers)
+        )
+        self.get_logger().info(f"recording {topic} [{msgtype}] ({describe(profile)}; {len(offers)} publisher(s))")
+
+    def _adapt(self, topic: str, offers: list[TopicEndpointInfo]) -> None:
+        """Store the current offers for the next split; re-subscribe if a publisher cannot reach the subscription."""
+        rec = self._recording[topic]
+        publishers = frozenset(bytes(o.endpoint_gid) for o in offers)
+        if publishers == rec.publishers:
+            return
+        rec.publishers = publishers
+        profiles = [o.qos_profile for o in offers]
+        self._bag.set_qos(rec.handle, [to_bag(p) for p in profiles])
+        if all(qos_check_compatible(p, rec.profile)[0] != QoSCompatibility.ERROR for p in profiles):
+            return
+        self.destroy_subscription(rec.subscription)
+        rec.profile = subscription_profile(profiles)
+        rec.subscription = self.create_subscription(
+            rec.message_class, topic, partial(self._write, rec.handle), rec.profile, raw=True
+        )
+        self.get_logger().warning(f"re-subscribed {topic} ({describe(rec.profile)}): a new publisher offers less")
+
+    def _write(self, handle: int, data: bytes) -> None:
+        """Subscription callback: the serialized message goes into the bag, stamped with the receive time."""
+        self._bag.write(handle, self.get_clock().now().nanoseconds, data)
+
+    def _report(self) -> Report:
+        """Diagnostics: bag, file, counts; WARN while some topic cannot be recorded."""
+        files = self._bag.files
+        values = {
+            "bag": str(self._bag.path.resolve()),
+            "file": files[-1].name if files else "",
+            "splits": len(files),
+            "messages": self._bag.message_count,
+            "topics": len(self._recording),
+        }
+        if self._skipped:
+            values.update({f"skipped {t}": why for t, why in self._skipped.items()})
+            return Report(WARN, f"{len(self._skipped)} topic(s) not recorded", values)
+        return Report(OK, "recording", values)
+
+    def on_shutdown(self) -> None:
+        """Close the bag (summary, footer, final metadata.yaml) and say where it is."""
+        self._bag.close()
+        files = ", ".join(p.name for p in self._bag.files) if self._bag.info else "no file"
+        rclpy.logging.get_logger("hsa_bag.recorder").info(  # not the node logger: its /rosout publisher is gone
+            f"wrote {self._bag.message_count} messages on {len(self._recording)} topic(s) to "
+            f"{self._bag.path.resolve()} ({files})"
+        )
+
+
+def main() -> None:
+    """Console script ``bag_recorder``."""
+    raise SystemExit(runner.run(BagRecorder, "bag_recorder"))

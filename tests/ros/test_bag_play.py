@@ -1,0 +1,194 @@
+"""bag_player as a process: timing, order across files, rate, start offset, loop with /clock, topic selection, remap.
+
+The bag (200 Hz PlanarState best effort + 40 Hz ControllerInfo reliable, 2 s) is split into two files whose order
+is the reverse of time order, so a player that plays file after file would be off by a second. The timing bounds
+hold on a 2-core machine shared with other test runs (load average up to ~10; benchmarks/bench_bag.py reports the
+actual figures): inter-arrival error against the bag median ≤ 5 ms per topic and p99 ≤ 50 ms over both topics, every
+message within 300 ms of its schedule.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosgraph_msgs.msg import Clock
+
+from hsa_bag import player
+from hsa_bag.msgtypes import TypeRegistry
+from hsa_bag.storage import SplitBagWriter, read_metadata
+from hsa_common import qos
+from hsa_common.launcher import find_executable
+from hsa_msgs.msg import ControllerInfo, PlanarState
+
+pytestmark = pytest.mark.ros
+
+
+def _ros_conftest() -> ModuleType:
+    """tests/ros/conftest.py by path: the module name `conftest` is taken by tests/core/conftest.py when both run."""
+    spec = importlib.util.spec_from_file_location("hsa_ros_conftest", Path(__file__).with_name("conftest.py"))
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_conftest = _ros_conftest()
+start_process, stop_process = _conftest.start_process, _conftest.stop_process
+STATE, INFO = "/hsa/state", "/hsa/controller_info"
+START_NS = 1_750_000_000 * 10**9
+SPAN = 2.0
+INFINITE = QosTime(9223372036, 854775807)
+DEEP = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)  # the test process must not drop samples
+
+
+def offer(reliability: QosReliability) -> Qos:
+    """An offered profile as the graph reports it (history unknown, depth 0)."""
+    return Qos(QosHistory.UNKNOWN, 0, reliability, QosDurability.VOLATILE, INFINITE, INFINITE, QosLiveliness.AUTOMATIC,
+               INFINITE, False)  # fmt: skip
+
+
+def stamp_of(ns: int) -> Time:
+    """builtin_interfaces/Time of ns."""
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory) -> Path:
+    """2 s of state (200 Hz, index in window_samples) and controller info (40 Hz, index in trajectory_index)."""
+    messages = []
+    for i in range(round(SPAN * 200)):
+        t = START_NS + i * 5_000_000
+        msg = PlanarState(window_samples=i)
+        msg.header.stamp = stamp_of(t)
+        messages.append((t, STATE, serialize_message(msg)))
+    for i in range(round(SPAN * 40)):
+        t = START_NS + i * 25_000_000
+        msg = ControllerInfo()
+        msg.header.stamp = stamp_of(t)
+        msg.setpoint.trajectory_index = i
+        messages.append((t, INFO, serialize_message(msg)))
+    messages.sort()
+    half = len(messages) // 2
+    registry = TypeRegistry()
+    for msgtype in ("hsa_msgs/msg/PlanarState", "hsa_msgs/msg/ControllerInfo"):
+        registry.ensure(msgtype)
+    size = sum(len(m[2]) for m in messages[half:])  # splits the bag into 2–3 files
+    path = tmp_path_factory.mktemp("play") / "synthetic"
+    writer = SplitBagWriter(path, registry.store, max_bytes=size, chunk_size=4_096)
+    writer.open()
+    handles = {
+        STATE: writer.add_topic(STATE, "hsa_msgs/msg/PlanarState", [offer(QosReliability.BEST_EFFORT)]),
+        INFO: writer.add_topic(INFO, "hsa_msgs/msg/ControllerInfo", [offer(QosReliability.RELIABLE)]),
+    }
+    for t, topic, data in [*messages[half:], *messages[:half]]:  # second second first: file order != time order
+        writer.write(handles[topic], t, data)
+    writer.close()
+    files = read_metadata(path)["files"]
+    ends = [f["starting_time"]["nanoseconds_since_epoch"] + f["duration"]["nanoseconds"] for f in files]
+    assert len(ends) >= 2 and ends[0] - ends[-1] > 0.5e9  # the first file holds later messages than the last
+    return path
+
+
+class Arrivals:
+    """Receives the played topics in the test node: (monotonic arrival time, index) per topic, and /clock."""
+
+    def __init__(self, node: Node, state_topic: str = STATE) -> None:
+        self.got: dict[str, list[tuple[float, int]]] = {STATE: [], INFO: [], "other": []}
+        self.clock: list[int] = []
+        node.create_subscription(PlanarState, state_topic, lambda m: self._add(STATE, m.window_samples), DEEP)
+        node.create_subscription(ControllerInfo, INFO, lambda m: self._add(INFO, m.setpoint.trajectory_index), qos.INFO)
+        node.create_subscription(Clock, "/clock", lambda m: self.clock.append(m.clock.sec * 10**9 + m.clock.nanosec),
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        if state_topic != STATE:
+            node.create_subscription(PlanarState, STATE, lambda m: self._add("other", m.window_samples), DEEP)
+
+    def _add(self, topic: str, index: int) -> None:
+        self.got[topic].append((time.monotonic(), index))
+
+
+@pytest.fixture
+def play() -> Iterator:
+    """Run bag_player with arguments to completion (waiting for subscribers first); return its output."""
+    procs: list[subprocess.Popen] = []
+
+    def _play(*args: str) -> str:
+        exe = find_executable("hsa_bag", "bag_player")
+        proc = start_process([exe, *args, "--wait-for-subscribers", "30", "--delay", "0.5"])
+        procs.append(proc)
+        out, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 0, out
+        time.sleep(0.3)  # last deliveries
+        return out
+
+    yield _play
+    for proc in procs:
+        stop_process(proc)
+
+
+def interarrival_errors(got: list[tuple[float, int]], period: float) -> np.ndarray:
+    """|arrival gap − bag gap| [s] over consecutive received indices."""
+    arr = np.array(got)
+    gaps = np.diff(arr[:, 0]) - np.diff(arr[:, 1]) * period
+    return np.abs(gaps)
+
+
+def test_timing_and_order_across_files(ros_node: Node, bag: Path, play) -> None:
+    rx = Arrivals(ros_node)
+    out = play(str(bag))
+    assert "published 480 messages in 1 pass(es)" in out
+    info, state = rx.got[INFO], rx.got[STATE]
+    assert [i for _, i in info] == list(range(80))  # reliable: all, in order
+    assert len(state) >= 0.97 * 400 and [i for _, i in state] == sorted(i for _, i in state)
+    errors = [interarrival_errors(state, 0.005), interarrival_errors(info, 0.025)]
+    assert all(np.median(err) <= 5e-3 for err in errors), [np.median(err) for err in errors]
+    pooled_p99 = np.percentile(np.concatenate(errors), 99)  # over ~480 gaps: robust to a single scheduling hiccup
+    assert pooled_p99 <= 50e-3, pooled_p99
+    # every message on its schedule (a file-order player would be a second off for half of them)
+    times = sorted([(a, i * 0.005) for a, i in state] + [(a, i * 0.025) for a, i in info])
+    t0 = min(a - b for a, b in times)
+    lag = np.array([a - b - t0 for a, b in times])
+    assert lag.max() < 0.3, lag.max()
+    assert info[-1][0] - info[0][0] == pytest.approx(79 * 0.025, abs=0.03)
+
+
+def test_rate_factor_two_topic_selection_and_remap(ros_node: Node, bag: Path, play) -> None:
+    rx = Arrivals(ros_node, state_topic="/replay/state")
+    play(str(bag), "--rate", "2", "--topics", STATE, INFO, "--remap", f"{STATE}:=/replay/state")
+    info = rx.got[INFO]
+    assert [i for _, i in info] == list(range(80))
+    assert info[-1][0] - info[0][0] == pytest.approx(79 * 0.025 / 2, abs=0.03)  # half the span
+    assert len(rx.got[STATE]) >= 0.97 * 400 and not rx.got["other"]  # all on /replay/state, none on /hsa/state
+
+
+def test_loop_with_start_offset_and_clock_never_goes_back(ros_node: Node, bag: Path, play) -> None:
+    rx = Arrivals(ros_node)
+    out = play(str(bag), "--topics", INFO, "--start-offset", "1.5", "--loop", "3", "--clock", "100")
+    assert "in 3 pass(es)" in out
+    indices = [i for _, i in rx.got[INFO]]
+    assert indices == list(range(60, 80)) * 3  # t >= 1.5 s, three passes
+    loop_span = (SPAN - 0.005 - 1.5) + (SPAN - 0.005) / (480 - 1)  # played span + mean message period
+    schedule = np.array([k // 20 * loop_span + (i - 60) * 0.025 for k, i in enumerate(indices)])
+    lag = np.array([a for a, _ in rx.got[INFO]]) - schedule
+    assert np.ptp(lag) < 0.3  # each pass follows the previous one by loop_span: no pause, no burst
+    clock = np.array(rx.clock)
+    assert clock.size > 100 and np.all(np.diff(clock) >= 0)
+    assert clock[0] == pytest.approx(START_NS + 1.5e9, abs=2e7)
+    assert clock[-1] - clock[0] == pytest.approx((2 * loop_span + 0.475) * 1e9, abs=0.05e9)  # to the last message
+
+
+def test_unknown_topic_is_refused(bag: Path, capsys) -> None:
+    assert player.main([str(bag), "--topics", "/nope"]) == 2
+    assert "topic /nope is not in the bag" in capsys.readouterr().err
+    assert player.main([str(bag), "--remap", "/nope:=/x"]) == 2

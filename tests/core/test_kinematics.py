@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import REFERENCE, assert_printed, params_for
+from tests.core.conftest import REFERENCE, assert_printed, params_for
 
 from hsa_core import kinematics as kin
 from hsa_core.params import HsaParams

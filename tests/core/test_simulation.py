@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import assert_printed, params_for
+from tests.core.conftest import assert_printed, params_for
 
 from hsa_core import dynamics as dyn
 from hsa_core import simulation as sim

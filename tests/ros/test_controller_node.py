@@ -13,7 +13,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint

@@ -24,7 +24,7 @@ from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator, ServoModel
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 

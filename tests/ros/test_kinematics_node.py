@@ -25,7 +25,7 @@ from hsa_core.kinematics import end_effector_jacobian, end_effector_pose
 from hsa_core.params import HsaParams, load_params
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 from test_mocap_bridge import delta, pose_msg, prime, start_bridge, stamp_ns, status, stream, wait_until
 
 pytestmark = pytest.mark.ros

@@ -22,7 +22,7 @@ from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 

@@ -18,7 +18,7 @@ from hsa_core.trajectories import FPU_STEPS_20230925
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 

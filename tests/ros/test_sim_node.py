@@ -16,7 +16,7 @@ from hsa_common.launcher import find_executable
 from hsa_core.mocap import world_to_planar
 from hsa_msgs.msg import PlanarActuation
 
-from conftest import start_process, stop_process, wait_for_line  # tests/ros/conftest.py (imported last by pytest)
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 

@@ -26,7 +26,7 @@ from hsa_core.params import HsaParams, load_params
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
 from tests.ros.conftest import start_process, stop_process, wait_for_line
-from test_mocap_bridge import delta, pose_msg, prime, start_bridge, stamp_ns, status, stream, wait_until
+from tests.ros.test_mocap_bridge import delta, pose_msg, prime, start_bridge, stamp_ns, status, stream, wait_until
 
 pytestmark = pytest.mark.ros
 

@@ -37,7 +37,8 @@ SPECS = (
     ParamSpec("order", 3, "[-] degree of the Savitzky-Golay polynomial", low=1, high=6, read_only=True),
     ParamSpec("mocap_rate", 200.0, "[Hz] nominal ee_pose rate; the estimator period is T = 1/mocap_rate",
               low=1.0, high=2000.0, read_only=True),
-    ParamSpec("gap_factor", 1.5, "[-] a stamp interval longer than gap_factor * T restarts the window",
+    ParamSpec("gap_factor", 5.0, "[-] a stamp interval longer than gap_factor * T restarts the window (shorter gaps "
+              "are bridged by a fit on the true stamps)",
               low=1.01, high=100.0),
     ParamSpec("regular_tol", 1e-3, "[-] stamp jitter, relative to T, up to which the precomputed coefficients are "
               "used (else a fit on the true stamps)", low=0.0, high=0.5),

@@ -123,7 +123,7 @@ def test_q_from_fk_poses_and_rates_of_a_ramp(nodes, ros_node) -> None:
 
     assert wait_until(lambda: len(states) == 60, 10.0), f"{len(states)} of 60 states arrived"
     assert [stamp_ns(s) for s in states] == stamps
-    for k, state in enumerate(states):  # the priming samples were > 1.5 periods earlier: the window restarts
+    for k, state in enumerate(states):  # the priming samples were > gap_factor periods earlier: the window restarts
         assert state.header.frame_id == "hsa_base"
         assert [state.chiee.x, state.chiee.y, state.chiee.theta] == chiee[k].tolist()
         np.testing.assert_allclose(_q(state), q[k], rtol=0.0, atol=1e-9)
@@ -185,9 +185,9 @@ def test_refused_run_time_update_keeps_the_old_value(nodes, ros_node) -> None:
     for name, value in (("gap_factor", 0.5), ("regular_tol", -1.0), ("material", "epu"), ("window", 30)):
         result = set_one(name, value)
         assert not result.successful and name in result.reason, result.reason
-    assert (get("gap_factor"), get("regular_tol"), get("material"), get("window")) == (1.5, 1e-3, "fpu", 20)
+    assert (get("gap_factor"), get("regular_tol"), get("material"), get("window")) == (5.0, 1e-3, "fpu", 20)
     assert set_one("gap_factor", 2.5).successful and get("gap_factor") == 2.5
-    assert set_one("gap_factor", 1.5).successful  # back to the default for the other tests
+    assert set_one("gap_factor", 5.0).successful  # back to the default for the other tests
 
 
 def test_chain_from_mocap_to_state(nodes, ros_node) -> None:

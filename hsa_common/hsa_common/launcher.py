@@ -23,6 +23,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -144,6 +145,8 @@ class LaunchFile:
             elif "executable" in action and self._enabled(action["executable"]):
                 spec = action["executable"]
                 cmd = shlex.split(self.substitute(str(spec["cmd"])))
+                cmd[0] = shutil.which(cmd[0], path=os.pathsep.join([str(Path(sys.prefix) / "bin"),
+                                                                      os.environ.get("PATH", "")])) or cmd[0]
                 procs.append(Process(spec.get("name", Path(cmd[0]).name), cmd, spec.get("on_exit") == "shutdown"))
         return procs
 

@@ -1,0 +1,137 @@
+"""Live-graph benchmark: the sim launch graph on a short FPU step schedule at 40 Hz and at 200 Hz control.
+
+Measured from the recorded bag and from the processes while they run:
+* compute-path latency: mocap sample stamp → the sync write of the goal it produced leaving the driver
+  (``motor_goal_stamp``: header.stamp = after the write, source_stamp = the mocap stamp), p50/p99;
+* controller loop: tick period jitter (controller_info header stamps) and deadline misses (a tick later than 1.5
+  nominal periods after the previous one), over the ticks while tracking;
+* CPU per node (psutil, user+system over the tracking window, in % of one core).
+Writes benchmarks/results/graph.json. Targets (node-suite issue): latency p99 ≤ 5 ms; < 1 % deadline misses at
+200 Hz with the whole graph on 2 cores.
+
+    .venv/bin/python benchmarks/bench_graph.py [--steps 3] [--step-period 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import yaml
+from rosbags.rosbag2 import Reader
+
+from hsa_bag.msgtypes import TypeRegistry
+from hsa_core import rosenv
+from hsa_core.trajectories import step_reference
+
+ROOT = Path(__file__).resolve().parents[1]
+GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"
+
+
+def run_graph(rate: float, steps: int, step_period: float, work: Path) -> tuple[Path, dict[str, float]]:
+    """Run the graph once; return its bag and the CPU use per node [% of one core] while the sequencer ran."""
+    bag = work / f"bag_{int(rate)}hz"
+    config = work / f"sequencer_{int(rate)}.yaml"
+    config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "trajectory": "steps", "points": [float(v) for v in step_reference("fpu").p_des[:steps].ravel()],
+        "exit_on_finish": True, "finish_hold": 1.0}}}))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hsa_common.launcher", str(GRAPH), f"rate:={rate}", f"bag_dir:={bag}",
+         f"setpoint_rate:={1.0 / step_period}", f"sequencer_config:={config}"],
+        env=rosenv.ros_environment(), start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True,
+    )
+    cpu: dict[str, float] = {}
+    start: dict[int, tuple[str, psutil.Process, float]] = {}
+    t_start = 0.0
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if not start and "[hsa.controller_node]" in line and "-> tracking" in line:
+            t_start = time.monotonic()  # CPU window: from the first controller output to the end of the schedule
+            for child in psutil.Process(proc.pid).children():
+                times = child.cpu_times()
+                start[child.pid] = (Path(child.cmdline()[1]).name, child, times.user + times.system)
+        if start and "[hsa.setpoint_sequencer]" in line and "finished" in line and not cpu:
+            span = time.monotonic() - t_start
+            for name, child, used in start.values():
+                times = child.cpu_times()
+                cpu[name] = round(100.0 * (times.user + times.system - used) / span, 1)
+    proc.wait(timeout=120)
+    if proc.returncode != 0:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise RuntimeError(f"graph at {rate} Hz exited with {proc.returncode}")
+    return bag, cpu
+
+
+def analyse(bag: Path, rate: float) -> dict[str, float]:
+    """Latency and loop-timing statistics from a recorded bag."""
+    registry = TypeRegistry()
+    registry.ensure("hsa_msgs/msg/ControllerInfo")
+    registry.ensure("hsa_msgs/msg/PlanarActuation")
+    store = registry.store
+    latency, ticks = [], []
+    with Reader(bag) as reader:
+        for conn, _, raw in reader.messages():
+            if conn.topic == "/hsa/motor_goal_stamp":
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                written = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                source = msg.source_stamp.sec + msg.source_stamp.nanosec * 1e-9
+                if source > 0:
+                    latency.append(written - source)
+            elif conn.topic == "/hsa/controller_info":
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                if msg.state == 2:  # STATE_TRACKING
+                    ticks.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+    periods = np.diff(np.asarray(ticks))
+    nominal = 1.0 / rate
+    lat = np.asarray(latency) * 1e3
+    return {
+        "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
+        "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
+        "latency_samples": int(lat.size),
+        "ticks": int(len(ticks)),
+        "period_ms_mean": round(float(periods.mean() * 1e3), 3),
+        "period_jitter_ms_std": round(float(periods.std() * 1e3), 3),
+        "period_dev_ms_p99": round(float(np.percentile(np.abs(periods - nominal), 99) * 1e3), 3),
+        "deadline_misses": int(np.sum(periods > 1.5 * nominal)),
+        "deadline_miss_fraction": round(float(np.mean(periods > 1.5 * nominal)), 4),
+    }
+
+
+def main() -> int:
+    """Run both rates, print and write the JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3)
+    parser.add_argument("--step-period", type=float, default=5.0)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "graph.json")
+    args = parser.parse_args()
+    rosenv.apply()
+    results: dict[str, object] = {
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "load_avg_at_start": os.getloadavg()},
+        "targets": {"latency_ms_p99": 5.0, "deadline_miss_fraction_200hz": 0.01},
+        "method": __doc__.split("\n\n")[1],
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        for rate in (40.0, 200.0):
+            bag, cpu = run_graph(rate, args.steps, args.step_period, Path(tmp))
+            results[f"{int(rate)}hz"] = {**analyse(bag, rate), "cpu_percent_of_one_core": cpu}
+    results["machine"]["load_avg_at_end"] = os.getloadavg()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -11,7 +11,7 @@ With `params.kappa_rule == "exp2023_shift"`, M, C, G, K, alpha, A and q_ddot are
 kappa_dyn = kappa + sign(kappa) 0.01 (model.md §8.4(1)); the collocated map is always exact.
 """
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -204,13 +204,6 @@ def _actuation_jacobian_of(params: HsaParams, xi: Array, phi: Array) -> Array:
     return jnp.stack([a[:, 0] + params.roff * a[:, 2], a[:, 1], a[:, 2]])
 
 
-def _forward_dynamics_of(params: HsaParams, mp: MassPoints, D: Array, xi: Array, q_dot: Array, phi: Array) -> Array:
-    """q_ddot at (already rule-adjusted) strains xi from precomputed mass points and damping matrix."""
-    M, C_q_dot, G = _inertial_forces(params, mp, xi, q_dot)
-    rhs = _actuation_of(params, xi, phi) - C_q_dot - G - _elastic_of(params, xi) - jnp.sum(D * q_dot, axis=1)
-    return jnp.linalg.solve(M, rhs)
-
-
 def _constants(params: HsaParams) -> tuple[MassPoints, Array]:
     """Mass points and D, folded to compile-time constants when params are concrete (closed over), else traced."""
     with jax.ensure_compile_time_eval():
@@ -339,7 +332,19 @@ def dynamical_matrices(params: HsaParams, q: ArrayLike, q_dot: ArrayLike, phi: A
     )
 
 
+def forward_dynamics_fn(params: HsaParams) -> Callable[[ArrayLike, ArrayLike, ArrayLike], Array]:
+    """(q, q_dot, phi) -> q_ddot with the parameter-only terms (mass points, D) computed once, for use inside loops."""
+    mp, D = _constants(params)
+
+    def q_ddot(q: ArrayLike, q_dot: ArrayLike, phi: ArrayLike) -> Array:
+        xi, q_dot, phi = _dynamic_strains(params, q), _as_f64(q_dot), _as_f64(phi)
+        M, C_q_dot, G = _inertial_forces(params, mp, xi, q_dot)
+        rhs = _actuation_of(params, xi, phi) - C_q_dot - G - _elastic_of(params, xi) - jnp.sum(D * q_dot, axis=1)
+        return jnp.linalg.solve(M, rhs)
+
+    return q_ddot
+
+
 def forward_dynamics(params: HsaParams, q: ArrayLike, q_dot: ArrayLike, phi: ArrayLike) -> Array:
     """q_ddot = M^-1 (alpha - C q_dot - G - K - D q_dot) by a linear solve, never an explicit inverse (§7.1)."""
-    mp, D = _constants(params)
-    return _forward_dynamics_of(params, mp, D, _dynamic_strains(params, q), _as_f64(q_dot), _as_f64(phi))
+    return forward_dynamics_fn(params)(q, q_dot, phi)

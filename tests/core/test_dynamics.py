@@ -71,15 +71,19 @@ def test_worked_numbers_at_the_straight_configuration(fpu: HsaParams, model) -> 
     assert np.linalg.cond(M[:2, :2]) == pytest.approx(1.6e3, rel=0.05)
 
 
-def _static_equilibrium(params: HsaParams, phi, q0=None) -> np.ndarray:
-    """Newton iteration on the static residual G + K - alpha."""
-    residual = jax.jit(dyn.static_residual)
-    jac = jax.jit(jax.jacfwd(dyn.static_residual, argnums=1))
-    q = jnp.zeros(3) if q0 is None else jnp.asarray(q0)
-    phi = jnp.asarray(phi, dtype=jnp.float64)
+@jax.jit
+def _residual_and_jacobian(params: HsaParams, q, phi):
+    """Static residual G + K - alpha and its Jacobian in q."""
+    return dyn.static_residual(params, q, phi), jax.jacfwd(dyn.static_residual, argnums=1)(params, q, phi)
+
+
+def _static_equilibrium(params: HsaParams, phi) -> np.ndarray:
+    """Newton iteration on the static residual from q = 0."""
+    q, phi = jnp.zeros(3), jnp.asarray(phi, dtype=jnp.float64)
     for _ in range(20):
-        q = q - jnp.linalg.solve(jac(params, q, phi), residual(params, q, phi))
-    assert float(jnp.max(jnp.abs(residual(params, q, phi)))) < 1e-12
+        r, J = _residual_and_jacobian(params, q, phi)
+        q = q - jnp.linalg.solve(J, r)
+    assert float(jnp.max(jnp.abs(_residual_and_jacobian(params, q, phi)[0]))) < 1e-12
     return np.asarray(q)
 
 
@@ -90,6 +94,13 @@ def test_rest_pose_under_gravity(model, material: str, y_rest: float) -> None:
     chiee = np.asarray(model.fk(p, jnp.asarray(q)))
     assert chiee[1] == pytest.approx(y_rest, abs=5e-6)  # printed to 5 decimals (model.md §3)
     np.testing.assert_allclose(chiee[[0, 2]], 0.0, atol=1e-15)
+
+
+@jax.jit
+def _state_jacobian(params: HsaParams, x, phi):
+    """d[q_dot, q_ddot]/d[q, q_dot]: the linearised dynamics."""
+    f = lambda x: jnp.concatenate([x[3:], dyn.forward_dynamics(params, x[:3], x[3:], phi)])  # noqa: E731
+    return jax.jacfwd(f)(x)
 
 
 @pytest.mark.parametrize(
@@ -103,10 +114,8 @@ def test_rest_pose_under_gravity(model, material: str, y_rest: float) -> None:
 def test_linearization_eigenvalues(model, material: str, phi, expected) -> None:
     """model.md §9.4: eigenvalues of the linearised [q, q_dot] dynamics at the static equilibrium."""
     p = params_for(material)
-    q = _static_equilibrium(p, phi)
-    phi = jnp.asarray(phi, dtype=jnp.float64)
-    f = lambda x: jnp.concatenate([x[3:], dyn.forward_dynamics(p, x[:3], x[3:], phi)])  # noqa: E731
-    eig = np.linalg.eigvals(np.asarray(jax.jit(jax.jacfwd(f))(jnp.concatenate([jnp.asarray(q), jnp.zeros(3)]))))
+    x = jnp.concatenate([jnp.asarray(_static_equilibrium(p, phi)), jnp.zeros(3)])
+    eig = np.linalg.eigvals(np.asarray(_state_jacobian(p, x, jnp.asarray(phi, dtype=jnp.float64))))
     for re, im, tol in expected:
         nearest = eig[np.argmin(np.abs(eig - complex(re, im)))]
         assert abs(nearest.real - re) <= tol and abs(abs(nearest.imag) - im) <= tol, (re, im, nearest)
@@ -117,10 +126,13 @@ def test_generalized_stiffness_stays_positive_definite(material: str, smallest: 
     """model.md §5.3: d(K - alpha)/dxi is positive definite on [0, phi_max]^2, smallest eigenvalue as stated."""
     p = params_for(material)
     stiffness = jax.jit(
-        jax.vmap(jax.jacfwd(lambda q, phi: dyn.elastic_force(p, q) - dyn.actuation_force(p, q, phi)), in_axes=(None, 0))
+        jax.vmap(
+            jax.jacfwd(lambda p, q, phi: dyn.elastic_force(p, q) - dyn.actuation_force(p, q, phi), argnums=1),
+            in_axes=(None, None, 0),
+        )
     )
     grid = np.stack(np.meshgrid(*(np.linspace(0, float(m), 9) for m in p.phi_max)), -1).reshape(-1, 2)
-    eig = np.linalg.eigvalsh(np.asarray(stiffness(jnp.zeros(3), jnp.asarray(grid))))
+    eig = np.linalg.eigvalsh(np.asarray(stiffness(p, jnp.zeros(3), jnp.asarray(grid))))
     assert eig.min() == pytest.approx(smallest, rel=5e-3)
 
 
@@ -358,16 +370,13 @@ def test_outputs_and_gradients_are_continuous_across_the_series_threshold(fpu: H
 # transformations
 
 
-def test_jit_vmap_and_grad_with_respect_to_parameters(fpu: HsaParams) -> None:
+def test_jit_vmap_and_grad_with_respect_to_parameters(fpu: HsaParams, model) -> None:
     q, q_dot, phi = _random_states(8, 9)
     batched = jax.jit(jax.vmap(dyn.forward_dynamics, in_axes=(None, 0, 0, 0)))(fpu, q, q_dot, phi)
-    single = jax.jit(dyn.forward_dynamics)(fpu, q[3], q_dot[3], phi[3])
-    np.testing.assert_allclose(batched[3], single, rtol=1e-14)
-    # identification-style gradient: d |static residual|^2 / d params, finite for every leaf
-    loss = lambda p: jnp.sum(jax.vmap(dyn.static_residual, in_axes=(None, 0, 0))(p, q, phi) ** 2)  # noqa: E731
-    grads = jax.jit(jax.grad(loss))(fpu)
-    assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
-    assert float(jnp.abs(grads.S_a_hat).sum()) > 0.0
-    # reverse mode through the whole forward dynamics at kappa = 0
-    g = jax.jit(jax.grad(lambda q: jnp.sum(dyn.forward_dynamics(fpu, q, q_dot[0], phi[0]))))(jnp.zeros(3))
-    assert np.all(np.isfinite(g))
+    np.testing.assert_allclose(batched[3], model.fd(fpu, q[3], q_dot[3], phi[3]), rtol=1e-14)
+    # derivatives with respect to the parameters (identification): forward mode along every leaf at once
+    tangent = jax.tree_util.tree_map(jnp.ones_like, fpu)
+    residual = lambda p: jax.vmap(dyn.static_residual, in_axes=(None, 0, 0))(p, q, phi)  # noqa: E731
+    value, derivative = jax.jit(lambda p, t: jax.jvp(residual, (p,), (t,)))(fpu, tangent)
+    assert np.all(np.isfinite(derivative)) and float(jnp.abs(derivative).max()) > 0.0
+    np.testing.assert_allclose(value, jax.vmap(model.residual, in_axes=(None, 0, 0))(fpu, q, phi), rtol=1e-13, atol=1e-15)

@@ -19,7 +19,7 @@ import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
 
-from hsa_core.kinematics import apply_kappa_rule, end_effector_offset, points_in_base, rotate, strains
+from hsa_core.kinematics import apply_kappa_rule, points_in_base, strains
 from hsa_core.params import HsaParams
 from hsa_core.smooth import C, S
 
@@ -53,23 +53,31 @@ class MassPoints(NamedTuple):
     inertia_kk: Array
 
 
-def mass_points(params: HsaParams) -> MassPoints:
-    """Quadrature points of both rods, platform CoG and payload; computed once per parameter set (model.md §7.2)."""
+def mass_points(params: HsaParams, xp=jnp) -> MassPoints:
+    """Quadrature points of both rods, platform CoG and payload; computed once per parameter set (model.md §7.2).
+
+    `xp` is the array namespace: jax.numpy (traced parameters) or numpy (concrete parameters folded to constants).
+    """
     l = params.l
     s_nodes = l * (_GL_X + 1.0) / 2.0
     w_nodes = l * _GL_W / 2.0
     rod_density = params.rho_r * params.area  # linear density of each virtual rod [kg/m]
-    s_rods = jnp.broadcast_to(s_nodes, (2, N_GAUSS)).reshape(-1)
+    s_rods = xp.concatenate([s_nodes, s_nodes])
     m_rods = (rod_density[:, None] * w_nodes[None, :]).reshape(-1)
-    d_rods = jnp.repeat(jnp.stack([params.roff, jnp.zeros(2)], axis=-1), N_GAUSS, axis=0)
-    d_platform = jnp.stack([jnp.zeros(()), params.y_c])
-    d_payload = end_effector_offset(params) + rotate(params.chiee_off[2], params.CoG_pl)
+    d_rods = xp.repeat(xp.stack([params.roff, xp.zeros(2)], axis=-1), N_GAUSS, axis=0)
+    theta_off, cog = params.chiee_off[2], params.CoG_pl
+    d_payload = xp.stack(
+        [
+            params.chiee_off[0] + xp.cos(theta_off) * cog[0] - xp.sin(theta_off) * cog[1],
+            params.l_dc + params.platform_size[1] + params.chiee_off[1] + xp.sin(theta_off) * cog[0] + xp.cos(theta_off) * cog[1],
+        ]
+    )
     # rotational inertia about the out-of-plane axis: rods rho_r I int s^2 ds, platform I_p l^2 (J_o = [s, 0, 0])
-    inertia_kk = jnp.sum(params.rho_r * params.second_moment) * l**3 / 3.0 + params.I_p * l**2
+    inertia_kk = (params.rho_r * params.second_moment).sum() * l**3 / 3.0 + params.I_p * l**2
     return MassPoints(
-        s=jnp.concatenate([s_rods, jnp.stack([l, l])]),
-        m=jnp.concatenate([m_rods, jnp.stack([params.m_p, params.m_pl])]),
-        d=jnp.concatenate([d_rods, d_platform[None], d_payload[None]]),
+        s=xp.concatenate([s_rods, xp.stack([l, l])]),
+        m=xp.concatenate([m_rods, xp.stack([params.m_p, params.m_pl])]),
+        d=xp.concatenate([d_rods, xp.stack([xp.zeros(()), params.y_c])[None], d_payload[None]]),
         inertia_kk=inertia_kk,
     )
 
@@ -133,14 +141,16 @@ def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array)
     G = -sum_k m_k J_k^T g is the gradient of U_g = -sum_k m_k g^T p_k (§7.4).
     """
     J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    R = _project(params, mp, J, J_dot)
+    JJ = jax.lax.optimization_barrier(jnp.concatenate([J, J_dot]))
+    R = _project(params, mp, JJ[:3], JJ[3:])
     return R[:, :3], R[:, 3:6], -R[:, 6]
 
 
 def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
     """M, C q_dot and G, with C q_dot = sum_k m_k J_k^T (J_dot_k q_dot) from the same single contraction."""
     J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    R = _project(params, mp, J, jnp.sum(J_dot * xi_dot[:, None, None], axis=0)[None])
+    Ja = jax.lax.optimization_barrier(jnp.concatenate([J, jnp.sum(J_dot * xi_dot[:, None, None], axis=0)[None]]))
+    R = _project(params, mp, Ja[:3], Ja[3:])
     return R[:, :3], R[:, 3], -R[:, 4]
 
 
@@ -205,9 +215,11 @@ def _actuation_jacobian_of(params: HsaParams, xi: Array, phi: Array) -> Array:
 
 
 def _constants(params: HsaParams) -> tuple[MassPoints, Array]:
-    """Mass points and D, folded to compile-time constants when params are concrete (closed over), else traced."""
-    with jax.ensure_compile_time_eval():
+    """Mass points and D: folded to constants with NumPy when params are concrete (closed over), else traced."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(params)):
         return mass_points(params), damping_matrix(params)
+    concrete = jax.tree_util.tree_map(np.asarray, params)
+    return mass_points(concrete, np), damping_matrix(concrete, np)
 
 
 def _dynamic_strains(params: HsaParams, q: ArrayLike) -> Array:
@@ -265,16 +277,16 @@ def elastic_force(params: HsaParams, q: ArrayLike) -> Array:
     return _elastic_of(params, _dynamic_strains(params, q))
 
 
-def damping_matrix(params: HsaParams) -> Array:
+def damping_matrix(params: HsaParams, xp=jnp) -> Array:
     """Constant damping matrix D = sum_i J_beta,i^T diag(zeta_b, zeta_sh, zeta_a)_i J_beta,i (model.md §7.6)."""
     roff, zeta_a = params.roff, params.zeta_a
-    d02 = jnp.sum(roff * zeta_a)
-    zero = jnp.zeros(())
-    return jnp.stack(
+    d02 = (roff * zeta_a).sum()
+    zero = xp.zeros(())
+    return xp.stack(
         [
-            jnp.stack([jnp.sum(params.zeta_b + roff**2 * zeta_a), zero, d02]),
-            jnp.stack([zero, jnp.sum(params.zeta_sh), zero]),
-            jnp.stack([d02, zero, jnp.sum(zeta_a)]),
+            xp.stack([(params.zeta_b + roff**2 * zeta_a).sum(), zero, d02]),
+            xp.stack([zero, params.zeta_sh.sum(), zero]),
+            xp.stack([d02, zero, zeta_a.sum()]),
         ]
     )
 

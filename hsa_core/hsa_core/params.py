@@ -76,7 +76,11 @@ _OPTIONAL_META = {"kappa_rule": "exact"}
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class HsaParams:
-    """Virtual-rod parameters of the planar HSA robot; a JAX pytree (float64 leaves, static material/kappa_rule)."""
+    """Virtual-rod parameters of the planar HSA robot; a JAX pytree (float64 leaves, static material/kappa_rule).
+
+    The derived-quantity properties use only array methods and operators, so they also work on a copy whose leaves
+    are NumPy arrays (the dynamics folds parameter-only terms that way, without eager JAX dispatch).
+    """
 
     l: Array
     l_pc: Array
@@ -121,12 +125,12 @@ class HsaParams:
     @property
     def area(self) -> Array:
         """Cross-section area of one rod, pi (r_out^2 - r_in^2), per virtual rod (2,) [m^2] (model.md §5.1)."""
-        return jnp.pi * (self.r_out**2 - self.r_in**2)
+        return np.pi * (self.r_out**2 - self.r_in**2)
 
     @property
     def second_moment(self) -> Array:
         """Second moment of area of one rod, pi (r_out^4 - r_in^4) / 4, per virtual rod (2,) [m^4]."""
-        return jnp.pi * (self.r_out**4 - self.r_in**4) / 4.0
+        return np.pi * (self.r_out**4 - self.r_in**4) / 4.0
 
     @property
     def m_dc(self) -> Array:
@@ -136,25 +140,25 @@ class HsaParams:
     @property
     def m_plate(self) -> Array:
         """Mass of the platform plate rho_p w h_p d [kg]."""
-        return self.rho_p * jnp.prod(self.platform_size)
+        return self.rho_p * self.platform_size.prod()
 
     @property
     def m_p(self) -> Array:
         """Total platform mass: plate plus both distal caps [kg]."""
-        return self.m_plate + jnp.sum(self.m_dc)
+        return self.m_plate + self.m_dc.sum()
 
     @property
     def y_c(self) -> Array:
         """Platform CoG along the platform's local y axis, from the distal end of the active length [m]."""
         h_p = self.platform_size[1]
-        return (jnp.sum(self.m_dc) * self.l_dc / 2.0 + self.m_plate * (self.l_dc + h_p / 2.0)) / self.m_p
+        return (self.m_dc.sum() * self.l_dc / 2.0 + self.m_plate * (self.l_dc + h_p / 2.0)) / self.m_p
 
     @property
     def I_p(self) -> Array:
         """Platform moment of inertia about its CoG (caps as cylinders, plate as a cuboid) [kg m^2]."""
         w, h_p, _ = self.platform_size
         y_c = self.y_c
-        caps = jnp.sum(self.m_dc * ((3.0 * self.r_out**2 + self.l_dc**2) / 12.0 + (self.l_dc / 2.0 - y_c) ** 2))
+        caps = (self.m_dc * ((3.0 * self.r_out**2 + self.l_dc**2) / 12.0 + (self.l_dc / 2.0 - y_c) ** 2)).sum()
         plate = self.m_plate * ((w**2 + h_p**2) / 12.0 + (self.l_dc + h_p / 2.0 - y_c) ** 2)
         return caps + plate
 

@@ -1,8 +1,10 @@
 """Live-graph benchmark: the sim launch graph on a short FPU step schedule at 40 Hz and at 200 Hz control.
 
 Measured from the recorded bag and from the processes while they run:
-* compute-path latency: mocap sample stamp → the sync write of the goal it produced leaving the driver
-  (``motor_goal_stamp``: header.stamp = after the write, source_stamp = the mocap stamp), p50/p99;
+* latency: mocap sample stamp → the sync write of the goal it produced leaving the driver
+  (``motor_goal_stamp``: header.stamp = after the write, source_stamp = the mocap stamp), p50/p99; it includes the
+  age of the newest state when the controller's timer fires (up to one mocap period plus transport);
+* compute path: controller tick (phi_cmd header stamp) → that goal leaving the driver, p50/p99;
 * controller loop: tick period jitter (controller_info header stamps) and deadline misses (a tick later than 1.5
   nominal periods after the previous one), over the ticks while tracking;
 * CPU per node (psutil, user+system over the tracking window, in % of one core).
@@ -79,15 +81,18 @@ def analyse(bag: Path, rate: float) -> dict[str, float]:
     registry.ensure("hsa_msgs/msg/ControllerInfo")
     registry.ensure("hsa_msgs/msg/PlanarActuation")
     store = registry.store
-    latency, ticks = [], []
+    sec = lambda t: t.sec + t.nanosec * 1e-9  # noqa: E731
+    latency, ticks, writes, tick_of_source = [], [], [], {}
     with Reader(bag) as reader:
         for conn, _, raw in reader.messages():
             if conn.topic == "/hsa/motor_goal_stamp":
                 msg = store.deserialize_cdr(raw, conn.msgtype)
-                written = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-                source = msg.source_stamp.sec + msg.source_stamp.nanosec * 1e-9
-                if source > 0:
-                    latency.append(written - source)
+                if sec(msg.source_stamp) > 0:
+                    latency.append(sec(msg.header.stamp) - sec(msg.source_stamp))
+                    writes.append((sec(msg.source_stamp), sec(msg.header.stamp)))
+            elif conn.topic == "/hsa/phi_cmd":
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                tick_of_source[sec(msg.source_stamp)] = sec(msg.header.stamp)
             elif conn.topic == "/hsa/controller_info":
                 msg = store.deserialize_cdr(raw, conn.msgtype)
                 if msg.state == 2:  # STATE_TRACKING
@@ -95,7 +100,10 @@ def analyse(bag: Path, rate: float) -> dict[str, float]:
     periods = np.diff(np.asarray(ticks))
     nominal = 1.0 / rate
     lat = np.asarray(latency) * 1e3
+    compute = np.asarray([w - tick_of_source[s] for s, w in writes if s in tick_of_source]) * 1e3
     return {
+        "tick_to_write_ms_p50": round(float(np.percentile(compute, 50)), 3),
+        "tick_to_write_ms_p99": round(float(np.percentile(compute, 99)), 3),
         "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
         "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
         "latency_samples": int(lat.size),

@@ -83,6 +83,8 @@ SPECS = (
               read_only=True),
     ParamSpec("max_goal_rate", 0.0, "largest goal speed of a motor [rad/s]; 0 = no rate limit", low=0.0,
               high=100.0),
+    ParamSpec("write_on_command", True, "sync-write a goal as soon as a phi_cmd arrives (else only in the cycle); "
+              "the read cycle, watchdog and rate limit are unchanged", read_only=True),
     ParamSpec("command_timeout", 0.1, "hold the last goal when phi_cmd is older than this [s]; 0 = off", low=0.0,
               high=10.0),
     ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
@@ -146,7 +148,7 @@ class DynamixelDriver(LifecycleNode):
         self._target: np.ndarray | None = None
         self._target_source = None
         self._last_goal: np.ndarray | None = None
-        self._last_cycle = time.monotonic()
+        self._last_write = time.monotonic()
         self._watchdog = "waiting for the first command"
         self._consecutive_failures = 0
         self._counts = dict.fromkeys(
@@ -236,7 +238,7 @@ class DynamixelDriver(LifecycleNode):
         self._clear_command()
         if self._link_up:
             self._enable_torque()
-        self._last_cycle = time.monotonic()
+        self._last_write = time.monotonic()
         self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
         return SUCCESS
 
@@ -420,6 +422,11 @@ class DynamixelDriver(LifecycleNode):
             return
         self._counts["commands"] += 1
         self._command, self._command_time, self._pending = msg, time.monotonic(), True
+        if self._p["write_on_command"] and self._active and self._link_up:
+            try:  # the goal leaves now instead of waiting up to one read period (compute-path latency)
+                self._write_goal()
+            except BusError as exc:
+                self._count_error(exc)  # the next cycle retries the write and handles a lost link
 
     def _clear_command(self) -> None:
         self._command = self._command_time = self._target = None
@@ -448,13 +455,12 @@ class DynamixelDriver(LifecycleNode):
     def _cycle(self) -> None:
         """One control cycle: at most one sync write of the newest command, then one sync read."""
         now = time.monotonic()
-        dt, self._last_cycle = now - self._last_cycle, now
         self._counts["cycles"] += 1
         if not self._link_up:
             return
         self._update_watchdog(now)
         try:
-            self._write_goal(dt)
+            self._write_goal()
             reading = self._bus.read_positions()
             self._counts["reads"] += 1
             self._publish_state(reading.ticks, reading.velocities)
@@ -482,7 +488,7 @@ class DynamixelDriver(LifecycleNode):
                 self.get_logger().info("phi_cmd resumed")
             self._watchdog = "fresh"
 
-    def _write_goal(self, dt: float) -> None:
+    def _write_goal(self) -> None:
         """Sync-write the clamped (and rate-limited) goal of the newest command, if there is something to write."""
         if not self._torque_on:
             self._pending = False
@@ -498,12 +504,14 @@ class DynamixelDriver(LifecycleNode):
         if self._target is None:
             return
         goal = self._target
-        if self._p["max_goal_rate"] > 0.0:
+        now = time.monotonic()
+        if self._p["max_goal_rate"] > 0.0:  # per write: max_goal_rate x the time since the last one, at most a period
+            dt = min(now - self._last_write, 1.0 / self._p["rate"])
             goal = self._limits.clamp(limit_goal_rate(self._last_goal, goal, dt, self._p["max_goal_rate"]))[0]
         if not fresh and np.array_equal(goal, self._last_goal):
             return
         self._bus.write_goals({i: int(t) for i, t in zip(self._ids, goal)})
-        self._last_goal = goal
+        self._last_goal, self._last_write = goal, now
         self._counts["writes"] += 1
         msg = PlanarActuation(phi=self._map.present_twists(goal), source_stamp=self._target_source)
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,19 +21,14 @@ pytestmark = pytest.mark.ros
 
 BASE = (0.1, -0.2, 1.0)  # world position of the base body [m]
 REST_FPU = (0.0, 0.11014, 0.0)  # χ_ee of the FPU model at rest (model.md §3)
-JAX_CACHE = Path(__file__).resolve().parents[2] / ".jax_cache"  # git-ignored
 
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """One sim_node for the module (JAX compilation is the slow part); yields its emulated port."""
     port = tmp_path_factory.mktemp("sim") / "ttyDXL"
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(JAX_CACHE)  # later runs skip most of the compilation
-    try:
-        proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", f"port:={port}",
-                              "-p", f"base_position:={list(BASE)}"])
-    finally:
-        del os.environ["JAX_COMPILATION_CACHE_DIR"]
+    proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", f"port:={port}",
+                          "-p", f"base_position:={list(BASE)}"])  # hsa_core's persistent JAX cache speeds reruns
     wait_for_line(proc, "ready", timeout=180.0)
     yield port
     stop_process(proc)

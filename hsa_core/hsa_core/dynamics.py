@@ -21,7 +21,7 @@ from jax.typing import ArrayLike
 
 from hsa_core.kinematics import apply_kappa_rule, points_in_base, strains
 from hsa_core.params import HsaParams
-from hsa_core.smooth import C, S
+from hsa_core.smooth import arc_functions
 
 KAPPA_SHIFT_DYN = 1e-2
 """exp2023 curvature shift of the dynamics [1/m] (model.md §8.1)."""
@@ -45,7 +45,12 @@ class DynamicalMatrices(NamedTuple):
 
 
 class MassPoints(NamedTuple):
-    """Point masses that discretise the moving bodies: arc length s, mass m, local offset d, plus rod/platform rotation."""
+    """Point masses discretising the moving bodies, as 2 layers over the same 9 arc positions.
+
+    s (9,): the 8 Gauss-Legendre nodes and the tip s = l. Layer 0 holds rod 1 at the nodes and the platform CoG at the
+    tip, layer 1 rod 2 and the payload. m (2, 9) are masses, d (2, 9, 2) offsets in the local frame at s, and
+    inertia_kk is the rotational inertia of rods and platform about the kappa direction (J_o = [s, 0, 0]).
+    """
 
     s: Array
     m: Array
@@ -59,40 +64,28 @@ def mass_points(params: HsaParams, xp=jnp) -> MassPoints:
     `xp` is the array namespace: jax.numpy (traced parameters) or numpy (concrete parameters folded to constants).
     """
     l = params.l
-    s_nodes = l * (_GL_X + 1.0) / 2.0
     w_nodes = l * _GL_W / 2.0
     rod_density = params.rho_r * params.area  # linear density of each virtual rod [kg/m]
-    s_rods = xp.concatenate([s_nodes, s_nodes])
-    m_rods = (rod_density[:, None] * w_nodes[None, :]).reshape(-1)
-    d_rods = xp.repeat(xp.stack([params.roff, xp.zeros(2)], axis=-1), N_GAUSS, axis=0)
     theta_off, cog = params.chiee_off[2], params.CoG_pl
-    d_payload = xp.stack(
+    tip_offsets = xp.stack(  # platform CoG (model.md §6.2) and payload CoG (EE offset plus R(theta_off) CoG_pl)
         [
-            params.chiee_off[0] + xp.cos(theta_off) * cog[0] - xp.sin(theta_off) * cog[1],
-            params.l_dc + params.platform_size[1] + params.chiee_off[1] + xp.sin(theta_off) * cog[0] + xp.cos(theta_off) * cog[1],
+            xp.stack([xp.zeros(()), params.y_c]),
+            xp.stack(
+                [
+                    params.chiee_off[0] + xp.cos(theta_off) * cog[0] - xp.sin(theta_off) * cog[1],
+                    params.l_dc + params.platform_size[1] + params.chiee_off[1]
+                    + xp.sin(theta_off) * cog[0] + xp.cos(theta_off) * cog[1],
+                ]
+            ),
         ]
     )
-    # rotational inertia about the out-of-plane axis: rods rho_r I int s^2 ds, platform I_p l^2 (J_o = [s, 0, 0])
-    inertia_kk = (params.rho_r * params.second_moment).sum() * l**3 / 3.0 + params.I_p * l**2
+    rod_offsets = xp.stack([xp.broadcast_to(params.roff[:, None], (2, N_GAUSS)), xp.zeros((2, N_GAUSS))], axis=-1)
     return MassPoints(
-        s=xp.concatenate([s_rods, xp.stack([l, l])]),
-        m=xp.concatenate([m_rods, xp.stack([params.m_p, params.m_pl])]),
-        d=xp.concatenate([d_rods, xp.stack([xp.zeros(()), params.y_c])[None], d_payload[None]]),
-        inertia_kk=inertia_kk,
+        s=xp.concatenate([l * (_GL_X + 1.0) / 2.0, l[None]]),
+        m=xp.concatenate([rod_density[:, None] * w_nodes[None, :], xp.stack([params.m_p, params.m_pl])[:, None]], axis=1),
+        d=xp.concatenate([rod_offsets, tip_offsets[:, None, :]], axis=1),
+        inertia_kk=(params.rho_r * params.second_moment).sum() * l**3 / 3.0 + params.I_p * l**2,
     )
-
-
-def _arc_functions(x: Array) -> tuple[Array, Array, Array, Array]:
-    """E(x) = S(x) + i x C(x) = (e^{ix} - 1)/(ix), its first two derivatives, and e^{ix}, as (re, im) pairs (2, n)."""
-
-    def e(y: Array) -> Array:
-        return jnp.stack([S(y), y * C(y)])
-
-    ones = jnp.ones_like(x)
-    (E, E1), (_, E2) = jax.jvp(lambda y: jax.jvp(e, (y,), (ones,)), (x,), (ones,))
-    # materialise all per-point functions in one kernel instead of one per consumer (fewer XLA kernels, faster calls)
-    B = jax.lax.optimization_barrier(jnp.stack([E, E1, E2, jnp.stack([jnp.cos(x), jnp.sin(x)])]))
-    return B[0], B[1], B[2], B[3]
 
 
 def _cmul(a: Array, b: Array) -> Array:
@@ -106,51 +99,53 @@ def _rot90(a: Array) -> Array:
 
 
 def _point_jacobians(mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array]:
-    """Jacobians J = dp/dxi and their time derivatives J_dot of all mass points, each (3 columns, 2, n points).
+    """Jacobians J = dp/dxi and their time derivatives J_dot of all mass points, each (3 columns, re/im, 2, 9).
 
     In complex notation a point at arc s with local offset d sits at p = i l_pc + w F(s) + e^{i kappa s} d, with
-    w = sigma_sh + i sigma_ax and F(s) = s E(kappa s) (model.md §6.1-6.2). Hence J_sh = F, J_ax = i F,
-    J_kappa = w F_kappa + i s e^{i kappa s} d, with F_kappa = s^2 E'(kappa s) and F_kappa,kappa = s^3 E''(kappa s).
+    w = sigma_sh + i sigma_ax and F(s) = s E(kappa s), E = S + i x C (model.md §6.1-6.2, §8.2). Hence J_sh = F,
+    J_ax = i F, J_kappa = w F_kappa + i s e^{i kappa s} d, with F_kappa = s^2 E'(kappa s), F_kappa,kappa = s^3 E''.
     """
     s = mp.s
-    w, w_dot, kappa_dot = xi[1:, None], xi_dot[1:, None], xi_dot[0]
-    E, E1, E2, e_ix = _arc_functions(xi[0] * s)
-    F, F_k, F_kk = s * E, s * s * E1, s**3 * E2
-    e_d = _cmul(e_ix, mp.d.T)
-    J = jnp.stack([_cmul(w, F_k) + s * _rot90(e_d), F, _rot90(F)])
+    w, w_dot, kappa_dot = xi[1:, None, None], xi_dot[1:, None, None], xi_dot[0]
+    # one kernel for all arc functions at the 9 arc positions (shared by both layers)
+    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))
+    E, E1, E2, e_ix = f[0::3][:2], f[1::3][:2], f[2::3][:2], f[6:8]
+    F, F_k, F_kk = (s * E)[:, None], (s * s * E1)[:, None], (s**3 * E2)[:, None]
+    e_d = _cmul(e_ix[:, None], jnp.moveaxis(mp.d, -1, 0))
+    J = jnp.stack([_cmul(w, F_k) + s * _rot90(e_d), jnp.broadcast_to(F, e_d.shape), jnp.broadcast_to(_rot90(F), e_d.shape)])
     dJ_kappa_dkappa = _cmul(w, F_kk) - s * s * e_d
     J_dot = jnp.stack(
-        [_cmul(w_dot, F_k) + kappa_dot * dJ_kappa_dkappa, kappa_dot * F_k, kappa_dot * _rot90(F_k)]
+        [
+            _cmul(w_dot, F_k) + kappa_dot * dJ_kappa_dkappa,
+            jnp.broadcast_to(kappa_dot * F_k, e_d.shape),
+            jnp.broadcast_to(kappa_dot * _rot90(F_k), e_d.shape),
+        ]
     )
     return J, J_dot
 
 
-def _project(params: HsaParams, mp: MassPoints, J: Array, vectors: Array) -> Array:
-    """sum_k m_k J_k^T [J_k | vectors_k | g] (3, 3 + m + 1); the rotational inertia is added to entry (0, 0)."""
-    g = jnp.broadcast_to(params.g[None, :, None], (1, 2, mp.s.shape[0]))
-    V = jnp.concatenate([J, vectors, g])
-    rotation = jnp.zeros((3, V.shape[0])).at[0, 0].set(mp.inertia_kk)
-    return jnp.sum(J[:, None] * V[None] * mp.m, axis=(2, 3)) + rotation
-
-
 def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
-    """M, C and G in one contraction: [M | C | -G] = sum_k m_k J_k^T [J_k | J_dot_k | g] (+ rotational inertia).
+    """M = sum_k m_k J_k^T J_k (+ rotation), C = sum_k m_k J_k^T J_dot_k and G = -sum_k m_k J_k^T g.
 
-    C = sum_k m_k J_k^T J_dot_k is exactly the Christoffel-symbol matrix of model.md §7.3 for this M, because
-    Gamma_ijk = sum_k m <J_i, d^2 p / dxi_j dxi_k> for a sum of point masses plus a constant rotational Jacobian.
-    G = -sum_k m_k J_k^T g is the gradient of U_g = -sum_k m_k g^T p_k (§7.4).
+    C is exactly the Christoffel-symbol matrix of model.md §7.3 for this M, because Gamma_ijk = sum_k m_k
+    <J_i, d^2 p_k / dxi_j dxi_k> for a sum of point masses plus a constant rotational Jacobian. G is the gradient of
+    U_g = -sum_k m_k g^T p_k (§7.4).
     """
     J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    JJ = jax.lax.optimization_barrier(jnp.concatenate([J, J_dot]))
-    R = _project(params, mp, JJ[:3], JJ[3:])
-    return R[:, :3], R[:, 3:6], -R[:, 6]
+    JJ = jax.lax.optimization_barrier(jnp.concatenate([J, J_dot]))  # one kernel for all Jacobian entries
+    J, J_dot = JJ[:3], JJ[3:]
+    M = jnp.sum(J[:, None] * J[None] * mp.m, axis=(2, 3, 4)) + jnp.zeros((3, 3)).at[0, 0].set(mp.inertia_kk)
+    C = jnp.sum(J[:, None] * J_dot[None] * mp.m, axis=(2, 3, 4))
+    G = -jnp.sum(J * params.g[:, None, None] * mp.m, axis=(1, 2, 3))
+    return M, C, G
 
 
 def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
-    """M, C q_dot and G, with C q_dot = sum_k m_k J_k^T (J_dot_k q_dot) from the same single contraction."""
+    """M, C q_dot and G, with C q_dot = sum_k m_k J_k^T (J_dot_k q_dot) from one contraction."""
     J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    Ja = jax.lax.optimization_barrier(jnp.concatenate([J, jnp.sum(J_dot * xi_dot[:, None, None], axis=0)[None]]))
-    R = _project(params, mp, Ja[:3], Ja[3:])
+    Ja = jax.lax.optimization_barrier(jnp.concatenate([J, jnp.sum(J_dot * xi_dot[:, None, None, None], axis=0)[None]]))
+    V = jnp.concatenate([Ja, jnp.broadcast_to(params.g[None, :, None, None], (1,) + J.shape[1:])])
+    R = jnp.sum(Ja[:3, None] * V[None] * mp.m, axis=(2, 3, 4)) + jnp.zeros((3, 5)).at[0, 0].set(mp.inertia_kk)
     return R[:, :3], R[:, 3], -R[:, 4]
 
 
@@ -203,15 +198,12 @@ def _actuation_jacobian_of(params: HsaParams, xi: Array, phi: Array) -> Array:
     """A = d alpha / d phi (3x2) in closed form: column i is J_beta,i^T a_i (model.md §7.7)."""
     dev = _strain_deviation(params, xi)
     l, h = params.l, params.h
-    a = (h / l)[:, None] * jnp.stack(
-        [
-            -params.C_S_b * dev[:, 0],
-            -params.C_S_sh * dev[:, 1],
-            params.S_a_hat * params.C_eps + 2.0 * params.C_S_a * params.C_eps * h * phi / l - params.C_S_a * dev[:, 2],
-        ],
-        axis=-1,
+    a_b = -(h / l) * params.C_S_b * dev[:, 0]
+    a_sh = -(h / l) * params.C_S_sh * dev[:, 1]
+    a_ax = (h / l) * (
+        params.S_a_hat * params.C_eps + 2.0 * params.C_S_a * params.C_eps * h * phi / l - params.C_S_a * dev[:, 2]
     )
-    return jnp.stack([a[:, 0] + params.roff * a[:, 2], a[:, 1], a[:, 2]])
+    return jnp.stack([a_b + params.roff * a_ax, a_sh, a_ax])
 
 
 def _constants(params: HsaParams) -> tuple[MassPoints, Array]:

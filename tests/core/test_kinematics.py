@@ -11,7 +11,7 @@ from tests.core.conftest import REFERENCE, assert_printed, params_for
 
 from hsa_core import kinematics as kin
 from hsa_core.params import HsaParams
-from hsa_core.smooth import X_T, C, S, T, c
+from hsa_core.smooth import X_T, C, S, T, arc_functions, c
 
 # ---------------------------------------------------------------------------------------------------------------------
 # smooth entire functions (model.md §8.2)
@@ -62,6 +62,33 @@ def test_smooth_functions_give_finite_gradients_at_zero() -> None:
         return out
 
     assert all(np.all(np.isfinite(d)) for d in all_derivatives(x))
+
+
+@jax.jit
+def _arc_functions_and_reference(x):
+    """arc_functions(x) and the same values from autodiff of S and x C (first and second derivatives)."""
+
+    def e(y):
+        return jnp.stack([S(y), y * C(y)])
+
+    def derivatives(y):
+        d1 = jax.jacfwd(e)(y)
+        return jnp.stack([e(y)[0], d1[0], jax.jacfwd(jax.jacfwd(e))(y)[0], e(y)[1], d1[1], jax.jacfwd(jax.jacfwd(e))(y)[1]])
+
+    return arc_functions(x), jax.vmap(derivatives)(x).T, jax.vmap(jax.jacfwd(arc_functions))(x).T
+
+
+def test_arc_functions_are_E_and_its_derivatives() -> None:
+    x = jnp.array([0.0, 1e-9, -0.03, 0.0999999, 0.1, -0.1, 0.5, -1.7, 3.0, 9.0])
+    values, reference, jac = (np.asarray(a) for a in _arc_functions_and_reference(x))
+    # [S, S', S'', B, B', B''] with B = x C; the closed forms lose ~eps / x^2 in their second derivatives near 0.1
+    np.testing.assert_allclose(values[:6], reference, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(values[6:], [np.cos(x), np.sin(x)], rtol=1e-15, atol=1e-16)
+    np.testing.assert_array_equal(values[:, 0], [1.0, 0.0, -1 / 3, 0.0, 0.5, 0.0, 1.0, 0.0])
+    # each function's autodiff derivative is the next one (so the dynamics can be differentiated once more)
+    for f, df in ((0, 1), (1, 2), (3, 4), (4, 5)):
+        np.testing.assert_allclose(jac[f], values[df], rtol=1e-11, atol=1e-14)
+    assert np.all(np.isfinite(jac))
 
 
 # ---------------------------------------------------------------------------------------------------------------------

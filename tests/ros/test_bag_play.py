@@ -9,12 +9,10 @@ message within 300 ms of its schedule.
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -31,21 +29,10 @@ from hsa_bag.storage import SplitBagWriter, read_metadata
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import ControllerInfo, PlanarState
+from tests.ros.conftest import start_process, stop_process
 
 pytestmark = pytest.mark.ros
 
-
-def _ros_conftest() -> ModuleType:
-    """tests/ros/conftest.py by path: the module name `conftest` is taken by tests/core/conftest.py when both run."""
-    spec = importlib.util.spec_from_file_location("hsa_ros_conftest", Path(__file__).with_name("conftest.py"))
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_conftest = _ros_conftest()
-start_process, stop_process = _conftest.start_process, _conftest.stop_process
 STATE, INFO = "/hsa/state", "/hsa/controller_info"
 START_NS = 1_750_000_000 * 10**9
 SPAN = 2.0

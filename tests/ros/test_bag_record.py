@@ -7,7 +7,6 @@ is readable up to the last flush, and complete after bag_recover), and the refus
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import signal
 import subprocess
@@ -15,7 +14,6 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 from mcap.reader import make_reader
@@ -35,21 +33,10 @@ from hsa_bag.storage import read_metadata
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarState, Setpoint
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
-
-def _ros_conftest() -> ModuleType:
-    """tests/ros/conftest.py by path: the module name `conftest` is taken by tests/core/conftest.py when both run."""
-    spec = importlib.util.spec_from_file_location("hsa_ros_conftest", Path(__file__).with_name("conftest.py"))
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_conftest = _ros_conftest()
-start_process, stop_process, wait_for_line = _conftest.start_process, _conftest.stop_process, _conftest.wait_for_line
 UINT32 = "std_msgs/msg/UInt32"
 
 

@@ -10,13 +10,11 @@ rounding, since the estimator saw the same samples with the same stamps.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -29,21 +27,10 @@ from hsa_bag.bagio import Bag
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
-
-def _ros_conftest() -> ModuleType:
-    """tests/ros/conftest.py by path: the module name `conftest` is taken by tests/core/conftest.py when both run."""
-    spec = importlib.util.spec_from_file_location("hsa_ros_conftest", Path(__file__).with_name("conftest.py"))
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_conftest = _ros_conftest()
-start_process, stop_process, wait_for_line = _conftest.start_process, _conftest.stop_process, _conftest.wait_for_line
 RECEIVE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 N, PERIOD_NS, T0_NS = 400, 5_000_000, 1_760_000_000 * 10**9  # 2 s of 200 Hz mocap
 

@@ -77,6 +77,13 @@ def rod_positions(params: HsaParams, q: ArrayLike, s: ArrayLike) -> Array:
     return points_in_base(params, xi, s, d)
 
 
+def platform_pose(params: HsaParams, q: ArrayLike) -> Array:
+    """Pose [x, y, theta] of the platform CoG, p_c = p(l) + R(kappa l) [0, y_c] (model.md §6.2)."""
+    xi = apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_KIN)
+    p_c = points_in_base(params, xi, params.l, jnp.stack([jnp.zeros(()), params.y_c]))
+    return jnp.concatenate([p_c, (xi[0] * params.l)[None]])
+
+
 def end_effector_pose(params: HsaParams, q: ArrayLike) -> Array:
     """End-effector pose chiee = [x, y, theta] in {0} (model.md §6.2)."""
     return _ee_pose_of_strains(params, apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_KIN))

@@ -99,6 +99,8 @@ def test_rest_pose_and_backbone_geometry(fpu: HsaParams) -> None:
     np.testing.assert_allclose(kin.end_effector_pose(fpu, jnp.zeros(3)), [0.0, 0.110, 0.0], atol=1e-16)
     np.testing.assert_allclose(kin.backbone_pose(fpu, jnp.zeros(3), 0.0), [0.0, 0.025, 0.0], atol=1e-16)
     np.testing.assert_allclose(kin.rod_positions(fpu, jnp.zeros(3), 0.0), [[-0.024, 0.025], [0.024, 0.025]], atol=1e-16)
+    # platform CoG 18.9231 mm below the end of the active length (model.md §5.2)
+    np.testing.assert_allclose(kin.platform_pose(fpu, jnp.zeros(3)), [0.0, 0.025 + 0.059 + 18.9231e-3, 0.0], atol=5e-8)
     # kappa = 0: straight sheared line p(s) = [sigma_sh s, l_pc + sigma_ax s] (model.md §6.1)
     q = jnp.array([0.0, 0.02, 0.3])
     np.testing.assert_allclose(kin.backbone_pose(fpu, q, 0.04), [0.02 * 0.04, 0.025 + 1.3 * 0.04, 0.0], rtol=1e-15)
@@ -127,6 +129,8 @@ def test_end_effector_geometry_with_offset(fpu: HsaParams) -> None:
     rot = np.array([[math.cos(kappa_l), -math.sin(kappa_l)], [math.sin(kappa_l), math.cos(kappa_l)]])
     expected = tip[:2] + rot @ np.array([0.003, 0.014 + 0.012 + 0.025])
     np.testing.assert_allclose(kin.end_effector_pose(p, q), [*expected, kappa_l + 0.2], rtol=1e-14)
+    cog = tip[:2] + rot @ np.array([0.0, float(p.y_c)])
+    np.testing.assert_allclose(kin.platform_pose(p, q), [*cog, kappa_l], rtol=1e-14)
 
 
 @pytest.mark.parametrize("case", ["R1", "R2", "R3", "R4"])

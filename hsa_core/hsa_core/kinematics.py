@@ -55,12 +55,6 @@ def end_effector_offset(params: HsaParams) -> Array:
     return jnp.array([0.0, params.l_dc + params.platform_size[1]]) + params.chiee_off[:2]
 
 
-def _ee_pose_of_strains(params: HsaParams, xi: Array) -> Array:
-    """EE pose [x, y, theta] for given (already rule-adjusted) strains xi."""
-    p_ee = points_in_base(params, xi, params.l, end_effector_offset(params))
-    return jnp.concatenate([p_ee, (xi[0] * params.l + params.chiee_off[2])[None]])
-
-
 def backbone_pose(params: HsaParams, q: ArrayLike, s: ArrayLike) -> Array:
     """Backbone pose [p_x, p_y, theta] at arc length s in {0} (model.md §6.1); s may be an array (..., 3)."""
     xi = apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_KIN)
@@ -86,7 +80,9 @@ def platform_pose(params: HsaParams, q: ArrayLike) -> Array:
 
 def end_effector_pose(params: HsaParams, q: ArrayLike) -> Array:
     """End-effector pose chiee = [x, y, theta] in {0} (model.md §6.2)."""
-    return _ee_pose_of_strains(params, apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_KIN))
+    xi = apply_kappa_rule(params, strains(params, q), KAPPA_SHIFT_KIN)
+    p_ee = points_in_base(params, xi, params.l, end_effector_offset(params))
+    return jnp.concatenate([p_ee, (xi[0] * params.l + params.chiee_off[2])[None]])
 
 
 def end_effector_jacobian(params: HsaParams, q: ArrayLike) -> Array:

@@ -124,7 +124,11 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         time.sleep(1.0)
         assert len(cmds) == 0, "no command may be sent before a ready state arrives"
         feeder.running.set()
-        time.sleep(3.0)
+        deadline = time.monotonic() + 15.0  # the first command needs a full estimator window of states
+        while len(cmds) == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(cmds) > 0, "no phi_cmd once ready states arrive"
+        time.sleep(2.2)  # then 2 s of steady ticking are measured
         now = _sec(ros_node.get_clock().now().to_msg())
         sent_cmds = cmds.since()
         recent = [_sec(m.header.stamp) for m in sent_cmds if now - 2.0 <= _sec(m.header.stamp) < now]

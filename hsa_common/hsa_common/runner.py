@@ -50,14 +50,6 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     return 0
 
 
-def stamp_to_sec(stamp: object) -> float:
-    """builtin_interfaces/Time → float seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9  # type: ignore[attr-defined]
-
-
-def sec_to_stamp(t: float) -> object:
-    """Float seconds → builtin_interfaces/Time (nanoseconds rounded)."""
-    from builtin_interfaces.msg import Time
-
-    ns = round(t * 1e9)
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+def seconds(duration: object) -> float:
+    """rclpy Duration (e.g. the difference of two rclpy Times) → float seconds."""
+    return duration.nanoseconds * 1e-9  # type: ignore[attr-defined]

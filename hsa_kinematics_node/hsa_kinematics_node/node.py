@@ -22,7 +22,7 @@ from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
-from hsa_common.runner import run
+from hsa_common.runner import run, seconds
 from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
 from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
@@ -48,10 +48,6 @@ SPECS = (
               read_only=True),
 )
 
-
-def _seconds(duration: Any) -> float:
-    """rclpy Duration → float seconds."""
-    return duration.nanoseconds * 1e-9
 
 
 class KinematicsNode(Node):
@@ -130,7 +126,7 @@ class KinematicsNode(Node):
     def _report(self) -> Report:
         """Input silence level, estimator mode and window fill, counts of rejected samples and window restarts."""
         now = self.get_clock().now()
-        elapsed = max(_seconds(now - self._report_at), 1e-9)
+        elapsed = max(seconds(now - self._report_at), 1e-9)
         counts = (self._received, self._published)
         rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
         self._report_at, self._reported = now, counts
@@ -143,10 +139,10 @@ class KinematicsNode(Node):
             "material": self._params.material, "sigma_a_eq": np.asarray(self._params.sigma_a_eq).tolist(),
         }
         if self._last_stamp is not None:
-            values["last_sample_age_s"] = round(_seconds(now - self._last_stamp), 4)
+            values["last_sample_age_s"] = round(seconds(now - self._last_stamp), 4)
         if self._last_received_at is None:
             level, message = WARN, "waiting for ee_pose"
-        elif (silence := _seconds(now - self._last_received_at)) > self._p["stale_timeout"]:
+        elif (silence := seconds(now - self._last_received_at)) > self._p["stale_timeout"]:
             level, message = ERROR, f"stale: no ee_pose for {silence:.3g} s"
         elif self._estimator.n_samples < self._estimator.window:
             level, message = WARN, f"velocity not ready (window {values['window_samples']})"

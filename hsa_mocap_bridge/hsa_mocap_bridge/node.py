@@ -21,7 +21,7 @@ from rclpy.time import Time
 from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParamSpec, declare, guard_updates
-from hsa_common.runner import run
+from hsa_common.runner import run, seconds
 from hsa_core import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
@@ -100,10 +100,6 @@ def _plain(value: Any) -> Any:
     """Parameter value with arrays as plain lists."""
     return list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
 
-
-def _seconds(duration: Any) -> float:
-    """rclpy Duration → float seconds."""
-    return duration.nanoseconds * 1e-9
 
 
 class MocapBridge(Node):
@@ -202,7 +198,7 @@ class MocapBridge(Node):
         problem = mocap.pose_problem(position, quaternion, self._p["quaternion_tolerance"])
         if problem:
             return "quaternion", problem
-        max_age, age = self._p["max_age"], _seconds(now - stamp)
+        max_age, age = self._p["max_age"], seconds(now - stamp)
         if max_age and age > max_age:
             return "stale", f"stamp {age:.3g} s old (max_age {max_age} s)"
         if max_age and -age > max_age:
@@ -210,7 +206,7 @@ class MocapBridge(Node):
         if self._last_stamp is not None and stamp == self._last_stamp:
             return "duplicate", "stamp equals the newest accepted one"
         if self._last_stamp is not None and stamp < self._last_stamp:
-            return "out_of_order", f"stamp {_seconds(self._last_stamp - stamp):.3g} s older than the newest accepted"
+            return "out_of_order", f"stamp {seconds(self._last_stamp - stamp):.3g} s older than the newest accepted"
         if self._p["use_base_pose"] and self._base is None:
             return "no_base", f"no valid base pose on {self._p['base_topic']} yet"
         return None
@@ -224,7 +220,7 @@ class MocapBridge(Node):
             return None
         rate = self._p["mocap_rate"]  # bounds per period → speed bounds; a bound of 0 disables (→ inf)
         problem = mocap.jump_problem(
-            self._last_chiee, chiee, _seconds(stamp - self._last_stamp),
+            self._last_chiee, chiee, seconds(stamp - self._last_stamp),
             max_speed=self._p["max_jump"] * rate or math.inf,
             max_angular_speed=self._p["max_jump_angle"] * rate or math.inf)
         return ("jump", problem) if problem else None
@@ -241,7 +237,7 @@ class MocapBridge(Node):
     def _report(self) -> Report:
         """Staleness level, counts per drop reason, rates and the age of the newest accepted sample."""
         now = self.get_clock().now()
-        elapsed = max(_seconds(now - self._report_at), 1e-9)
+        elapsed = max(seconds(now - self._report_at), 1e-9)
         counts = (self._counts["received"], self._counts["published"])
         rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
         self._report_at, self._reported = now, counts
@@ -256,9 +252,9 @@ class MocapBridge(Node):
         if self._last_accepted_at is None:
             level, message = WARN, "no valid platform pose yet"
         else:
-            silence = _seconds(now - self._last_accepted_at)
+            silence = seconds(now - self._last_accepted_at)
             values["time_since_last_sample_s"] = round(silence, 4)
-            values["last_sample_age_s"] = round(_seconds(now - self._last_stamp), 4)
+            values["last_sample_age_s"] = round(seconds(now - self._last_stamp), 4)
             if silence > self._p["stale_timeout"]:
                 level, message = ERROR, f"stale: no valid platform pose for {silence:.3g} s"
             elif silence > 3.0 / self._p["mocap_rate"]:

@@ -14,7 +14,10 @@ from pathlib import Path
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
 
 from hsa_core import rosenv
 
@@ -94,3 +97,26 @@ def ros_node() -> Iterator[Node]:
         thread.join(timeout=5)
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+class ParameterClient:
+    """Set and get single parameters of a running node through its parameter services (arrays come back as lists)."""
+
+    def __init__(self, node: Node, target: str) -> None:
+        self._setter = node.create_client(SetParameters, f"{target}/set_parameters")
+        self._getter = node.create_client(GetParameters, f"{target}/get_parameters")
+        assert self._setter.wait_for_service(timeout_sec=20.0) and self._getter.wait_for_service(timeout_sec=20.0)
+
+    def set(self, name: str, value: object) -> SetParametersResult:
+        """Request one update; return the node's answer (successful, reason)."""
+        request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+        response = self._setter.call(request, timeout_sec=10.0)
+        assert response is not None, f"no answer to setting {name}"
+        return response.results[0]
+
+    def get(self, name: str) -> object:
+        """The current value of one parameter."""
+        response = self._getter.call(GetParameters.Request(names=[name]), timeout_sec=10.0)
+        assert response is not None, f"no answer to getting {name}"
+        value = parameter_value_to_python(response.values[0])
+        return list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value

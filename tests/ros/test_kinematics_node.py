@@ -12,9 +12,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
@@ -25,7 +23,7 @@ from hsa_core.kinematics import end_effector_jacobian, end_effector_pose
 from hsa_core.params import HsaParams, load_params
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
 from tests.ros.test_mocap_bridge import delta, pose_msg, prime, start_bridge, stamp_ns, status, stream, wait_until
 
 pytestmark = pytest.mark.ros
@@ -168,19 +166,8 @@ def test_rejected_samples_produce_no_state(nodes, ros_node) -> None:
 
 
 def test_refused_run_time_update_keeps_the_old_value(nodes, ros_node) -> None:
-    setter = ros_node.create_client(SetParameters, "/hsa/kinematics_node/set_parameters")
-    getter = ros_node.create_client(GetParameters, "/hsa/kinematics_node/get_parameters")
-    assert setter.wait_for_service(timeout_sec=20.0) and getter.wait_for_service(timeout_sec=20.0)
-
-    def set_one(name: str, value: object) -> object:
-        request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
-        response = setter.call(request, timeout_sec=10.0)
-        assert response is not None
-        return response.results[0]
-
-    def get(name: str) -> object:
-        response = getter.call(GetParameters.Request(names=[name]), timeout_sec=10.0)
-        return parameter_value_to_python(response.values[0])
+    params = ParameterClient(ros_node, "/hsa/kinematics_node")
+    set_one, get = params.set, params.get
 
     for name, value in (("gap_factor", 0.5), ("regular_tol", -1.0), ("material", "epu"), ("window", 30)):
         result = set_one(name, value)

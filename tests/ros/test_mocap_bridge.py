@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
@@ -22,7 +20,7 @@ from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
@@ -225,20 +223,8 @@ def test_invalid_samples_are_dropped_and_counted(bridges, ros_node) -> None:
 
 
 def test_refused_run_time_update_keeps_the_old_value(bridges, ros_node) -> None:
-    setter = ros_node.create_client(SetParameters, "/hsa/mocap_bridge/set_parameters")
-    getter = ros_node.create_client(GetParameters, "/hsa/mocap_bridge/get_parameters")
-    assert setter.wait_for_service(timeout_sec=20.0) and getter.wait_for_service(timeout_sec=20.0)
-
-    def set_one(name: str, value: object) -> object:
-        request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
-        response = setter.call(request, timeout_sec=10.0)
-        assert response is not None
-        return response.results[0]
-
-    def get(name: str) -> object:
-        response = getter.call(GetParameters.Request(names=[name]), timeout_sec=10.0)
-        value = parameter_value_to_python(response.values[0])
-        return list(value) if isinstance(value, Sequence) or hasattr(value, "tolist") else value
+    params = ParameterClient(ros_node, "/hsa/mocap_bridge")
+    set_one, get = params.set, params.get
 
     for name, value in (("workspace_y", [0.18, 0.06]), ("max_jump", -0.5), ("use_base_pose", True),
                         ("base_quaternion", [0.0, 0.0, 0.0, 0.9])):

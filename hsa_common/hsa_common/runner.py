@@ -36,10 +36,11 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass  # SIGINT/SIGTERM: rclpy shut the context down; an uncaught exception propagates after `finally`
-    except RCLError:
+    except (RCLError, RuntimeError):
         if rclpy.ok():
             raise
-        # a signal shut the context down while a callback was publishing: an orderly stop, not a failure
+        # a signal shut the context down while a callback was publishing or a message was being taken (rclpy raises
+        # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
         hook = getattr(node, "on_shutdown", None)
         if hook is not None:

@@ -1,0 +1,1 @@
+"""hsa_identification: excitation, rest-strain calibration, system identification, model verification, workspace map."""

@@ -16,9 +16,11 @@ import termios
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import NamedTuple
 
 # Protocol 2.0 framing and instruction set.
 HEADER = b"\xff\xff\xfd\x00"
@@ -305,6 +307,15 @@ class ServoModel:
         return goal - sign * remaining, sign * remaining / self.time_constant_s
 
 
+class RegisterWrite(NamedTuple):
+    """One control-table item changed by a WRITE or SYNC_WRITE, stamped when the emulator executed the packet."""
+
+    time: float  # time.monotonic() (CLOCK_MONOTONIC, comparable between processes of one machine)
+    dxl_id: int
+    address: int
+    value: int
+
+
 @dataclass
 class EmulatorStats:
     """Traffic counters of the emulated bus."""
@@ -333,6 +344,7 @@ class _Servo:
         self.responsive = True
         self.updated = now
         self.last_instruction = now
+        self.journal: deque[RegisterWrite] | None = None  # the emulator's write log, if it keeps one
 
     @property
     def dxl_id(self) -> int:
@@ -401,8 +413,8 @@ class _Servo:
         self.refresh(now)
         return 0, bytes(self.table[address : address + length])
 
-    def write(self, address: int, data: bytes) -> int:
-        """WRITE semantics, all-or-nothing: returns the error number (0 when applied)."""
+    def write(self, address: int, data: bytes, now: float) -> int:
+        """WRITE semantics, all-or-nothing: returns the error number (0 when applied, then journaled at ``now``)."""
         staged: list[tuple[_Item, int]] = []
         pos, end = address, address + len(data)
         if not data:
@@ -423,6 +435,8 @@ class _Servo:
             pos += item.size
         for item, value in staged:
             self._apply(item, value)
+            if self.journal is not None:
+                self.journal.append(RegisterWrite(now, self.dxl_id, item.address, value))
         return 0
 
     def _check(self, item: _Item, value: int) -> int:
@@ -483,6 +497,7 @@ class MX28Emulator:
         initial_ticks: Mapping[int, int] | None = None,
         link_path: str | os.PathLike[str] | None = None,
         check_baud: bool = True,
+        write_log_size: int = 65_536,
     ) -> None:
         if baudrate not in BAUD_RATE_CODES:
             raise ValueError(f"baudrate {baudrate} is not an MX-28(2.0) rate {sorted(BAUD_RATE_CODES)}")
@@ -492,6 +507,9 @@ class MX28Emulator:
         now = time.monotonic()
         ticks = dict(initial_ticks or {})
         self._servos = [_Servo(i, BAUD_RATE_CODES[baudrate], ticks.get(i, 2048), model, now) for i in ids]
+        self._journal: deque[RegisterWrite] = deque(maxlen=write_log_size)
+        for servo in self._servos:
+            servo.journal = self._journal
         self._check_baud = check_baud
         self._lock = threading.Lock()
         self._stats = EmulatorStats()
@@ -633,6 +651,24 @@ class MX28Emulator:
         with self._lock:
             self._corrupt_statuses += count
 
+    def writes(self, address: int | None = None, since: float = -math.inf) -> list[RegisterWrite]:
+        """Logged register writes (all, or of the item at ``address``) executed at or after ``since``, oldest first.
+
+        The log keeps the newest ``write_log_size`` entries.
+        """
+        with self._lock:
+            return [w for w in self._journal if w.time >= since and (address is None or w.address == address)]
+
+    def unresponsive(self) -> tuple[int, ...]:
+        """IDs of the servos made silent by :meth:`set_responsive`."""
+        with self._lock:
+            return tuple(s.dxl_id for s in self._servos if not s.responsive)
+
+    def hardware_errors(self) -> dict[int, int]:
+        """Latched Hardware Error Status of every servo."""
+        with self._lock:
+            return {s.dxl_id: s.table[ADDR_HARDWARE_ERROR] for s in self._servos}
+
     def stats(self) -> EmulatorStats:
         """Snapshot of the traffic counters."""
         with self._lock:
@@ -713,7 +749,7 @@ class MX28Emulator:
         if inst == INST_PING:  # answered at every Status Return Level
             return [(servo.dxl_id, servo.error_byte(0), bytes(servo.table[0:2] + servo.table[ADDR_FIRMWARE:7]))]
         if inst == INST_SYNC_WRITE and not unicast:
-            _sync_write(servo, params)
+            _sync_write(servo, params, now)
             return []
         if inst in (INST_SYNC_READ, INST_BULK_READ) and not unicast:
             slot, address, length = _group_read_request(servo.dxl_id, inst, params)
@@ -722,7 +758,7 @@ class MX28Emulator:
             error, data = servo.read(address, length, now)
             return [(slot, servo.error_byte(error), data)]
         if inst == INST_WRITE:
-            error = servo.write(_u16(params, 0), params[2:]) if len(params) >= 3 else ERR_INSTRUCTION
+            error = servo.write(_u16(params, 0), params[2:], now) if len(params) >= 3 else ERR_INSTRUCTION
             return [(0, servo.error_byte(error), b"")] if unicast and level == 2 else []
         if not unicast:
             return []  # READ, REBOOT, CLEAR and unknown instructions get no broadcast reply
@@ -748,14 +784,14 @@ class MX28Emulator:
         return servo.table[ADDR_RETURN_DELAY] * 2e-6, payload
 
 
-def _sync_write(servo: _Servo, params: bytes) -> None:
+def _sync_write(servo: _Servo, params: bytes, now: float) -> None:
     """Apply ``servo``'s slice of a SYNC_WRITE (no status is ever returned)."""
     if len(params) < 4:
         return
     address, length = _u16(params, 0), _u16(params, 2)
     for offset in range(4, len(params) - length, length + 1):
         if params[offset] == servo.dxl_id:
-            servo.write(address, params[offset + 1 : offset + 1 + length])
+            servo.write(address, params[offset + 1 : offset + 1 + length], now)
 
 
 def _group_read_request(dxl_id: int, inst: int, params: bytes) -> tuple[int | None, int, int]:

@@ -10,7 +10,15 @@ import time
 import psutil
 import pytest
 import serial
-from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHandler, PortHandler
+from dynamixel_sdk import (
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    GroupBulkRead,
+    GroupSyncRead,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
 
 from hsa_sim_node.mx28_emulator import (
     ERR_ACCESS,
@@ -273,3 +281,22 @@ def test_idle_emulator_sleeps_and_stops_cleanly(tmp_path) -> None:
     link_dir = os.path.dirname(own.port)
     own.stop()
     assert not os.path.exists(link_dir)
+
+
+def test_write_log_stamps_every_applied_write_and_skips_refused_ones(sdk, emulator) -> None:
+    port, ph = sdk
+    before = time.monotonic()
+    assert ph.write1ByteTxRx(port, 21, ADDR_TORQUE, 1) == (COMM_SUCCESS, 0)
+    assert ph.write1ByteTxRx(port, 21, ADDR_MODE, 4)[1] == ERR_ACCESS  # EEPROM locked: refused, not logged
+    writer = GroupSyncWrite(port, ph, ADDR_GOAL, 4)
+    for dxl_id, goal in ((21, 3000), (22, 100), (23, -5)):  # 23 is in position mode: -5 refused
+        writer.addParam(dxl_id, list(goal.to_bytes(4, "little", signed=True)))
+    assert writer.txPacket() == COMM_SUCCESS
+    time.sleep(0.05)
+    after = time.monotonic()
+    log = emulator.writes(since=before)
+    assert [(w.dxl_id, w.address, w.value) for w in log] == [(21, ADDR_TORQUE, 1), (21, ADDR_GOAL, 3000),
+                                                             (22, ADDR_GOAL, 100)]
+    assert all(before <= w.time <= after for w in log) and log[0].time <= log[1].time
+    assert [w.value for w in emulator.writes(ADDR_GOAL)] == [3000, 100]
+    assert emulator.writes(since=after) == []

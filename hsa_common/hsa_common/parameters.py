@@ -2,7 +2,8 @@
 
 A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` declares them (so ``ros2 param describe``
 shows units, ranges and whether they are read-only), validates the start values and raises
-:class:`ParameterValidationError` naming the first bad parameter. :func:`guard_updates` installs the on-set
+:class:`ParameterValidationError` naming the first bad parameter; a value given for a parameter the node does not
+have (a typo in a parameter file or on the command line, which rclpy would silently ignore) is refused the same way. :func:`guard_updates` installs the on-set
 callback that refuses out-of-range or read-only updates at run time with a reason naming the parameter; the node
 keeps running with the old value. The callback has no side effects: accepted values are applied by the
 post-set callback the node passes in.
@@ -18,6 +19,9 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+QOS_OVERRIDES = "qos_overrides."
+"""Prefix of the standard QoS override parameters, declared when the publisher or subscription is created."""
 
 Validator = Callable[[Any], str | None]  # returns an error message, or None if the value is acceptable
 
@@ -88,7 +92,18 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
         if problem:
             raise ParameterValidationError(f"parameter '{spec.name}' {problem}")
         values[spec.name] = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+    unknown = unknown_overrides(node)
+    if unknown:
+        raise ParameterValidationError(
+            f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant for another "
+            f"node?); known: {sorted(s.name for s in specs)}")
     return values
+
+
+def unknown_overrides(node: Node) -> list[str]:
+    """Names given to the node (parameter files, ``-p``) that it has not declared; QoS overrides are declared later."""
+    given = node._parameter_overrides  # rclpy keeps the node's resolved overrides only here (no public accessor)
+    return sorted(name for name in given if not node.has_parameter(name) and not name.startswith(QOS_OVERRIDES))
 
 
 def guard_updates(

@@ -1,25 +1,30 @@
-"""controller_node: one control law of planning_and_control.md §3 at a fixed rate, with stale-state supervision (§5).
+"""controller_node: one control law of planning_and_control.md §3 at a fixed rate, with the supervision of §5.
 
-Per tick: no setpoint or no ready state (velocity_valid false) -> nothing is sent; a state received more than
-`stale_timeout` ago -> the last command is re-published unchanged and the controller is not stepped (no integral
-wind-up) for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog takes over);
-otherwise the controller steps and `phi_cmd` and `controller_info` are published. The math is hsa_core.control's
-Controller, compiled in the constructor; the integrators use the nominal dt = 1/rate.
+Per tick, in this order: E-stop active (latched `estop` true) -> nothing is sent, the integrators were reset; no
+setpoint or no usable state (finite, velocity_valid) yet -> nothing is sent; the last usable state was received more
+than `stale_timeout` ago -> the last command is re-published unchanged and the controller is not stepped (no integral
+wind-up) for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the motors);
+otherwise the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports
+every tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate.
 """
 
 from __future__ import annotations
 
+import copy
+import math
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
 from rclpy.node import Node
 from rclpy.time import Time
+from std_msgs.msg import Bool
 
 from hsa_common import qos
-from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
-from hsa_common.runner import run
+from hsa_common.runner import run, seconds
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
 from hsa_core.planning import Setpoint as CoreSetpoint
@@ -67,17 +72,22 @@ SPECS = (
               low=0.001, high=10.0, read_only=True),
     ParamSpec("hold_timeout", 0.25, "[s] stop re-publishing the held command after states have been missing this "
               "long (>= stale_timeout)", low=0.001, high=60.0, read_only=True),
+    ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
+              read_only=True),
 )
 GAIN_NAMES = ("kp", "ki", "kd", "gamma", "kp_pid", "ki_pid", "kd_pid", "ee_ki", "ee_e_on", "ee_z_max")
 
 _MODE_NAMES = {
     ControllerInfo.STATE_WAITING_FOR_SETPOINT: "waiting for setpoint", ControllerInfo.STATE_WAITING_FOR_STATE:
     "waiting for state", ControllerInfo.STATE_TRACKING: "tracking", ControllerInfo.STATE_HOLD_STALE: "holding (stale)",
+    ControllerInfo.STATE_STOPPED: "stopped (E-stop)",
 }
+NOTHING_SENT = np.full(2, math.nan)
+"""φ fields of the info on ticks that send no command."""
 
 
 class ControllerNode(Node):
-    """Runs the selected law on a timer; publishes phi_cmd and controller_info; reports timing on /diagnostics."""
+    """Runs the selected law on a timer; publishes phi_cmd and controller_info; reports on /diagnostics."""
 
     def __init__(self) -> None:
         """Declare and validate parameters, build and compile the controller, then start the timer."""
@@ -101,15 +111,22 @@ class ControllerNode(Node):
         self._period = 1.0 / self._p["rate"]
         self._stale_ns = int(self._p["stale_timeout"] * 1e9)
         self._hold_ns = int(self._p["hold_timeout"] * 1e9)
-        self._state: PlanarState | None = None
-        self._state_rx: Time | None = None
+        self._state: PlanarState | None = None  # the newest usable state (finite, velocity_valid)
+        self._state_rx: Time | None = None  # when it arrived (node clock)
         self._setpoint_msg: Setpoint | None = None
         self._last_cmd: PlanarActuation | None = None
-        self._last_info: ControllerInfo | None = None
+        self._last_info: ControllerInfo | None = None  # info of the newest tracking tick
+        self._estop = False
         self._mode = ControllerInfo.STATE_WAITING_FOR_SETPOINT
         self._last_tick: Time | None = None
-        self._stats = {"ticks": 0, "deadline_misses": 0, "stale_events": 0, "held_ticks": 0, "saturated": 0,
-                       "setpoints": 0, "rejected_setpoints": 0}
+        self._tracked_at: Time | None = None  # newest tracking tick
+        self._lost_at: Time | None = None  # last tracking tick before the current outage (None while tracking)
+        self._last_outage = math.nan
+        self._stats = {"ticks": 0, "deadline_misses": 0, "stale_events": 0, "held_ticks": 0, "stale_stops": 0,
+                       "estop_events": 0, "saturated": 0, "setpoints": 0, "rejected_setpoints": 0}
+        self._rejected_states: Counter[str] = Counter()
+        self._rejections = {"state": "-", "setpoint": "-"}
+        self._reported_rejections = 0
         self._window: dict[str, Any] = {"ticks": 0, "compute": [], "start": self.get_clock().now()}
         self._cmd_pub = self.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND,
                                               qos_overriding_options=qos.overridable())
@@ -119,8 +136,9 @@ class ControllerNode(Node):
                                  qos_overriding_options=qos.overridable())
         self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED,
                                  qos_overriding_options=qos.overridable())
+        self.create_subscription(Bool, "estop", self._on_estop, qos.LATCHED, qos_overriding_options=qos.overridable())
         self.create_timer(self._period, self._tick)
-        diagnostics = Diagnostics(self)
+        diagnostics = Diagnostics(self, self._p["diagnostics_period"])
         diagnostics.add("control loop", self._report)
         self.get_logger().info(f"'{self._kind.value}' at {self._p['rate']:g} Hz, waiting for setpoint")
 
@@ -149,9 +167,14 @@ class ControllerNode(Node):
         self.get_logger().info(f"parameters updated: {changes}")
 
     def _on_state(self, msg: PlanarState) -> None:
-        """Keep the latest state and when it arrived (staleness is judged on the receive time)."""
-        self._state = msg
-        self._state_rx = self.get_clock().now()
+        """Keep the newest usable state and when it arrived; refuse non-finite ones (staleness is judged on receipt)."""
+        problem = _state_problem(msg)
+        if problem is not None:
+            self._rejected_states[problem] += 1
+            self._rejections["state"] = problem
+            self.get_logger().warning(f"rejected state: {problem}", throttle_duration_sec=5.0)
+        elif msg.velocity_valid:
+            self._state, self._state_rx = msg, self.get_clock().now()
 
     def _on_setpoint(self, msg: Setpoint) -> None:
         """Activate a setpoint after the controller's sanity checks; a rejected one leaves the previous active."""
@@ -164,6 +187,7 @@ class ControllerNode(Node):
             self._controller.set_setpoint(setpoint)
         except ValueError as exc:
             self._stats["rejected_setpoints"] += 1
+            self._rejections["setpoint"] = str(exc)
             kept = "keeping the previous setpoint" if self._setpoint_msg is not None else "no setpoint active"
             self.get_logger().warning(f"rejected setpoint {msg.trajectory_index}: {exc}; {kept}")
             return
@@ -171,20 +195,34 @@ class ControllerNode(Node):
         self._stats["setpoints"] += 1
         self.get_logger().debug(f"setpoint {msg.trajectory_index}/{msg.trajectory_length} active")
 
+    def _on_estop(self, msg: Bool) -> None:
+        """E-stop state from the driver: on entry the integrators are reset and the held command is dropped."""
+        if bool(msg.data) == self._estop:
+            return
+        self._estop = bool(msg.data)
+        if self._estop:
+            self._controller.reset()
+            self._last_cmd = None
+            self._stats["estop_events"] += 1
+            self.get_logger().error("E-STOP: no phi_cmd is sent, integrators reset")
+        else:
+            self.get_logger().warning("E-stop cleared: resuming from a fresh controller state (integrators zero)")
+
     def _tick(self) -> None:
         """One control period: decide the mode, then step and publish, re-publish the held command, or send nothing."""
         now = self.get_clock().now()
         self._count_tick(now)
-        state = self._state
-        if self._setpoint_msg is None:
-            self._set_mode(ControllerInfo.STATE_WAITING_FOR_SETPOINT)
-        elif state is None or not state.velocity_valid:
-            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE)
+        if self._estop:
+            self._idle(now, ControllerInfo.STATE_STOPPED)
+        elif self._setpoint_msg is None:
+            self._set_mode(ControllerInfo.STATE_WAITING_FOR_SETPOINT, now)
+        elif self._state is None:
+            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE, now)
         elif (now - self._state_rx).nanoseconds > self._stale_ns:
             self._hold(now, (now - self._state_rx).nanoseconds)
         else:
-            self._set_mode(ControllerInfo.STATE_TRACKING)
-            self._step(now, state)
+            self._set_mode(ControllerInfo.STATE_TRACKING, now)
+            self._step(now, self._state)
 
     def _step(self, now: Time, state: PlanarState) -> None:
         """Step the controller on the state and publish the command and the tick's info."""
@@ -210,35 +248,66 @@ class ControllerNode(Node):
         out.header.stamp, out.header.frame_id = stamp, FRAME_ID
         self._cmd_pub.publish(cmd)
         self._info_pub.publish(out)
-        self._last_cmd, self._last_info = cmd, out
+        self._last_cmd, self._last_info, self._tracked_at = cmd, out, now
 
     def _hold(self, now: Time, stale_ns: int) -> None:
         """Re-publish the last command (same phi and source stamp) while the hold lasts; afterwards send nothing."""
         if self._last_cmd is None or stale_ns > self._hold_ns:
-            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE)
+            self._idle(now, ControllerInfo.STATE_WAITING_FOR_STATE)
             return
-        if self._mode != ControllerInfo.STATE_HOLD_STALE:
-            self._stats["stale_events"] += 1
-        self._set_mode(ControllerInfo.STATE_HOLD_STALE)
+        self._set_mode(ControllerInfo.STATE_HOLD_STALE, now)
         self._stats["held_ticks"] += 1
-        stamp = now.to_msg()
-        self._last_cmd.header.stamp = stamp
-        info = self._last_info
-        info.header.stamp, info.state, info.compute_time = stamp, ControllerInfo.STATE_HOLD_STALE, 0.0
-        info.state_age = (now - Time.from_msg(info.state_stamp)).nanoseconds * 1e-9
+        self._last_cmd.header.stamp = now.to_msg()
         self._cmd_pub.publish(self._last_cmd)
+        self._publish_info(now, ControllerInfo.STATE_HOLD_STALE, commanded=True)
+
+    def _idle(self, now: Time, mode: int) -> None:
+        """A tick that sends no command: E-stop, or states missing beyond the hold."""
+        self._set_mode(mode, now)
+        self._publish_info(now, mode, commanded=False)
+
+    def _publish_info(self, now: Time, mode: int, commanded: bool) -> None:
+        """Info of a tick without a controller step: the last tracking tick's fields with this tick's mode, stamp,
+        setpoint and integrator state; φ fields NaN when nothing is sent. Nothing before the first tracking tick."""
+        if self._last_info is None:
+            return
+        info = copy.deepcopy(self._last_info)
+        info.header.stamp, info.state, info.compute_time = now.to_msg(), mode, 0.0
+        info.setpoint = self._setpoint_msg
+        info.state_age = (now - Time.from_msg(info.state_stamp)).nanoseconds * 1e-9
+        integrators = self._controller.state
+        info.e_int, info.z_ee = integrators.e_int, integrators.z_ee
+        if not commanded:
+            info.phi_des_unsat, info.phi_des_sat = NOTHING_SENT, NOTHING_SENT
+            info.motor_goal_angles = np.full(4, math.nan)
+            info.saturated = False
         self._info_pub.publish(info)
 
-    def _set_mode(self, mode: int) -> None:
-        """Record the controller state; log changes (WARN when commands stop or are held)."""
+    def _set_mode(self, mode: int, now: Time) -> None:
+        """Record the controller mode; log changes once (INFO back to tracking, WARN/ERROR when commands change)."""
         if mode == self._mode:
             return
-        text = f"{_MODE_NAMES[self._mode]} -> {_MODE_NAMES[mode]}"
-        if mode == ControllerInfo.STATE_TRACKING or self._mode == ControllerInfo.STATE_WAITING_FOR_SETPOINT:
+        old, self._mode = self._mode, mode
+        text = f"{_MODE_NAMES[old]} -> {_MODE_NAMES[mode]}"
+        if old == ControllerInfo.STATE_TRACKING:
+            self._lost_at = self._tracked_at
+        if mode == ControllerInfo.STATE_TRACKING:
+            if self._lost_at is not None:
+                self._last_outage, self._lost_at = seconds(now - self._lost_at), None
+                text += f" after {self._last_outage:.3f} s without tracking"
             self.get_logger().info(text)
+        elif mode == ControllerInfo.STATE_HOLD_STALE:
+            self._stats["stale_events"] += 1
+            self.get_logger().warning(f"{text}: no usable state for {seconds(now - self._state_rx):.3f} s; "
+                                      "re-publishing the last command, integrators frozen")
+        elif mode == ControllerInfo.STATE_WAITING_FOR_STATE and self._last_info is not None:
+            self._stats["stale_stops"] += 1
+            self.get_logger().error(f"{text}: no usable state for {seconds(now - self._state_rx):.3f} s; no command "
+                                    "is sent (the driver's watchdog holds the motors), integrators frozen")
+        elif mode == ControllerInfo.STATE_STOPPED:
+            self.get_logger().error(text)
         else:
-            self.get_logger().warning(text)
-        self._mode = mode
+            self.get_logger().info(text)
 
     def _count_tick(self, now: Time) -> None:
         """Tick counters and deadline misses (tick interval > DEADLINE_FACTOR periods)."""
@@ -249,20 +318,49 @@ class ControllerNode(Node):
         self._window["ticks"] += 1
 
     def _report(self) -> Report:
-        """Tick rate and compute time over the last diagnostics period; cumulative counters."""
+        """Mode, tick rate and compute time over the last period, stale-input and rejection counters."""
         now = self.get_clock().now()
         elapsed = (now - self._window["start"]).nanoseconds * 1e-9
         compute = self._window["compute"]
         rate = self._window["ticks"] / elapsed if elapsed > 0.0 else 0.0
         self._window = {"ticks": 0, "compute": [], "start": now}
+        rejections = sum(self._rejected_states.values()) + self._stats["rejected_setpoints"]
+        new_rejections, self._reported_rejections = rejections > self._reported_rejections, rejections
+        silence = seconds(now - self._state_rx) if self._state_rx is not None else math.nan
         values = {
-            "mode": _MODE_NAMES[self._mode], "controller": self._kind.value, "tick rate [Hz]": f"{rate:.1f}",
-            "nominal rate [Hz]": f"{self._p['rate']:g}", **self._stats,
+            "mode": _MODE_NAMES[self._mode], "estop": self._estop, "controller": self._kind.value,
+            "tick rate [Hz]": f"{rate:.1f}", "nominal rate [Hz]": f"{self._p['rate']:g}", **self._stats,
+            "rejected_states": sum(self._rejected_states.values()),
+            **{f"rejected_states {reason}": n for reason, n in sorted(self._rejected_states.items())},
+            "last_state_rejection": self._rejections["state"],
+            "last_setpoint_rejection": self._rejections["setpoint"],
+            "time_since_last_state [s]": f"{silence:.3f}", "last_outage [s]": f"{self._last_outage:.3f}",
+            "e_int": np.round(self._controller.state.e_int, 6).tolist(),
             "compute time mean [ms]": f"{1e3 * np.mean(compute):.3f}" if compute else "-",
             "compute time max [ms]": f"{1e3 * np.max(compute):.3f}" if compute else "-",
         }
-        degraded = self._mode == ControllerInfo.STATE_HOLD_STALE or rate < 0.9 * self._p["rate"]
-        return Report(WARN if degraded else OK, _MODE_NAMES[self._mode], values)
+        if self._mode == ControllerInfo.STATE_STOPPED:
+            return Report(ERROR, "E-STOP: no command is sent", values)
+        if self._mode == ControllerInfo.STATE_WAITING_FOR_STATE and self._last_info is not None:
+            return Report(ERROR, f"stale: no usable state for {silence:.3g} s, no command is sent", values)
+        if self._mode == ControllerInfo.STATE_HOLD_STALE:
+            return Report(WARN, f"stale: no usable state for {silence:.3g} s, holding the last command", values)
+        if self._mode != ControllerInfo.STATE_TRACKING:
+            return Report(WARN, _MODE_NAMES[self._mode], values)
+        if rate < 0.9 * self._p["rate"]:
+            return Report(WARN, f"tracking, tick rate {rate:.1f} Hz below 90 % of {self._p['rate']:g} Hz", values)
+        if new_rejections:
+            return Report(WARN, "tracking; inputs were rejected in this period", values)
+        return Report(OK, "tracking", values)
+
+
+def _state_problem(msg: PlanarState) -> str | None:
+    """Why a state must not reach the control law (non-finite values), or None."""
+    if not all(math.isfinite(v) for v in (*_pose(msg.chiee), *_q(msg.q))):
+        return "non-finite pose or configuration"
+    if msg.velocity_valid and not all(math.isfinite(v) for v in (*_pose(msg.chiee_dot), *_q(msg.q_dot))):
+        return "non-finite rates"
+    return None
 
 
 def _q(msg: CsConfiguration) -> np.ndarray:

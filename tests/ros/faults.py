@@ -11,16 +11,18 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from tests.ros.conftest import start_process, stop_process, wait_for_line
-from tests.ros.test_controller_node import Recorder, _setpoint
+from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until
 
-__all__ = ["Recorder", "setpoint", "wait_until", "NodeProcess", "MocapStream", "DiagnosticsLog", "fault", "sec",
+__all__ = ["BEST_EFFORT", "Recorder", "setpoint", "wait_until", "NodeProcess", "MocapStream", "DiagnosticsLog", "fault", "sec",
            "SETPOINT_CHIEE", "OFFSET_CHIEE"]
 
 EXECUTABLES = {"mocap_bridge": "hsa_mocap_bridge", "kinematics_node": "hsa_kinematics_node",
@@ -30,6 +32,26 @@ SETPOINT_CHIEE = np.array([0.00479247, 0.12781018, -0.066980133])
 """χ_ee^d of the FPU worked example (planning_and_control.md §2.2) that ``setpoint()`` returns."""
 OFFSET_CHIEE = SETPOINT_CHIEE + np.array([0.002, 0.001, 0.0])
 """A pose 2.2 mm from the setpoint: the controller's integrator state grows steadily while it tracks it."""
+
+
+BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+"""Subscription profile for the SENSOR streams (a reliable subscription does not match a best-effort publisher)."""
+
+
+class Recorder:
+    """Raw subscription, decoded only when read (keeps the observing test process fast enough for 200 Hz)."""
+
+    def __init__(self, node: Node, msg_type: type, topic: str, profile: QoSProfile | int = 500) -> None:
+        self.msg_type = msg_type
+        self.raw: list[bytes] = []
+        node.create_subscription(msg_type, topic, self.raw.append, profile, raw=True)
+
+    def __len__(self) -> int:
+        return len(self.raw)
+
+    def since(self, start: int = 0) -> list:
+        """Messages from index ``start`` on, decoded."""
+        return [deserialize_message(b, self.msg_type) for b in self.raw[start:]]
 
 
 def setpoint() -> object:

@@ -19,7 +19,8 @@ recompile:
 
 Every result is checked: acceptance ||r|| <= 1e-3 (§2.4), phi^ss in [0, phi_max], and a stable equilibrium (all
 eigenvalues of the linearisation of [q, q_dot] with negative real part, model.md §9.4; an unstable one is UNREACHABLE).
-Targets outside a conservative hull of the reachable workspace are rejected in microseconds. Failures are reported
+Targets farther than a margin outside the reachable workspace (hsa_core.workspace.ReachabilityRegion) are rejected
+in microseconds. Failures are reported
 with a status, never as a silently wrong setpoint.
 """
 
@@ -35,9 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
-from scipy.spatial import ConvexHull
-
 from hsa_core import dynamics, kinematics, simulation
+from hsa_core.workspace import ReachabilityRegion, boundary_phis
 from hsa_core.params import HsaParams
 
 PLANNER_KINDS = ("static", "equilibrium", "rollout")
@@ -59,8 +59,10 @@ relative step <= 1e-10: each evaluation costs a 5 s rollout."""
 _LAMBDA0 = 1e-3
 _LAMBDA_MAX = 1e12
 _BOUND_TOL = 1e-9
-_HULL_GRID = 9
-_HULL_MARGIN = 2e-3
+_BOUNDARY_POINTS = 32
+REACH_MARGIN = 1e-2
+"""Fast rejection only beyond 1 cm outside the reachable polygon [m]: nearer targets go to the solver, which reports
+why they fail (PHI_OUT_OF_RANGE with the best phi) instead of a bare UNREACHABLE."""
 
 
 class PlanStatus(enum.IntEnum):
@@ -333,7 +335,7 @@ class Planner:
         max_optimality_error: float = MAX_OPTIMALITY_ERROR,
         max_iter: int = 100,
     ) -> None:
-        """Select the planner (default per material), build the reachability hull and compile the solvers."""
+        """Select the planner (default per material), build the reachability region and compile the solvers."""
         kind = DEFAULT_PLANNER.get(params.material, "static") if kind is None else kind
         if kind not in PLANNER_KINDS:
             raise ValueError(f"unknown planner kind {kind!r}; expected one of {PLANNER_KINDS}")
@@ -348,7 +350,7 @@ class Planner:
         self._x_lo = np.concatenate([[-np.pi], self._phi_lo])
         self._x_hi = np.concatenate([[np.pi], self._phi_hi])
         self._phi_mid = 0.5 * (self._phi_lo + self._phi_hi)
-        self._hull, self._hull_margin = self._reachability_hull()
+        self._region = self._reachability_region()
         self._warm: tuple[np.ndarray, np.ndarray] | None = None
         self._compile()
 
@@ -371,29 +373,23 @@ class Planner:
             args = (self.params, p, self._phi_mid, np.zeros(3), self._phi_lo, self._phi_hi, no_iter)
             jax.block_until_ready(_solve_equilibrium(*args))
 
-    def _reachability_hull(self) -> tuple[np.ndarray, float]:
-        """Conservative reachable region: convex hull of equilibria over a phi grid, inflated by a margin [m].
+    def _reachability_region(self) -> ReachabilityRegion:
+        """Reachable polygon: equilibria along the edges of the phi box (hsa_core.workspace), with REACH_MARGIN.
 
         Always built with the exact kappa rule: the exp2023 shift moves equilibria by <= 0.04 mm (model.md §8.3), far
         inside the margin, and its jump at kappa = 0 would stall the equilibrium solves on the phi1 = phi2 diagonal.
         """
-        grid = np.linspace(0.0, 1.0, _HULL_GRID)
-        u1, u2 = np.meshgrid(grid, grid, indexing="ij")
-        span = self._phi_hi - self._phi_lo
-        phis = self._phi_lo + np.stack([u1.ravel(), u2.ravel()], axis=1) * span
+        phis = boundary_phis(self._phi_lo, self._phi_hi, _BOUNDARY_POINTS)
         exact = self.params if self.params.kappa_rule == "exact" else self.params.replace(kappa_rule="exact")
         p, res = (np.asarray(a) for a in _equilibrium_positions(exact, phis))
         if not np.all(np.isfinite(p)) or not np.all(res <= self.max_optimality_error):
-            raise RuntimeError("static equilibria over the phi box did not converge; cannot bound the workspace")
-        cells = p.reshape(_HULL_GRID, _HULL_GRID, 2)
-        spacing = max(np.max(np.linalg.norm(np.diff(cells, axis=a), axis=-1)) for a in (0, 1))
-        # The image of a grid cell lies within one grid spacing of its corners' images; the margin covers it.
-        return ConvexHull(p).equations, float(spacing + _HULL_MARGIN)
+            raise RuntimeError("static equilibria on the edges of the phi box did not converge; cannot bound the "
+                               "workspace")
+        return ReachabilityRegion(p, REACH_MARGIN)
 
     def in_reach_region(self, p_des: ArrayLike) -> bool:
         """Fast conservative test: False only if p^d is certainly unreachable with phi in [0, phi_max]^2."""
-        p = np.asarray(p_des, dtype=np.float64)
-        return bool(np.max(self._hull[:, :2] @ p + self._hull[:, 2]) <= self._hull_margin)
+        return self._region.contains(p_des)
 
     def reset_warm_start(self) -> None:
         """Forget the previous solution (next plan starts cold)."""

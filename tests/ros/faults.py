@@ -170,7 +170,14 @@ class DiagnosticsLog:
 
     def __init__(self, node: Node) -> None:
         self.arrays: list[DiagnosticArray] = []
-        node.create_subscription(DiagnosticArray, "/diagnostics", self.arrays.append, 100)
+        self.first_seen: dict[str, float] = {}  # status name -> time.monotonic() of its first report
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_array, 100)
+
+    def _on_array(self, msg: DiagnosticArray) -> None:
+        now = time.monotonic()
+        for status in msg.status:
+            self.first_seen.setdefault(status.name, now)
+        self.arrays.append(msg)
 
     def statuses(self, name: str, after_ns: int = 0) -> list[tuple[DiagnosticStatus, dict[str, str]]]:
         """Statuses called ``name`` from arrays stamped after ``after_ns``, with their values."""

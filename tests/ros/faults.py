@@ -22,8 +22,8 @@ from tests.ros.conftest import start_process, stop_process, wait_for_line
 from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until
 
-__all__ = ["BEST_EFFORT", "Recorder", "setpoint", "wait_until", "NodeProcess", "MocapStream", "DiagnosticsLog", "fault", "sec",
-           "SETPOINT_CHIEE", "OFFSET_CHIEE"]
+__all__ = ["BEST_EFFORT", "EXECUTABLES", "OFFSET_CHIEE", "SETPOINT_CHIEE", "DiagnosticsLog", "MocapStream",
+           "NodeProcess", "Recorder", "fault", "sec", "setpoint", "start_all", "wait_until"]
 
 EXECUTABLES = {"mocap_bridge": "hsa_mocap_bridge", "kinematics_node": "hsa_kinematics_node",
                "controller_node": "hsa_controller_node", "planner_node": "hsa_planner_node",

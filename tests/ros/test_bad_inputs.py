@@ -22,8 +22,8 @@ from hsa_common import qos
 from hsa_core import mocap
 from hsa_msgs.msg import ControllerInfo, PlanarPoseStamped, PlanarState, Setpoint
 from hsa_msgs.srv import PlanSetpoint
-from tests.ros.faults import (BEST_EFFORT, OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault, sec, setpoint,
-                              start_all, wait_until)
+from tests.ros.faults import (BEST_EFFORT, OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault,
+                              setpoint, start_all, wait_until)
 from tests.ros.test_mocap_bridge import pose_msg
 
 pytestmark = pytest.mark.ros

@@ -3,10 +3,10 @@
 A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` declares them (so ``ros2 param describe``
 shows units, ranges and whether they are read-only), validates the start values and raises
 :class:`ParameterValidationError` naming the first bad parameter; a value given for a parameter the node does not
-have (a typo in a parameter file or on the command line, which rclpy would silently ignore) is refused the same way. :func:`guard_updates` installs the on-set
-callback that refuses out-of-range or read-only updates at run time with a reason naming the parameter; the node
-keeps running with the old value. The callback has no side effects: accepted values are applied by the
-post-set callback the node passes in.
+have (a typo in a parameter file or on the command line, which rclpy would silently ignore) is refused the same way.
+:func:`guard_updates` installs the on-set callback that refuses out-of-range or read-only updates at run time with a
+reason naming the parameter; the node keeps running with the old value. The callback has no side effects: accepted
+values are applied by the post-set callback the node passes in.
 """
 
 from __future__ import annotations

@@ -284,7 +284,8 @@ class ControllerNode(Node):
         self._info_pub.publish(info)
 
     def _set_mode(self, mode: int, now: Time) -> None:
-        """Record the controller mode; log changes once (INFO back to tracking, WARN/ERROR when commands change)."""
+        """Record the controller mode; log changes once (INFO back to tracking, WARN entering the hold, ERROR when
+        commands stop for missing states)."""
         if mode == self._mode:
             return
         old, self._mode = self._mode, mode
@@ -304,9 +305,7 @@ class ControllerNode(Node):
             self._stats["stale_stops"] += 1
             self.get_logger().error(f"{text}: no usable state for {seconds(now - self._state_rx):.3f} s; no command "
                                     "is sent (the driver's watchdog holds the motors), integrators frozen")
-        elif mode == ControllerInfo.STATE_STOPPED:
-            self.get_logger().error(text)
-        else:
+        else:  # start-up, and E-stop changes (logged as ERROR/WARN when the estop message arrives)
             self.get_logger().info(text)
 
     def _count_tick(self, now: Time) -> None:

@@ -1,8 +1,9 @@
 """dynamixel_driver: lifecycle node between ``phi_cmd`` and the 4 MX-28 servos (one sync write + one sync read a cycle).
 
 Safety (planning_and_control.md §5, §7; ecosystem.md §2): goals are clipped to [0, φ_max] and clamped around the
-neutral ticks whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM and uncaught
-exceptions; torque is enabled only while the servos answer and their present positions are sane; bus errors are
+neutral ticks whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM, uncaught
+exceptions and the E-stop (latched until ``clear_estop``); torque is enabled only while the servos answer, report no
+hardware error and their present positions are sane; a command watchdog holds or relaxes the motors; bus errors are
 counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
 docs/nodes/hsa_dynamixel_driver.md.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -21,7 +23,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
-from std_srvs.srv import SetBool
+from std_msgs.msg import Bool
+from std_srvs.srv import SetBool, Trigger
 
 from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
@@ -42,6 +45,11 @@ from hsa_dynamixel_driver.bus import (
 from hsa_msgs.msg import PlanarActuation
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
+FAULT_FILE_ENV = "HSA_DRIVER_FAULT_FILE"  # test hook: the control cycle raises while this file exists
+
+
+class InjectedFault(RuntimeError):
+    """The uncaught exception raised by the test hook named in FAULT_FILE_ENV."""
 
 
 def _signs(value: list[int]) -> str | None:
@@ -85,8 +93,10 @@ SPECS = (
               high=100.0),
     ParamSpec("write_on_command", True, "sync-write a goal as soon as a phi_cmd arrives (else only in the cycle); "
               "the read cycle, watchdog and rate limit are unchanged", read_only=True),
-    ParamSpec("command_timeout", 0.1, "hold the last goal when phi_cmd is older than this [s]; 0 = off", low=0.0,
-              high=10.0),
+    ParamSpec("command_timeout", 0.1, "command watchdog: phi_cmd older than this [s] -> watchdog_action; 0 = off",
+              low=0.0, high=10.0),
+    ParamSpec("watchdog_action", "hold", "when the watchdog expires: hold the last goal, or relax (torque off until "
+              "the next phi_cmd, which re-enables torque if safe)", choices=("hold", "relax")),
     ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
               read_only=True),
     ParamSpec("error_limit", 10, "consecutive failed cycles before the bus counts as lost", low=1, high=10_000,
@@ -150,11 +160,19 @@ class DynamixelDriver(LifecycleNode):
         self._last_goal: np.ndarray | None = None
         self._last_write = time.monotonic()
         self._watchdog = "waiting for the first command"
+        self._relaxed = False  # torque off by the watchdog (watchdog_action 'relax') until the next phi_cmd
+        self._estop: str | None = None  # why the E-stop is engaged, None while released
+        self._estop_since = 0.0
+        self._lost_at: float | None = None
+        self._last_outage = "none"
         self._consecutive_failures = 0
         self._counts = dict.fromkeys(
-            ("cycles", "writes", "reads", "commands", "rejected", "clamped", "reconnect_attempts", "port_errors",
-             "comm_errors", "status_errors"), 0)
+            ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
+             "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops"), 0)
         self._rate_base = (time.monotonic(), dict(self._counts))
+        self._fault_file = os.environ.get(FAULT_FILE_ENV) or None
+        if self._fault_file:
+            self.get_logger().warning(f"test hook armed: the control cycle raises while {self._fault_file} exists")
 
         options = qos.overridable()
         self._pub_states = self.create_publisher(JointState, "motor_states", qos.SENSOR,
@@ -166,16 +184,26 @@ class DynamixelDriver(LifecycleNode):
         self.create_subscription(PlanarActuation, "phi_cmd", self._on_command, qos.COMMAND,
                                  qos_overriding_options=options)
         self.create_service(SetBool, "set_torque", self._on_set_torque)
+        self._pub_estop = self.create_publisher(Bool, "estop", qos.LATCHED)
+        self._pub_estop.publish(Bool(data=False))
+        self.create_service(Trigger, "estop", self._on_estop)
+        self.create_service(Trigger, "clear_estop", self._on_clear_estop)
+        # reliable, volatile, depth 10: matches any reliable publisher, and a quick True/False pair loses nothing
+        self.create_subscription(Bool, "estop_request", self._on_estop_request, qos.INFO)
         diagnostics = Diagnostics(self, hardware_id=self._p["port"])
         diagnostics.add("bus", self._bus_report)
         diagnostics.add("servos", self._servo_report)
         diagnostics.add("control", self._control_report)
+        diagnostics.add("estop", self._estop_report)
         if self._p["autostart"]:  # from the executor, so torque is never on outside the runner's shutdown guard
             self._autostart_timer: Timer | None = self.create_timer(0.0, self._autostart)
 
     def _autostart(self) -> None:
         """One-shot: configure and activate without a lifecycle manager."""
+        if self._autostart_timer is None:
+            return  # an event the EventsExecutor had queued before the timer was destroyed
         self.destroy_timer(self._autostart_timer)
+        self._autostart_timer = None
         try:
             if self.trigger_configure() == SUCCESS:
                 self.trigger_activate()
@@ -235,8 +263,9 @@ class DynamixelDriver(LifecycleNode):
         """Enable torque holding the present position (if sane) and start the control cycle."""
         self._active = True
         self._torque_wanted = True
+        self._relaxed = False
         self._clear_command()
-        if self._link_up:
+        if self._link_up and self._estop is None:
             self._enable_torque()
         self._last_write = time.monotonic()
         self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
@@ -267,6 +296,7 @@ class DynamixelDriver(LifecycleNode):
     def _stop_cycle(self) -> None:
         self._active = False
         self._torque_wanted = False
+        self._relaxed = False
         if self._cycle_timer is not None:
             self.destroy_timer(self._cycle_timer)
             self._cycle_timer = None
@@ -302,12 +332,17 @@ class DynamixelDriver(LifecycleNode):
         self._link_up = True
         self._last_bus_problem = ""
         self._consecutive_failures = 0
+        if self._lost_at is not None:
+            self._counts["reconnects"] += 1
+            self._last_outage = f"{time.monotonic() - self._lost_at:.3f} s"
+            self._lost_at = None
+            self.get_logger().info(f"bus reconnected after {self._last_outage}")
         latency = self._bus.latency_timer()
         self._latency = latency.describe()
         if latency.slow:
             self.get_logger().warning(self._latency)
         self.get_logger().info(f"bus open: {self._p['port']} at {self._p['baudrate']} baud, IDs {self._ids}")
-        if self._active and self._torque_wanted:
+        if self._active and self._torque_wanted and not self._relaxed and self._estop is None:
             self._enable_torque()
 
     def _adopt_present_as_neutral(self) -> None:
@@ -377,13 +412,13 @@ class DynamixelDriver(LifecycleNode):
         self.get_logger().info("torque on, holding the present positions")
         return None
 
-    def _disable_torque(self, reason: str) -> None:
-        """Best-effort torque off (one sync write, then read back); logs servos that did not confirm."""
+    def _disable_torque(self, reason: str) -> frozenset[int]:
+        """Best-effort torque off (one sync write, then read back); returns and logs the IDs that did not confirm."""
         was_on = self._torque_on
         self._torque_on = False
         self._torque_note = f"off ({reason})"
         if self._bus is None or not self._bus.is_open:
-            return
+            return frozenset(self._ids)
         unconfirmed = self._bus.disable_torque()
         if unconfirmed:  # once more after a pause, so a half-finished exchange (e.g. cut by a signal) has died out
             time.sleep(0.1)
@@ -392,6 +427,7 @@ class DynamixelDriver(LifecycleNode):
             self.get_logger().error(f"torque off ({reason}) not confirmed by IDs {sorted(unconfirmed)}")
         elif was_on:
             self.get_logger().info(f"torque off ({reason})")
+        return unconfirmed
 
     def _hardware_problem(self) -> str | None:
         if not self._hw_errors:
@@ -407,6 +443,8 @@ class DynamixelDriver(LifecycleNode):
         self._disable_torque("bus lost")
         self._bus.close()
         self._link_up = False
+        self._lost_at = time.monotonic()
+        self._counts["bus_losses"] += 1
 
     def _count_error(self, exc: BusError) -> None:
         self._last_error = str(exc)
@@ -416,11 +454,16 @@ class DynamixelDriver(LifecycleNode):
 
     # ------------------------------------------------------------------ commands and service
     def _on_command(self, msg: PlanarActuation) -> None:
-        """Keep the newest finite command; the cycle writes it."""
+        """Keep the newest finite command (ignored while the E-stop is engaged); the cycle writes it."""
         if not np.all(np.isfinite(msg.phi)):
             self._counts["rejected"] += 1
             return
+        if self._estop is not None:
+            self._counts["ignored"] += 1
+            return
         self._counts["commands"] += 1
+        if self._relaxed and self._torque_wanted and self._active and self._link_up:
+            self._wake_from_relax()
         self._command, self._command_time, self._pending = msg, time.monotonic(), True
         if self._p["write_on_command"] and self._active and self._link_up:
             try:  # the goal leaves now instead of waiting up to one read period (compute-path latency)
@@ -433,12 +476,20 @@ class DynamixelDriver(LifecycleNode):
         self._pending = False
         self._watchdog = "waiting for the first command"
 
+    def _wake_from_relax(self) -> None:
+        """A phi_cmd after the watchdog relaxed the motors: torque on again (holding the present positions) if safe."""
+        if self._enable_torque() is None:
+            self._relaxed = False
+            self.get_logger().info("phi_cmd resumed: torque on again after the watchdog relaxed the motors")
+
     def _on_set_torque(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
-        """Torque on (if active, connected and sane) or off."""
+        """Torque on (if active, connected, not E-stopped and sane) or off."""
         if not request.data:
             self._torque_wanted = False
             self._disable_torque("set_torque service")
             response.success, response.message = True, "torque off"
+        elif self._estop is not None:
+            response.success, response.message = False, f"E-stop engaged ({self._estop}): call clear_estop"
         elif not self._active:
             response.success, response.message = False, "node is not active"
         elif self._torque_on:
@@ -448,7 +499,56 @@ class DynamixelDriver(LifecycleNode):
         else:
             problem = self._enable_torque()
             self._torque_wanted = problem is None
+            self._relaxed = False
             response.success, response.message = problem is None, problem or "torque on"
+        return response
+
+    # ------------------------------------------------------------------ emergency stop
+    def _engage_estop(self, reason: str) -> str:
+        """Torque off at once, stop writing goals and ignore phi_cmd until clear_estop; returns the torque outcome."""
+        unconfirmed = self._disable_torque("E-stop")
+        self._clear_command()
+        if unconfirmed:
+            outcome = (f"torque off not confirmed by IDs {sorted(unconfirmed)}" if self._link_up
+                       else f"bus not connected ({self._last_bus_problem}): torque off not possible")
+        else:
+            outcome = "torque off confirmed"
+        if self._estop is None:
+            self._estop, self._estop_since = reason, time.monotonic()
+            self._counts["estops"] += 1
+            self._pub_estop.publish(Bool(data=True))
+            self.get_logger().error(f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until clear_estop")
+        return outcome
+
+    def _on_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """Service ``estop``: engage (idempotent); success means the stop is latched, the message gives torque."""
+        response.success, response.message = True, f"E-stop engaged: {self._engage_estop('estop service')}"
+        return response
+
+    def _on_estop_request(self, msg: Bool) -> None:
+        """Topic ``estop_request``: True engages the E-stop; False is ignored (only clear_estop releases it)."""
+        if msg.data:
+            self._engage_estop("estop_request topic")
+
+    def _on_clear_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """Service ``clear_estop``: release only if torque can be re-enabled safely (same checks as a reconnect)."""
+        if self._estop is None:
+            response.success, response.message = True, "E-stop was not engaged"
+            return response
+        if not self._active:
+            problem = "node is not active"
+        elif not self._link_up:
+            problem = f"bus not connected: {self._last_bus_problem}"
+        else:
+            problem = self._enable_torque()
+        if problem is not None:
+            response.success, response.message = False, f"E-stop stays engaged: {problem}"
+            return response
+        self._estop = None
+        self._torque_wanted, self._relaxed = True, False
+        self._pub_estop.publish(Bool(data=False))
+        self.get_logger().warning("E-stop cleared: torque on, holding the present positions")
+        response.success, response.message = True, "E-stop cleared, torque on"
         return response
 
     # ------------------------------------------------------------------ control cycle
@@ -456,6 +556,8 @@ class DynamixelDriver(LifecycleNode):
         """One control cycle: at most one sync write of the newest command, then one sync read."""
         now = time.monotonic()
         self._counts["cycles"] += 1
+        if self._fault_file and os.path.exists(self._fault_file):
+            raise InjectedFault(f"injected by {FAULT_FILE_ENV}={self._fault_file}")
         if not self._link_up:
             return
         self._update_watchdog(now)
@@ -475,13 +577,18 @@ class DynamixelDriver(LifecycleNode):
         self._consecutive_failures = 0
 
     def _update_watchdog(self, now: float) -> None:
-        """Command watchdog: no fresh phi_cmd for > command_timeout → hold the last goal (log once per change)."""
+        """Command watchdog: no fresh phi_cmd for > command_timeout → hold the last goal or relax (log once)."""
         timeout = self._p["command_timeout"]
         if self._command_time is None:
             return
         if timeout > 0.0 and now - self._command_time > timeout:
             if self._watchdog != "expired":
-                self.get_logger().warning(f"no phi_cmd for > {timeout} s: holding the last goal")
+                relax = self._p["watchdog_action"] == "relax"
+                self.get_logger().warning(f"no phi_cmd for > {timeout} s: "
+                                          + ("relaxing (torque off)" if relax else "holding the last goal"))
+                if relax and self._torque_on:
+                    self._relaxed = True
+                    self._disable_torque("watchdog: no phi_cmd")
             self._watchdog, self._target, self._pending = "expired", None, False
         elif self._watchdog != "fresh":
             if self._watchdog == "expired":
@@ -552,8 +659,10 @@ class DynamixelDriver(LifecycleNode):
     # ------------------------------------------------------------------ diagnostics
     def _bus_report(self) -> Report:
         values = {"port": self._p["port"], "baudrate": self._p["baudrate"], "latency_timer": self._latency,
-                  **{k: self._counts[k] for k in ("reconnect_attempts", "port_errors", "comm_errors", "status_errors")},
-                  "consecutive_failures": self._consecutive_failures, "last_error": self._last_error}
+                  **{k: self._counts[k] for k in ("bus_losses", "reconnect_attempts", "reconnects", "port_errors",
+                                                   "comm_errors", "status_errors")},
+                  "last_outage": self._last_outage, "consecutive_failures": self._consecutive_failures,
+                  "last_error": self._last_error}
         if self._bus is None:
             return Report(WARN, "not configured", values)
         if not self._link_up:
@@ -566,8 +675,11 @@ class DynamixelDriver(LifecycleNode):
                   **{f"hardware_error_{i}": describe_hardware_error(self._hw_errors.get(i, 0)) for i in self._ids}}
         if self._hw_errors:
             return Report(ERROR, self._hardware_problem() or "", values)
+        if self._estop is not None:
+            return Report(ERROR, f"torque off: E-stop engaged ({self._estop})", values)
         if self._active and not self._torque_on:
-            return Report(ERROR if self._torque_wanted else WARN, f"torque off: {self._torque_note}", values)
+            unwanted = self._torque_wanted and not self._relaxed
+            return Report(ERROR if unwanted else WARN, f"torque off: {self._torque_note}", values)
         return Report(OK, f"torque {'on' if self._torque_on else 'off'}", values)
 
     def _control_report(self) -> Report:
@@ -577,11 +689,21 @@ class DynamixelDriver(LifecycleNode):
         rates = {f"{k}_per_s": round((self._counts[k] - base[k]) / elapsed, 1) for k in ("cycles", "writes", "reads")}
         self._rate_base = (now, dict(self._counts))
         age = "none" if self._command_time is None else f"{now - self._command_time:.3f} s"
-        values = {**rates, **{k: self._counts[k] for k in ("commands", "rejected", "clamped")},
-                  "watchdog": self._watchdog, "command_age": age, "max_goal_rate": self._p["max_goal_rate"],
-                  "phi_max": self._phi_max}
-        level = WARN if self._watchdog == "expired" and self._torque_on else OK
-        return Report(level, f"watchdog: {self._watchdog}", values)
+        watchdog = f"{self._watchdog} ({'relaxed' if self._relaxed else self._p['watchdog_action']})" \
+            if self._watchdog == "expired" else self._watchdog
+        values = {**rates, **{k: self._counts[k] for k in ("commands", "rejected", "clamped", "ignored")},
+                  "watchdog": watchdog, "command_age": age, "command_timeout": self._p["command_timeout"],
+                  "max_goal_rate": self._p["max_goal_rate"], "phi_max": self._phi_max}
+        level = WARN if self._watchdog == "expired" else OK
+        return Report(level, f"watchdog: {watchdog}", values)
+
+    def _estop_report(self) -> Report:
+        values = {"engaged": self._estop is not None, "reason": self._estop or "",
+                  "engaged_for": f"{time.monotonic() - self._estop_since:.1f} s" if self._estop else "",
+                  "estops": self._counts["estops"], "ignored_commands": self._counts["ignored"]}
+        if self._estop is not None:
+            return Report(ERROR, f"E-stop engaged ({self._estop}): call clear_estop", values)
+        return Report(OK, "released", values)
 
 
 def main() -> None:

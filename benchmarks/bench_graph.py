@@ -121,17 +121,19 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3)
     parser.add_argument("--step-period", type=float, default=5.0)
+    parser.add_argument("--rates", type=float, nargs="+", default=[40.0, 200.0])
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "graph.json")
     args = parser.parse_args()
     rosenv.apply()
     results: dict[str, object] = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "executor": os.environ.get("HSA_EXECUTOR", "events"),
                     "load_avg_at_start": os.getloadavg()},
         "targets": {"latency_ms_p99": 5.0, "deadline_miss_fraction_200hz": 0.01},
         "method": __doc__.split("\n\n")[1],
     }
     with tempfile.TemporaryDirectory() as tmp:
-        for rate in (40.0, 200.0):
+        for rate in args.rates:
             bag, cpu = run_graph(rate, args.steps, args.step_period, Path(tmp))
             results[f"{int(rate)}hz"] = {**analyse(bag, rate), "cpu_percent_of_one_core": cpu}
     results["machine"]["load_avg_at_end"] = os.getloadavg()

@@ -1,27 +1,42 @@
 """Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown that always runs.
 
-``run(MyNode)`` returns the process exit code: 0 after SIGINT/SIGTERM, 2 when the parameters are refused at start
-(the error names the parameter), 1 after an uncaught exception. In every case the node's ``on_shutdown()`` hook
-runs before the process exits — the driver turns torque off there.
+``run(MyNode)`` returns the process exit code: 0 after SIGINT/SIGTERM or when the node shuts its context down, 2 when
+the parameters are refused at start (the error names the parameter), 1 after an uncaught exception. In every case the
+node's ``on_shutdown()`` hook runs before the process exits — the driver turns torque off there.
+
+Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python ``SingleThreadedExecutor`` for
+our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
+SIGINT/SIGTERM only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
+interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 from collections.abc import Callable
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from hsa_common.parameters import ParameterValidationError
 from hsa_core import rosenv
+
+SPIN_PERIOD = 0.02
+"""[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (< 100 ms torque-off)."""
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
     """Create the node with ``node_factory`` and spin it until shutdown; see the module docstring for exit codes."""
     rosenv.ensure_for_node()
-    rclpy.init(args=args)
+    stop: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     logger = rclpy.logging.get_logger(name)
     try:
         node = node_factory()
@@ -29,17 +44,18 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         logger.fatal(f"refusing to start: {exc}")
         rclpy.try_shutdown()
         return 2
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     executor.add_node(node)
     try:
         node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass  # SIGINT/SIGTERM: rclpy shut the context down; an uncaught exception propagates after `finally`
+        while not stop and rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_PERIOD)
+    except ExternalShutdownException:
+        pass  # the node shut its context down (e.g. the sequencer's exit_on_finish)
     except (RCLError, RuntimeError):
         if rclpy.ok():
             raise
-        # a signal shut the context down while a callback was publishing or a message was being taken (rclpy raises
+        # the context was shut down while a callback was publishing or a message was being taken (rclpy raises
         # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
         hook = getattr(node, "on_shutdown", None)
@@ -49,6 +65,16 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def make_executor() -> Executor:
+    """The executor named by HSA_EXECUTOR: 'events' (rclpy's C++ EventsExecutor, the default) or 'single'."""
+    kind = os.environ.get("HSA_EXECUTOR", "events")
+    if kind == "events":
+        return EventsExecutor()
+    if kind == "single":
+        return SingleThreadedExecutor()
+    raise ValueError(f"HSA_EXECUTOR must be 'events' or 'single', not {kind!r}")
 
 
 def seconds(duration: object) -> float:

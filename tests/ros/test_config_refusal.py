@@ -78,6 +78,7 @@ def _start(node: str, params_file: Path) -> subprocess.Popen:
     return start_process([exe, "--ros-args", "-r", f"__ns:={NS}", "--params-file", str(params_file)])
 
 
+@pytest.mark.slow  # eleven processes importing JAX: ~40 s on a loaded 2-core machine
 @pytest.mark.parametrize(("node", "kind", "name", "content"), _cases(),
                          ids=[f"{c[0]}-{c[1].replace(' ', '_')}" for c in _cases()])
 def test_bad_parameter_file_is_refused_naming_the_parameter(refused, node: str, kind: str, name: str,
@@ -89,6 +90,7 @@ def test_bad_parameter_file_is_refused_naming_the_parameter(refused, node: str, 
           "n/a (fix the file)")
 
 
+@pytest.mark.slow
 def test_malformed_parameter_file_stops_the_node(refused) -> None:
     code, out, _ = refused["mocap_bridge", "malformed YAML"]
     assert code != 0 and "ready" not in out

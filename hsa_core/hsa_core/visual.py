@@ -14,7 +14,7 @@ ride rigidly on the backbone tip frame. All functions are pure and vectorised; `
 from __future__ import annotations
 
 from functools import partial
-from typing import Any, Callable, NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +39,8 @@ class RobotGeometry(NamedTuple):
     """(5, 2): closed outline of the w × h_p plate (local y from l_dc to l_dc + h_p on the backbone tip frame)."""
     platform_pose: Array
     """(3,): centre [x, y, θ] of the plate, p(l) + R(κl) [0, l_dc + h_p/2] (model.md §6.2)."""
+    platform_orientation: Array
+    """(4,): the plate's orientation as a quaternion [x, y, z, w] (planar_quaternion of θ = κl)."""
     end_effector: Array
     """(3,): end-effector pose χ_ee [x, y, θ], equal to kinematics.end_effector_pose."""
 
@@ -73,13 +75,14 @@ def robot_geometry(params: HsaParams, q: ArrayLike, n_points: int = DEFAULT_POIN
         rods=jnp.concatenate([plate_top[1:, None], active[1:], tip[2:4, None]], axis=1),
         platform=tip[4:9],
         platform_pose=jnp.concatenate([tip[9], theta_tip[None]]),
+        platform_orientation=planar_quaternion(theta_tip),
         end_effector=jnp.concatenate([tip[1], (theta_tip + params.chiee_off[2])[None]]),
     )
 
 
-def geometry_fn(n_points: int = DEFAULT_POINTS) -> Callable[[HsaParams, Any], RobotGeometry]:
-    """robot_geometry compiled for n_points (one compilation per parameter structure), for per-message use."""
-    return jax.jit(partial(robot_geometry, n_points=n_points))
+def geometry_fn(params: HsaParams, n_points: int = DEFAULT_POINTS) -> Callable[[ArrayLike], RobotGeometry]:
+    """q ↦ robot_geometry(params, q) compiled with the parameters as constants (only q is passed per call)."""
+    return jax.jit(partial(robot_geometry, params, n_points=n_points))
 
 
 def planar_quaternion(theta: ArrayLike) -> Array:

@@ -77,6 +77,8 @@ def test_backbone_follows_the_model_and_ends_at_the_fk_end_effector(params: HsaP
     np.testing.assert_allclose(backbone[-2], backbone[N] + rotation(theta) @ [0.0, l_dc + h_p], atol=1e-14)
     np.testing.assert_allclose(np.asarray(g.platform_pose),
                                [*(backbone[N] + rotation(theta) @ [0.0, l_dc + h_p / 2]), theta], atol=1e-14)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(g.platform_orientation), [0, 0, math.sin(theta / 2), math.cos(theta / 2)],
+                               atol=1e-15)  # fmt: skip
     tip = np.asarray(kin.backbone_pose(params, q, l))
     np.testing.assert_allclose(backbone[N], tip[:2], atol=1e-14)
 
@@ -129,13 +131,13 @@ def test_compiles_vectorises_and_refuses_too_few_points() -> None:
     params = load_params("fpu")
     qs = np.stack(QS)
     batched = jax.jit(jax.vmap(visual.robot_geometry, in_axes=(None, 0)))(params, qs)
-    compiled = visual.geometry_fn(8)
+    compiled = visual.geometry_fn(params, 8)
     for j in (0, 5, len(QS) - 1):
-        for a, b in zip(compiled(params, qs[j]), visual.robot_geometry(params, qs[j], n_points=8)):
+        for a, b in zip(compiled(qs[j]), visual.robot_geometry(params, qs[j], n_points=8)):
             np.testing.assert_allclose(a, b, atol=1e-15)
         for a, b in zip((field[j] for field in batched), visual.robot_geometry(params, qs[j])):
             np.testing.assert_allclose(a, b, atol=1e-15)
-    assert np.asarray(compiled(params, qs[0]).backbone).shape == (11, 2)
+    assert np.asarray(compiled(qs[0]).backbone).shape == (11, 2)
     with pytest.raises(ValueError, match="n_points"):
         visual.robot_geometry(params, qs[0], n_points=1)
 

@@ -153,6 +153,12 @@ def verify(params: HsaParams, t: ArrayLike, chiee: ArrayLike, phi: ArrayLike, q_
     return Verification(grid - grid[0], meas, sim, phi_grid, rmse, nrmse, max_err, shift * dt_d, _metrics(a, b)[0])
 
 
+def excitation_start(result: Verification, tol: float = 2e-3) -> float:
+    """Time [s] of the first change of the replayed phi (0 if it never changes): where a figure window should start."""
+    change = np.flatnonzero(np.any(np.abs(np.diff(result.phi, axis=0)) > tol, axis=1))
+    return float(result.t[change[0] + 1]) if len(change) else 0.0
+
+
 def format_table(results: dict[str, Verification]) -> str:
     """RMSE table (units: mm, mm, rad, 1/m, -, -), one row per verified record, with range-normalised values."""
     scale = {"x": 1e3, "y": 1e3}
@@ -177,7 +183,9 @@ def plot(result: Verification, path: Path, window: tuple[float, float] | None = 
     import matplotlib.pyplot as plt
 
     t = result.t
-    sel = np.ones(len(t), bool) if window is None else (t >= window[0]) & (t <= window[1])
+    if window is None:
+        window = (float(t[0]), float(t[-1]))
+    sel = (t >= window[0]) & (t <= window[1])
     fig, (ax_q, ax_p) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     panels = ((ax_q, (3,), (4, 5), "kappa_be [1/m]", "sigma [-]", 1.0),
               (ax_p, (0, 1), (2,), "EE position [mm]", "theta_ee [rad]", 1e3))
@@ -185,9 +193,9 @@ def plot(result: Verification, path: Path, window: tuple[float, float] | None = 
         ax_r = ax.twinx()
         for axis, idx, s in ((ax, left, scale), (ax_r, right, 1.0)):
             for i in idx:
-                line, = axis.plot(t[sel], result.measured[sel, i] * s, "-", label=f"{CHANNELS[i]} measured")
-                axis.plot(t[sel], result.simulated[sel, i] * s, "--", color=line.get_color(),
-                          label=f"{CHANNELS[i]} simulated")
+                color = f"C{i}"
+                axis.plot(t[sel], result.measured[sel, i] * s, "-", color=color, label=f"{CHANNELS[i]} measured")
+                axis.plot(t[sel], result.simulated[sel, i] * s, "--", color=color, label=f"{CHANNELS[i]} simulated")
         ax.set_ylabel(ylabel_l)
         ax_r.set_ylabel(ylabel_r)
         handles = ax.get_legend_handles_labels()[0] + ax_r.get_legend_handles_labels()[0]

@@ -161,12 +161,11 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
             ax.plot(xy[:, 0] * 1e3, xy[:, 1] * 1e3, "-", color=color, **style)
         ax.plot(pose[0] * 1e3, pose[1] * 1e3, "o", color=color, ms=7, mec="k",
                 label=f"phi = [{phi[0]:.2f}, {phi[1]:.2f}] rad")
-    ax.axhline(float(params.l_pc) * 1e3, color="0.5", lw=0.8)
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm] (down along the hanging robot)")
     ax.invert_yaxis()
     ax.set_aspect("equal")
-    ax.set_title(f"reachable end-effector positions ({wmap.material.upper()}, phi in [0, phi_max]^2)")
+    ax.set_title(f"{wmap.material.upper()} workspace: EE equilibria for phi in [0, phi_max]^2")
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
     path = Path(path)

@@ -98,8 +98,9 @@ def verify_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT / "verification", help="output directory")
     parser.add_argument("--calibrate", type=float, default=0.5, metavar="S",
                         help="calibrate sigma_a_eq on the first S s when they are a rest at phi = 0 (0: never)")
-    parser.add_argument("--window", type=float, nargs=2, default=(0.0, 4.0), metavar=("T0", "T1"),
-                        help="time window of the figures [s] (the paper shows the first 4 s)")
+    parser.add_argument("--window", type=float, nargs=2, default=None, metavar=("T0", "T1"),
+                        help="time window of the figures [s] (default: the first 4 s after phi first changes, as "
+                        "the paper's figures)")
     args = parser.parse_args(argv)
     try:
         params = load_params(args.params)
@@ -117,7 +118,9 @@ def verify_main(argv: list[str] | None = None) -> int:
                       "rmse_lagged": r.rmse_lagged} for name, r in results.items()}
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     for name, result in results.items():
-        verification.plot(result, args.out / f"{name}.png", tuple(args.window), f"{name}: measured vs simulated")
+        start = verification.excitation_start(result)
+        window = tuple(args.window) if args.window else (start, start + 4.0)
+        verification.plot(result, args.out / f"{name}.png", window, f"{name}: measured vs simulated")
     print(text)
     print(f"\nwrote {args.out / 'verification.txt'}, {args.out / 'metrics.json'} and one figure per record")
     return 0

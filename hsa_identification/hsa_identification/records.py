@@ -1,7 +1,8 @@
 """Recorded experiments for identification and verification: bags (or NPZ files) → hsa_core.identification.Record.
 
-From a bag: the EE pose stream (`/hsa/ee_pose`, hsa_msgs/PlanarPoseStamped, or `/hsa/state`, hsa_msgs/PlanarState)
-with its mocap stamps, and the present twist of the motors (`/hsa/phi_present`, the driver's reading) held
+From a bag: the EE pose stream (`<ns>/ee_pose`, hsa_msgs/PlanarPoseStamped, else `<ns>/state`, hsa_msgs/PlanarState;
+found by type, in any namespace) with its mocap stamps, and the present twist of the motors (`<ns>/phi_present`, the
+driver's reading) held
 (zero-order) onto those stamps, which is what identification.md §6 replays. Times are seconds from the first pose.
 From an NPZ file: arrays `t` (N,), `chiee` (N, 3), `phi` (N, 2) and optionally `payload` (N,) [kg].
 The payload of a record is a constant mass or a schedule [[t, mass], ...] (t from the record start, mass from then on).
@@ -18,8 +19,6 @@ from hsa_bag.bagio import Bag, BagError
 from hsa_core.excitation import zero_order_hold
 from hsa_core.identification import Record
 
-POSE_TOPICS = ("/hsa/ee_pose", "/hsa/state")
-PHI_TOPIC = "/hsa/phi_present"
 POSE_TYPES = {"hsa_msgs/msg/PlanarPoseStamped": "pose", "hsa_msgs/msg/PlanarState": "chiee"}
 ACTUATION = "hsa_msgs/msg/PlanarActuation"
 
@@ -30,15 +29,26 @@ def _stamp(msg: object) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def read_bag(path: Path | str, pose_topic: str | None = None, phi_topic: str = PHI_TOPIC
+def _find_topic(bag: Bag, types: tuple[str, ...], suffix: str) -> str:
+    """The topic of the first of `types` (in that order of preference) whose name ends with `suffix`."""
+    for msgtype in types:
+        names = sorted(n for n, info in bag.topics.items() if info.msgtype == msgtype and n.endswith(suffix))
+        if names:
+            return names[0]
+    raise BagError(f"{bag.path}: no topic '*{suffix}' of type {' or '.join(types)} (topics: "
+                   f"{', '.join(sorted(bag.topics))})")
+
+
+def read_bag(path: Path | str, pose_topic: str | None = None, phi_topic: str | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t, chiee, phi) of a bag: poses at their stamps (sorted, duplicates dropped) and phi held onto them."""
     with Bag(path) as bag:
         if pose_topic is None:
-            found = [name for name in POSE_TOPICS if name in bag.topics]
-            if not found:
-                raise BagError(f"{bag.path}: none of the pose topics {list(POSE_TOPICS)} is in the bag")
-            pose_topic = found[0]
+            try:
+                pose_topic = _find_topic(bag, ("hsa_msgs/msg/PlanarPoseStamped",), "ee_pose")
+            except BagError:
+                pose_topic = _find_topic(bag, ("hsa_msgs/msg/PlanarState",), "state")
+        phi_topic = phi_topic or _find_topic(bag, (ACTUATION,), "phi_present")
         info = bag.topic(pose_topic)
         if info.msgtype not in POSE_TYPES:
             raise BagError(f"{bag.path}: topic {pose_topic} has type {info.msgtype}, expected one of "

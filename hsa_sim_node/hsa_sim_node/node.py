@@ -34,7 +34,7 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.kinematics import end_effector_pose
 from hsa_core.mocap import planar_to_world
 from hsa_core.simulation import simulate, steady_state_rollout
-from hsa_sim_node.mx28_emulator import BAUD_RATE_CODES, MX28Emulator
+from hsa_sim_node.mx28_emulator import ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
 
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
 MAX_CATCH_UP = 4  # most mocap samples produced in one timer callback; a longer stall skips samples (counted)
@@ -129,6 +129,7 @@ class SimNode(Node):
         self._stats = {"ticks": 0, "sim_time": 0.0, "overruns": 0, "skipped": 0, "compute_max": 0.0,
                        "compute_sum": 0.0}
         self._report_base = (time.monotonic(), dict(self._stats))
+        self._emulator_base = (time.monotonic(), self._emulator.stats())
         self._diverged = False
         self._period_ns = round(self._period * 1e9)
         self._next_ns: int | None = None  # stamp of the next mocap sample [ns, node clock]
@@ -209,14 +210,39 @@ class SimNode(Node):
 
     def _emulator_report(self) -> Report:
         stats = self._emulator.stats()
+        now = time.monotonic()
+        since, base = self._emulator_base
+        self._emulator_base = (now, stats)
+        elapsed = max(now - since, 1e-9)
+        silent, hw_errors = self._emulator.unresponsive(), self._emulator.hardware_errors()
         values = {"port": self._emulator.port, "device": self._emulator.device, **vars(stats),
-                  **{f"torque_{i}": self._emulator.torque_enabled(i) for i in self._map.ids}}
+                  "sync_writes_per_s": round((stats.sync_writes - base.sync_writes) / elapsed, 1),
+                  "sync_reads_per_s": round((stats.sync_reads - base.sync_reads) / elapsed, 1),
+                  "unresponsive_ids": list(silent),
+                  **{f"torque_{i}": self._emulator.torque_enabled(i) for i in self._map.ids},
+                  **{f"hardware_error_{i}": bits for i, bits in hw_errors.items()}}
+        if not self._emulator.plugged:
+            return Report(ERROR, "unplugged", values)
+        if silent or any(hw_errors.values()):
+            return Report(WARN, f"faults: unresponsive {list(silent)}, hardware errors "
+                                f"{ {i: b for i, b in hw_errors.items() if b} }", values)
         return Report(OK if stats.crc_errors == 0 else WARN, "serving", values)
 
     def on_shutdown(self) -> None:
-        """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off."""
+        """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off,
+        then report whether it did and remove the bus."""
         time.sleep(SHUTDOWN_GRACE)
+        self.get_logger().info(self._torque_at_exit())
         self._emulator.stop()
+
+    def _torque_at_exit(self) -> str:
+        """Which servos still have torque on; else when the last torque-off reached the bus (CLOCK_MONOTONIC)."""
+        on = [i for i in self._map.ids if self._emulator.torque_enabled(i)]
+        if on:
+            return f"emulated bus removed with torque on for IDs {on}"
+        offs = [w for w in self._emulator.writes(ADDR_TORQUE_ENABLE) if w.value == 0]
+        last = f"last torque-off write at monotonic {offs[-1].time:.6f} s" if offs else "no torque-off write logged"
+        return f"emulated bus removed with torque off on every servo ({last})"
 
 
 def main() -> None:

@@ -1,0 +1,184 @@
+"""Shared pieces of the driver fault tests (issue 6): the real dynamixel_driver process on an MX-28 emulator running in
+the test process, with its output collected, plus readings of the emulator's timestamped register-write log."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+from std_srvs.srv import SetBool, Trigger
+
+from hsa_common.launcher import find_executable
+from hsa_msgs.msg import PlanarActuation
+from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
+from hsa_core import rosenv
+from tests.ros.conftest import stop_process, wait_for_line
+
+__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
+           "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers", "torque",
+           "torque_off_time", "torque_on_time", "wait_until"]
+
+DRIVER = find_executable("hsa_dynamixel_driver", "dynamixel_driver")
+IDS = (21, 22, 23, 24)
+NEUTRAL = {21: 1000, 22: 3000, 23: -500, 24: 5000}
+SIGN = {21: 1, 22: -1, 23: 1, 24: -1}  # spec §7: ψ = [+φ₂, −φ₂, +φ₁, −φ₁]
+PHI_MAX = math.radians(200.0)  # FPU parameter set
+MARGIN = 0.02  # default goal_margin [rad]
+TICKS_PER_RAD = 2048 / math.pi
+ADDR_TORQUE, ADDR_GOAL = 64, 116
+FAST_SERVO = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)
+
+
+def wait_until(condition: Callable[[], bool], timeout: float = 10.0, step: Callable[[], None] | None = None,
+               poll: float = 0.01) -> bool:
+    """Poll ``condition`` (calling ``step`` between polls) until it holds or the time is up."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        if step is not None:
+            step()
+        time.sleep(poll)
+    return condition()
+
+
+def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:
+    """A started emulator with the test neutrals and fast servos (stop it at teardown)."""
+    return MX28Emulator(IDS, model=FAST_SERVO, initial_ticks=NEUTRAL, link_path=tmp_path / name).start()
+
+
+class DriverProcess:
+    """A dynamixel_driver process on ``port`` whose output is collected by a reader thread after ``ready``."""
+
+    def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None) -> None:
+        args = [DRIVER, "--ros-args", "-p", f"port:={port}", "-p", "reconnect_period:=0.2"]
+        for override in overrides:
+            args += ["-p", override]
+        self.proc = subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
+                                     start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.lines: list[str] = []
+        self._reader: threading.Thread | None = None
+
+    def wait_ready(self, timeout: float = 90.0) -> DriverProcess:
+        """Block until the node logged ``ready``, then keep reading its output in the background."""
+        self.lines += wait_for_line(self.proc, "ready", timeout)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        return self
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    def log(self, text: str) -> list[str]:
+        """Output lines containing ``text``."""
+        return [line for line in list(self.lines) if text in line]
+
+    def output(self) -> str:
+        return "".join(self.lines)
+
+    def wait_exit(self, timeout: float = 20.0) -> int:
+        """The exit code once the process ended by itself (its output fully read)."""
+        code = self.proc.wait(timeout=timeout)
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+        return code
+
+    def stop(self) -> int:
+        """SIGINT (escalating) and the exit code."""
+        code = stop_process(self.proc)
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+        return code
+
+
+def start_drivers(specs: Sequence[tuple[str, Sequence[str], dict[str, str] | None]]) -> list[DriverProcess]:
+    """Start several drivers (port, overrides, extra env) at once — they import in parallel — and wait for each."""
+    procs = [DriverProcess(port, overrides, env) for port, overrides, env in specs]
+    for proc in procs:
+        proc.wait_ready()
+    return procs
+
+
+@pytest.fixture
+def drivers() -> Iterator[list[DriverProcess]]:
+    """A list the test appends its DriverProcess objects to; every one still running is stopped at teardown."""
+    procs: list[DriverProcess] = []
+    yield procs
+    for proc in procs:
+        if proc.proc.poll() is None:
+            proc.stop()
+
+
+def torque(emulator: MX28Emulator) -> set[bool]:
+    """The set of torque states of the four servos ({True}: all on, {False}: all off)."""
+    return {emulator.torque_enabled(i) for i in IDS}
+
+
+def _torque_time(emulator: MX28Emulator, since: float, value: int) -> float | None:
+    """Time of the first logged torque write of ``value`` after ``since`` by which every servo had that value."""
+    firsts: dict[int, float] = {}
+    for write in emulator.writes(ADDR_TORQUE, since):
+        if write.value == value:
+            firsts.setdefault(write.dxl_id, write.time)
+    return max(firsts.values()) if len(firsts) == len(IDS) else None
+
+
+def torque_off_time(emulator: MX28Emulator, since: float) -> float | None:
+    """When (CLOCK_MONOTONIC) the last of the four servos got its first torque-off write after ``since``."""
+    return _torque_time(emulator, since, 0)
+
+
+def torque_on_time(emulator: MX28Emulator, since: float) -> float | None:
+    """When the last of the four servos got its first torque-on write after ``since``."""
+    return _torque_time(emulator, since, 1)
+
+
+def goal_writes(emulator: MX28Emulator, since: float = -math.inf) -> list[RegisterWrite]:
+    """Goal Position writes logged since ``since``."""
+    return emulator.writes(ADDR_GOAL, since)
+
+
+def clamp_range(dxl_id: int) -> tuple[float, float]:
+    """Goal range in ticks of a motor: neutral + sign·[0, φ_max]·2048/π widened by the margin."""
+    ends = sorted((0.0, SIGN[dxl_id] * PHI_MAX))
+    return (NEUTRAL[dxl_id] + (ends[0] - MARGIN) * TICKS_PER_RAD,
+            NEUTRAL[dxl_id] + (ends[1] + MARGIN) * TICKS_PER_RAD)
+
+
+def command(phi1: float, phi2: float) -> PlanarActuation:
+    """A phi_cmd message (ROS_PYTHON_CHECK_FIELDS accepts non-finite floats in a float64 array)."""
+    return PlanarActuation(phi=np.array([phi1, phi2], dtype=np.float64))
+
+
+class DriverServices:
+    """Clients of the driver's set_torque, estop and clear_estop services, created once and matched before use (the
+    first request of a client that was just discovered can wait for DDS matching, which is not the driver's latency)."""
+
+    def __init__(self, node: Node) -> None:
+        self._clients = {name: node.create_client(srv, name) for name, srv in
+                         (("set_torque", SetBool), ("estop", Trigger), ("clear_estop", Trigger))}
+        for name, client in self._clients.items():
+            assert client.wait_for_service(timeout_sec=20.0), f"service {name} not available"
+        time.sleep(0.5)  # let the response readers match too
+
+    def call(self, name: str, request: object = None) -> tuple[object, float]:
+        """The response of one call and when its request left (monotonic)."""
+        client = self._clients[name]
+        sent = time.monotonic()
+        response = client.call(request if request is not None else client.srv_type.Request(), timeout_sec=10.0)
+        assert response is not None, f"no answer from {name}"
+        return response, sent
+
+    def set_torque(self, on: bool) -> SetBool.Response:
+        """The driver's set_torque service."""
+        return self.call("set_torque", SetBool.Request(data=on))[0]

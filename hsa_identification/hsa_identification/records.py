@@ -23,10 +23,10 @@ POSE_TYPES = {"hsa_msgs/msg/PlanarPoseStamped": "pose", "hsa_msgs/msg/PlanarStat
 ACTUATION = "hsa_msgs/msg/PlanarActuation"
 
 
-def _stamp(msg: object) -> float:
-    """header.stamp in seconds."""
+def _stamp(msg: object) -> int:
+    """header.stamp in integer nanoseconds (a float of epoch seconds resolves only ~0.2 us)."""
     stamp = msg.header.stamp  # type: ignore[attr-defined]
-    return stamp.sec + stamp.nanosec * 1e-9
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def _find_topic(bag: Bag, types: tuple[str, ...], suffix: str) -> str:
@@ -57,8 +57,8 @@ def read_bag(path: Path | str, pose_topic: str | None = None, phi_topic: str | N
             raise BagError(f"{bag.path}: topic {phi_topic} is not {ACTUATION}")
         stores = {pose_topic: bag.typestore(pose_topic), phi_topic: bag.typestore(phi_topic)}
         types = {pose_topic: info.msgtype, phi_topic: ACTUATION}
-        poses: dict[float, tuple[float, float, float]] = {}
-        phis: list[tuple[float, np.ndarray]] = []
+        poses: dict[int, tuple[float, float, float]] = {}
+        phis: list[tuple[int, np.ndarray]] = []
         for topic, _, raw in bag.messages([pose_topic, phi_topic]):
             msg = stores[topic].deserialize_cdr(raw, types[topic])
             if topic == phi_topic:
@@ -68,11 +68,12 @@ def read_bag(path: Path | str, pose_topic: str | None = None, phi_topic: str | N
                 poses.setdefault(_stamp(msg), (pose.x, pose.y, pose.theta))
     if len(poses) < 3 or not phis:
         raise BagError(f"{path}: {len(poses)} poses on {pose_topic} and {len(phis)} on {phi_topic}; need >= 3 and >= 1")
-    stamps = np.array(sorted(poses))
+    stamps = sorted(poses)
     chiee = np.array([poses[s] for s in stamps])
+    t = np.array([s - stamps[0] for s in stamps]) * 1e-9
     phis.sort(key=lambda item: item[0])
-    phi = zero_order_hold([p[0] for p in phis], [p[1] for p in phis], stamps)
-    return stamps - stamps[0], chiee, phi
+    phi = zero_order_hold([(p[0] - stamps[0]) * 1e-9 for p in phis], [p[1] for p in phis], t)
+    return t, chiee, phi
 
 
 def payload_series(t: np.ndarray, payload: float | Sequence[Sequence[float]]) -> np.ndarray:

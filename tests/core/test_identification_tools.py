@@ -8,16 +8,19 @@ without that calibration); hsa_workspace writes its figure and data.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
 import yaml
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from hsa_core import excitation, identification as ident, kinematics, planning, simulation
 from hsa_core.params import load_params
 from hsa_identification import cli
-from hsa_identification.records import load_record, payload_series, save_npz
+from hsa_identification.records import load_record, payload_series, read_bag, save_npz
 from tests.core.test_identification import RECORDS, SCALE, make_records
 
 
@@ -86,3 +89,39 @@ def test_workspace_cli_writes_figure_and_data(tmp_path):
         assert data["chiee"].shape == (5, 5, 3) and np.all(data["residual"] < 1e-9)
     assert (tmp_path / "workspace_epu.png").stat().st_size > 20_000
     assert cli.workspace_main(["--n", "2"]) == 2
+
+
+def test_bag_records_hold_the_present_twist_onto_the_pose_stamps(tmp_path):
+    """A bag with 200 Hz poses and 100 Hz present twists (other namespace, out-of-order and repeated pose stamps)."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for msg in (Path(__file__).resolve().parents[2] / "hsa_msgs" / "msg").glob("*.msg"):
+        store.register(get_types_from_msg(msg.read_text(), f"hsa_msgs/msg/{msg.stem}"))
+    T = store.types
+    t0 = 1_800_000_000 * 10**9
+
+    def header(ns: int):
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9),
+                                        frame_id="hsa_base")
+
+    pose_ns = [t0 + k * 5_000_000 for k in range(40)]
+    phi_ns = [t0 + 2_000_000 + k * 10_000_000 for k in range(20)]
+    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        pose_conn = writer.add_connection("/robot/ee_pose", "hsa_msgs/msg/PlanarPoseStamped", typestore=store)
+        phi_conn = writer.add_connection("/robot/phi_present", "hsa_msgs/msg/PlanarActuation", typestore=store)
+        order = list(range(40))
+        order[10], order[11] = order[11], order[10]  # one swapped pair, one repeated pose
+        for k in order + [5]:
+            msg = T["hsa_msgs/msg/PlanarPoseStamped"](header=header(pose_ns[k]),
+                                                      pose=T["hsa_msgs/msg/PlanarPose"](0.001 * k, 0.11, 0.0))
+            writer.write(pose_conn, pose_ns[k] + 1000, store.serialize_cdr(msg, "hsa_msgs/msg/PlanarPoseStamped"))
+        for k, ns in enumerate(phi_ns):
+            msg = T["hsa_msgs/msg/PlanarActuation"](header=header(ns), source_stamp=header(0).stamp,
+                                                    phi=np.array([0.1 * k, 0.0]))
+            writer.write(phi_conn, ns + 1000, store.serialize_cdr(msg, "hsa_msgs/msg/PlanarActuation"))
+    t, chiee, phi = read_bag(tmp_path / "bag")
+    np.testing.assert_allclose(t, np.arange(40) * 0.005, atol=1e-9)
+    np.testing.assert_allclose(chiee[:, 0], 0.001 * np.arange(40), atol=1e-15)
+    # the newest twist read at or before each pose (the first one before the first read)
+    expected = np.maximum(np.floor((np.arange(40) * 5 - 2) / 10), 0) * 0.1
+    np.testing.assert_allclose(phi[:, 0], expected, atol=1e-12)
+    assert load_record(tmp_path / "bag", "elongation").name == "bag"

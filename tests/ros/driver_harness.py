@@ -23,8 +23,8 @@ from hsa_core import rosenv
 from tests.ros.conftest import stop_process, wait_for_line
 
 __all__ = ["ADDR_GOAL", "ADDR_TORQUE", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
-           "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers", "torque",
-           "torque_off_time", "torque_on_time", "wait_until"]
+           "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
+           "torque", "torque_off_time", "torque_on_time", "wait_until"]
 
 DRIVER = find_executable("hsa_dynamixel_driver", "dynamixel_driver")
 IDS = (21, 22, 23, 24)
@@ -63,7 +63,8 @@ class DriverProcess:
         for override in overrides:
             args += ["-p", override]
         self.proc = subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
-                                     start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                     start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True)
         self.lines: list[str] = []
         self._reader: threading.Thread | None = None
 

@@ -1,0 +1,277 @@
+"""Motor-bus faults, command watchdog and goal limits of the real dynamixel_driver process on the MX-28 emulator
+(issue 6). Faults are injected through the emulator's API (silent servo, corrupted statuses, hardware error,
+unplug/replug); what reached the servos is read back from the emulator's timestamped register-write log, so every
+recovery figure is measured on the bus side."""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from hsa_common import qos
+from hsa_msgs.msg import PlanarActuation
+from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
+from tests.ros.conftest import ParameterClient
+from tests.ros.driver_harness import (
+    ADDR_TORQUE,
+    IDS,
+    NEUTRAL,
+    PHI_MAX,
+    TICKS_PER_RAD,
+    DriverProcess,
+    DriverServices,
+    clamp_range,
+    command,
+    drivers,
+    goal_writes,
+    make_emulator,
+    torque,
+    torque_off_time,
+    torque_on_time,
+    wait_until,
+)
+from tests.ros.faults import DiagnosticsLog, fault
+
+pytestmark = pytest.mark.ros
+__all__ = ["drivers"]  # fixture used by the tests below
+
+BUS, SERVOS, CONTROL = "dynamixel_driver: bus", "dynamixel_driver: servos", "dynamixel_driver: control"
+
+
+@pytest.fixture
+def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
+    emu = make_emulator(tmp_path)
+    yield emu
+    emu.stop()
+
+
+def start(emulator: MX28Emulator, drivers: list[DriverProcess], *overrides: str) -> DriverProcess:
+    """A driver on the emulator, ready and holding with torque on."""
+    drivers.append(driver := DriverProcess(emulator.port, overrides).wait_ready())
+    assert wait_until(lambda: torque(emulator) == {True}), driver.output()
+    return driver
+
+
+def now_ns(node) -> int:
+    return node.get_clock().now().nanoseconds
+
+
+def test_corrupt_statuses_silent_servo_and_hardware_error(emulator, drivers, ros_node) -> None:
+    driver = start(emulator, drivers)
+    services = DriverServices(ros_node)
+    diagnostics = DiagnosticsLog(ros_node)
+
+    # A few corrupted statuses: counted as comm errors; fewer than error_limit failed cycles in a row keep the link.
+    emulator.corrupt_next_statuses(3)
+    _, values = diagnostics.wait(BUS, lambda s, v: int(v["comm_errors"]) >= 1, after_ns=now_ns(ros_node))
+    assert torque(emulator) == {True} and not driver.log("bus lost") and values["bus_losses"] == "0"
+    fault("3 corrupted status packets", f"{values['comm_errors']} comm errors counted, link kept, torque stays on",
+          "none needed")
+
+    # Servo 22 goes silent: after error_limit failed cycles the bus counts as lost, torque off (the silent servo still
+    # executes the broadcast torque-off); reconnects every reconnect_period until it answers, then torque on again.
+    silenced = time.monotonic()
+    emulator.set_responsive(22, False)
+    assert wait_until(lambda: torque_off_time(emulator, silenced) is not None, 5.0), driver.output()
+    detection = torque_off_time(emulator, silenced) - silenced
+    assert torque(emulator) == {False} and driver.log("bus lost")
+    status, values = diagnostics.wait(BUS, lambda s, v: s.level == DiagnosticStatus.ERROR, after_ns=now_ns(ros_node))
+    assert "disconnected" in status.message and "22" in values["last_error"]
+    time.sleep(0.5)
+    assert torque_on_time(emulator, silenced) is None, "torque re-enabled while servo 22 was silent"
+    answered = time.monotonic()
+    emulator.set_responsive(22, True)
+    assert wait_until(lambda: torque_on_time(emulator, answered) is not None, 5.0), driver.output()
+    recovery = torque_on_time(emulator, answered) - answered
+    _, values = diagnostics.wait(BUS, lambda s, v: s.level == DiagnosticStatus.OK, after_ns=now_ns(ros_node))
+    assert int(values["reconnects"]) == 1 and int(values["bus_losses"]) == 1
+    assert recovery < 0.2 + 0.5, f"reconnect took {recovery:.3f} s with reconnect_period 0.2 s"
+    fault("servo 22 stops answering", f"bus lost after error_limit failed cycles, torque off on all servos "
+          f"{detection:.3f} s after the servo went silent, reconnect attempts every 0.2 s", recovery)
+
+    # A burst of corrupted statuses (11 cycles' worth): the link is lost and comes back by itself once the statuses
+    # are clean again (each reconnect attempt uses up one status with its first ping).
+    burst = time.monotonic()
+    emulator.corrupt_next_statuses(44)
+    assert wait_until(lambda: torque_off_time(emulator, burst) is not None, 5.0), driver.output()
+    assert wait_until(lambda: torque_on_time(emulator, burst) is not None, 10.0), driver.output()
+    fault("burst of 44 corrupted statuses", "bus lost, torque off, reconnect after the burst, torque on again",
+          torque_on_time(emulator, burst) - burst)
+
+    # Hardware error (overload on 22): torque off for every servo; torque-on refused until the error is gone.
+    injected = time.monotonic()
+    emulator.set_hardware_error(22, HW_OVERLOAD)
+    assert wait_until(lambda: torque(emulator) == {False}, 2.0), "torque stayed on after an overload"
+    stop_latency = torque_off_time(emulator, injected) - injected
+    answer = services.set_torque(True)
+    assert not answer.success and "overload" in answer.message and torque(emulator) == {False}
+    _, values = diagnostics.wait(SERVOS, lambda s, v: v["hardware_error_22"] == "overload", after_ns=now_ns(ros_node))
+    emulator.set_hardware_error(22, 0)  # what a reboot does to the latched error
+    assert wait_until(lambda: bool(driver.log("hardware errors cleared")), 5.0), driver.output()
+    assert torque(emulator) == {False}, "torque came back without being asked"
+    cleared = time.monotonic()
+    answer = services.set_torque(True)
+    assert answer.success and torque(emulator) == {True}, answer.message
+    fault("hardware error (overload, ID 22)", f"torque off on all servos {stop_latency * 1e3:.1f} ms after the alert, "
+          "set_torque(true) refused naming the error; stays off after the error clears until set_torque(true)",
+          torque_on_time(emulator, cleared) - cleared)
+    assert driver.proc.poll() is None
+
+
+def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_node) -> None:
+    driver = start(emulator, drivers)
+    services = DriverServices(ros_node)
+    diagnostics = DiagnosticsLog(ros_node)
+    unplugged = time.monotonic()
+    emulator.unplug()
+    assert wait_until(lambda: bool(driver.log("bus lost")), 2.0), driver.output()
+    _, values = diagnostics.wait(BUS, lambda s, v: int(v["reconnect_attempts"]) >= 3, after_ns=now_ns(ros_node))
+    assert int(values["port_errors"]) >= 1 and driver.proc.poll() is None
+    replugged = time.monotonic()
+    emulator.replug()
+    assert wait_until(lambda: torque_on_time(emulator, replugged) is not None, 5.0), driver.output()
+    recovery = torque_on_time(emulator, replugged) - replugged
+    assert recovery < 0.2 + 0.5
+    fault("U2D2 unplugged, replugged after " f"{replugged - unplugged:.1f} s", "driver keeps running, bus lost at "
+          f"the next cycle, {values['reconnect_attempts']} reconnect attempts while absent, torque on after the "
+          "replug (present positions held)", recovery)
+
+    # While unplugged the servos lose power and servo 21 comes back turned by 2 revolutions (multi-turn count lost):
+    # the reconnect succeeds but torque stays off with the reason; back in range, set_torque(true) works.
+    emulator.unplug()
+    assert wait_until(lambda: len(driver.log("bus lost")) == 2, 2.0), driver.output()
+    for dxl_id in IDS:
+        emulator.poke(dxl_id, ADDR_TORQUE, 0)
+    emulator.set_present_ticks(21, NEUTRAL[21] + 8192)
+    replugged = time.monotonic()
+    emulator.replug()
+    assert wait_until(lambda: len(driver.log("bus reconnected")) == 2, 5.0), driver.output()
+    time.sleep(0.3)
+    assert torque_on_time(emulator, replugged) is None and torque(emulator) == {False}
+    status, _ = diagnostics.wait(SERVOS, lambda s, v: "outside the goal limits" in s.message,
+                                 after_ns=now_ns(ros_node))
+    assert status.level == DiagnosticStatus.ERROR
+    answer = services.set_torque(True)
+    assert not answer.success and "IDs [21]" in answer.message
+    emulator.set_present_ticks(21, NEUTRAL[21])
+    answer = services.set_torque(True)
+    assert answer.success and torque(emulator) == {True}, answer.message
+    fault("servo power-cycled while unplugged (ID 21 off by 2 rev)", "reconnect succeeds, torque-on refused (ERROR "
+          "naming ID 21), set_torque(true) accepted once the position is sane", "manual")
+
+
+def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(emulator, drivers, ros_node) -> None:
+    driver = start(emulator, drivers)
+    diagnostics = DiagnosticsLog(ros_node)
+    params = ParameterClient(ros_node, "/dynamixel_driver")
+    pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
+
+    def stream(phi: float, seconds: float) -> float:
+        """Publish φ = (phi, phi) at 40 Hz; return when the last command was sent."""
+        end = time.monotonic() + seconds
+        while True:
+            last = time.monotonic()
+            pub.publish(command(phi, phi))
+            if last > end:
+                return last
+            time.sleep(0.025)
+
+    # hold: after command_timeout (0.1 s) nothing more is written, torque stays on at the last goal. (Each command is
+    # written when it arrives, so the last goal write marks when the driver got the last command.)
+    last = stream(0.5, 0.5)
+    time.sleep(0.3)
+    quiet = time.monotonic()
+    time.sleep(0.5)
+    writes = goal_writes(emulator, quiet)
+    assert writes == [] and torque(emulator) == {True}, f"{len(writes)} goal writes after the commands stopped"
+    assert driver.log("holding the last goal")
+    status, _ = diagnostics.wait(CONTROL, lambda s, v: "expired (hold)" in v["watchdog"], after_ns=now_ns(ros_node))
+    assert status.level == DiagnosticStatus.WARN
+    fault("phi_cmd stops (watchdog_action hold)", "no goal written after command_timeout 0.1 s, torque on at the "
+          "last goal, diagnostics WARN", "next phi_cmd")
+
+    # relax (set at run time): torque off command_timeout after the last command; the next command re-enables.
+    assert params.set("watchdog_action", "relax").successful
+    assert not params.set("watchdog_action", "limp").successful and params.get("watchdog_action") == "relax"
+    last = stream(1.0, 0.5)
+    assert wait_until(lambda: torque_off_time(emulator, last) is not None, 2.0), driver.output()
+    off = torque_off_time(emulator, last)
+    received = max(w.time for w in goal_writes(emulator, last - 0.5) if w.time < off)
+    expiry = off - received
+    assert 0.1 <= expiry < 0.1 + 0.1, f"relaxed {expiry:.3f} s after the last command arrived (timeout 0.1 s)"
+    status, _ = diagnostics.wait(CONTROL, lambda s, v: "relaxed" in v["watchdog"], after_ns=now_ns(ros_node))
+    assert status.level == DiagnosticStatus.WARN
+    quiet = time.monotonic()
+    time.sleep(0.3)
+    assert torque_on_time(emulator, quiet) is None and torque(emulator) == {False}
+    resumed = time.monotonic()
+    stream(0.2, 0.3)
+    on = torque_on_time(emulator, resumed)
+    assert on is not None and torque(emulator) == {True}, driver.output()
+    target = NEUTRAL[21] + math.trunc(0.2 * TICKS_PER_RAD)
+    assert wait_until(lambda: abs(emulator.goal_ticks()[21] - target) <= 1, 2.0), emulator.goal_ticks()
+    fault("phi_cmd stops (watchdog_action relax)", f"torque off {expiry:.3f} s after the last command arrived "
+          "(timeout 0.1 s), re-enabled holding the present positions by the next phi_cmd", on - resumed)
+
+
+def test_no_goal_outside_the_clamp_range_whatever_arrives_and_the_rate_limit(emulator, drivers, ros_node) -> None:
+    driver = start(emulator, drivers)
+    diagnostics = DiagnosticsLog(ros_node)
+    params = ParameterClient(ros_node, "/dynamixel_driver")
+    pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
+    rng = random.Random(6)
+    specials = [math.nan, math.inf, -math.inf, 1e300, -1e300, -5.0, -1e-9, 0.0, PHI_MAX, PHI_MAX + 1e-9, 100.0,
+                5e-324, -0.0, 2.0 * math.pi]
+    barrage = [(rng.choice(specials), rng.choice(specials)) for _ in range(300)]
+    barrage += [(rng.uniform(-50.0, 50.0), rng.uniform(-50.0, 50.0)) for _ in range(100)]
+    began = time.monotonic()
+    for phi in barrage:
+        pub.publish(command(*phi))
+        time.sleep(0.004)
+    pub.publish(command(-3.0, 1e9))  # the last word: saturates at φ = (0, φ_max)
+    expected = {21: NEUTRAL[21] + math.trunc(PHI_MAX * TICKS_PER_RAD), 22: NEUTRAL[22] - math.trunc(
+        PHI_MAX * TICKS_PER_RAD), 23: NEUTRAL[23], 24: NEUTRAL[24]}
+    assert wait_until(lambda: emulator.goal_ticks() == expected, 2.0), emulator.goal_ticks()
+    writes = goal_writes(emulator, began)
+    outside = [w for w in writes if not clamp_range(w.dxl_id)[0] <= w.value <= clamp_range(w.dxl_id)[1]]
+    assert writes and not outside, f"goals outside the clamp range: {outside[:5]}"
+    _, values = diagnostics.wait(CONTROL, lambda s, v: int(v["rejected"]) > 0, after_ns=now_ns(ros_node))
+    non_finite = sum(not (math.isfinite(a) and math.isfinite(b)) for a, b in barrage)
+    assert int(values["rejected"]) <= non_finite and torque(emulator) == {True}
+    fault("barrage of 401 bad phi_cmd (NaN, ±inf, ±1e300, negative, > phi_max, random ±50 rad)",
+          f"{len(writes)} goal writes, all inside the clamp range; {values['rejected']} non-finite rejected, "
+          f"{values['clamped']} clipped/clamped", "none needed")
+
+    # Rate limit (run time): square wave between the range ends; no goal moves faster than max_goal_rate.
+    rate = 2.0
+    assert params.set("max_goal_rate", rate).successful
+    assert not params.set("max_goal_rate", -1.0).successful and params.get("max_goal_rate") == rate
+    began = time.monotonic()
+    for k in range(60):
+        phi = PHI_MAX if (k // 15) % 2 == 0 else 0.0
+        pub.publish(command(phi, phi))
+        time.sleep(0.025)
+    time.sleep(0.1)
+    writes = goal_writes(emulator, began)
+    slack = 0.02  # s: pty delivery jitter of a write (driver clock vs the emulator's stamps), twice
+    worst = 0.0
+    for dxl_id in IDS:
+        series = [(w.time, w.value) for w in writes if w.dxl_id == dxl_id]
+        assert len(series) > 20
+        for i, (t_i, g_i) in enumerate(series):
+            for t_j, g_j in series[i + 1:]:
+                assert abs(g_j - g_i) <= rate * TICKS_PER_RAD * (t_j - t_i + 2 * slack) + 1, \
+                    f"ID {dxl_id}: {g_i} -> {g_j} in {t_j - t_i:.3f} s exceeds {rate} rad/s"
+                if t_j - t_i >= 0.2:
+                    worst = max(worst, abs(g_j - g_i) / TICKS_PER_RAD / (t_j - t_i))
+        assert all(clamp_range(dxl_id)[0] <= g <= clamp_range(dxl_id)[1] for _, g in series)
+    assert worst > 0.8 * rate, f"the ramp hardly moved (max {worst:.2f} rad/s)"
+    fault("square-wave phi_cmd 0 <-> phi_max with max_goal_rate 2 rad/s",
+          f"goal speed at most {worst:.2f} rad/s over >= 0.2 s windows, never above the limit", "none needed")
+    assert driver.proc.poll() is None

@@ -93,7 +93,11 @@ def test_every_node_reports_on_diagnostics(graph, ros_node) -> None:
     assert float(values["input_rate_hz"]) > 100.0 and int(values["rejected_non_finite"]) == 0, values
     assert controller["estop"] == "False" and float(controller["tick rate [Hz]"]) > 20.0, controller
     diagnostics.wait("setpoint_sequencer: sequence", lambda s, v: int(v["published"]) >= 1)
+    time.sleep(3.0)  # a few seconds of closed-loop running: how often did the loaded graph starve the controller?
+    controller = diagnostics.statuses("controller_node: control loop")[-1][1]
     nodes = sorted({name.split(":")[0] for name in diagnostics.names()})
     fault("none (diagnostics of the sim graph)", f"{len(nodes)} nodes on /diagnostics ({', '.join(nodes)}), each "
           f"within {max(delays.values()):.2f} s of `ready`; all ready {last_ready - started:.1f} s after launch, "
-          f"controller reports tracking {tracking_after:.1f} s later", "n/a")
+          f"controller reports tracking {tracking_after:.1f} s later; after {controller['ticks']} ticks: "
+          f"stale_events {controller['stale_events']}, held_ticks {controller['held_ticks']}, stale_stops "
+          f"{controller['stale_stops']}, rejected_states {controller['rejected_states']}", "n/a")

@@ -10,10 +10,11 @@ standard errors and within the relative bounds of NOISY_RTOL.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, identification as ident, simulation
+from hsa_core import dynamics, identification as ident, kinematics, simulation
 from hsa_core.params import load_params
 from hsa_core.workspace import equilibrium_poses
 
@@ -84,12 +85,14 @@ def test_closed_form_equilibrium_residual_equals_the_model(base, truth):
     params = truth[1].replace(sigma_a_eq=np.array([1.02, 0.97]))
     per_rod = ident.per_rod_constants(params)
     rng = np.random.default_rng(3)
+    force = jax.jit(ident.elastic_actuation_force)
+    residual = jax.jit(dynamics.static_residual)
     for _ in range(5):
         q, phi, m = rng.normal(size=3) * [5.0, 0.05, 0.2], rng.uniform(0, 3.5, 2), rng.uniform(0, 0.5)
         xi = q + np.asarray(params.xi_eq)
-        mine = ident.gravity_at(params.replace(m_pl=m), xi[None], np.array([m]))[0] + ident.elastic_actuation_force(
-            params, per_rod, params.sigma_a_eq, xi, phi)
-        ref = dynamics.static_residual(params.replace(m_pl=m), q, phi)
+        mine = ident.gravity_at(params, xi[None], np.array([m]))[0] + force(params, per_rod, params.sigma_a_eq, xi,
+                                                                              phi)
+        ref = residual(params.replace(m_pl=m), q, phi)
         np.testing.assert_allclose(mine, ref, rtol=1e-12, atol=1e-13)
 
 
@@ -131,16 +134,13 @@ def test_stiffness_check_reproduces_the_spec_margins():
 
 def test_settled_samples_of_a_simulated_staircase_are_its_static_equilibria(base):
     """Holds of a dynamic staircase (RK4, servo steps) give one sample each, at the static equilibrium of its level."""
-    levels = np.linspace(0.0, float(base.phi_max[0]), 4)
-    phi = np.repeat(np.stack([levels, levels * 0.5], axis=1), int(3.5 * RATE), axis=0)
+    levels = np.linspace(0.0, float(base.phi_max[0]), 6)  # 6 levels: the batch shape make_records compiles
+    phi = np.repeat(np.stack([levels, levels * 0.5], axis=1), int(HOLD * RATE), axis=0)
     xs = np.asarray(simulation.simulate(base, np.zeros(6), phi, 1.0 / (RATE * 4), 4))
-    from hsa_core import kinematics
-    import jax
-
     chiee = np.asarray(jax.vmap(lambda q: kinematics.end_effector_pose(base, q))(xs[1:, :3]))
     record = ident.Record("stairs", np.arange(len(phi)) / RATE, chiee, phi, np.zeros(len(phi)), "bending")
     samples = ident.settled_samples(base, [record])
-    assert len(samples.xi) == 4
+    assert len(samples.xi) == 6
     np.testing.assert_allclose(samples.phi, np.stack([levels, levels * 0.5], axis=1))
     q_eq, _, _ = equilibrium_poses(base, samples.phi)
     np.testing.assert_allclose(samples.xi, q_eq + np.asarray(base.xi_eq), rtol=0, atol=1e-6)

@@ -84,10 +84,10 @@ def test_verify_cli_calibrates_the_rest_and_then_finds_zero_error(tmp_path):
 
 
 def test_workspace_cli_writes_figure_and_data(tmp_path):
-    assert cli.workspace_main(["--params", "epu", "--n", "5", "--out", str(tmp_path)]) == 0
-    with np.load(tmp_path / "workspace_epu.npz") as data:
-        assert data["chiee"].shape == (5, 5, 3) and np.all(data["residual"] < 1e-9)
-    assert (tmp_path / "workspace_epu.png").stat().st_size > 20_000
+    assert cli.workspace_main(["--params", "fpu", "--n", "9", "--out", str(tmp_path)]) == 0
+    with np.load(tmp_path / "workspace_fpu.npz") as data:
+        assert data["chiee"].shape == (9, 9, 3) and np.all(data["residual"] < 1e-9)
+    assert (tmp_path / "workspace_fpu.png").stat().st_size > 20_000
     assert cli.workspace_main(["--n", "2"]) == 2
 
 

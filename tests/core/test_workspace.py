@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, workspace
+from hsa_core import dynamics, kinematics, planning, workspace
 from hsa_core.params import load_params
 from hsa_core.planning import REACH_MARGIN, Planner
 
@@ -57,13 +57,14 @@ def test_map_equilibria_are_static_solutions_and_match_the_spec(fpu, wmap):
     # phi1 > phi2 bends towards +x (model.md §3)
     assert wmap.chiee[-1, 0, 0] > 0.02 and wmap.chiee[0, -1, 0] < -0.02
     # model.md §10 S1, exact model: phi = [2, 3] -> chiee = [-0.014657464, 0.13357871, 0.19616744]
-    _, chiee, _ = workspace.equilibrium_poses(fpu, np.array([[2.0, 3.0]]))
-    np.testing.assert_allclose(chiee[0], [-0.014657464, 0.13357871, 0.19616744], rtol=0, atol=5e-9)
+    q, _ = planning.static_equilibrium(fpu, np.array([2.0, 3.0]), np.zeros(3))
+    np.testing.assert_allclose(kinematics.end_effector_pose(fpu, q), [-0.014657464, 0.13357871, 0.19616744], rtol=0,
+                               atol=5e-9)
 
 
-def test_planner_region_holds_every_equilibrium_and_rejects_far_targets(fpu):
+def test_planner_region_holds_every_equilibrium_and_rejects_far_targets(fpu, wmap):
     planner = Planner(fpu)
-    dense = workspace.workspace_map(fpu, n=21)
+    dense = wmap
     region = planner._region
     pts = dense.chiee[..., :2]
     for p in pts[1:-1, 1:-1].reshape(-1, 2):  # interior of the phi box: strictly inside the polygon

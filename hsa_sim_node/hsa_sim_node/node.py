@@ -236,13 +236,21 @@ class SimNode(Node):
         self._emulator.stop()
 
     def _torque_at_exit(self) -> str:
-        """Which servos still have torque on; else when the last torque-off reached the bus (CLOCK_MONOTONIC)."""
+        """Which servos still have torque on; else since when every servo is off (CLOCK_MONOTONIC of the first
+        torque-off write after each servo's last torque-on write, latest over the servos)."""
         on = [i for i in self._map.ids if self._emulator.torque_enabled(i)]
         if on:
             return f"emulated bus removed with torque on for IDs {on}"
-        offs = [w for w in self._emulator.writes(ADDR_TORQUE_ENABLE) if w.value == 0]
-        last = f"last torque-off write at monotonic {offs[-1].time:.6f} s" if offs else "no torque-off write logged"
-        return f"emulated bus removed with torque off on every servo ({last})"
+        off_since: dict[int, float] = {}
+        for write in self._emulator.writes(ADDR_TORQUE_ENABLE):
+            if write.value == 1:
+                off_since.pop(write.dxl_id, None)
+            else:
+                off_since.setdefault(write.dxl_id, write.time)
+        if len(off_since) < len(self._map.ids):
+            return "emulated bus removed with torque off on every servo (not every torque-off write is logged)"
+        return (f"emulated bus removed with torque off on every servo (off since monotonic "
+                f"{max(off_since.values()):.6f} s)")
 
 
 def main() -> None:

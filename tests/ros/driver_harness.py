@@ -58,8 +58,9 @@ def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:
 class DriverProcess:
     """A dynamixel_driver process on ``port`` whose output is collected by a reader thread after ``ready``."""
 
-    def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None) -> None:
-        args = [DRIVER, "--ros-args", "-p", f"port:={port}", "-p", "reconnect_period:=0.2"]
+    def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None,
+                 name: str = "dynamixel_driver") -> None:
+        args = [DRIVER, "--ros-args", "-r", f"__node:={name}", "-p", f"port:={port}", "-p", "reconnect_period:=0.2"]
         for override in overrides:
             args += ["-p", override]
         self.proc = subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
@@ -102,9 +103,9 @@ class DriverProcess:
         return code
 
 
-def start_drivers(specs: Sequence[tuple[str, Sequence[str], dict[str, str] | None]]) -> list[DriverProcess]:
-    """Start several drivers (port, overrides, extra env) at once — they import in parallel — and wait for each."""
-    procs = [DriverProcess(port, overrides, env) for port, overrides, env in specs]
+def start_drivers(specs: Sequence[tuple[str, str, dict[str, str] | None]]) -> list[DriverProcess]:
+    """Start several drivers (node name, port, extra env) at once — they import in parallel — and wait for each."""
+    procs = [DriverProcess(port, env=env, name=name) for name, port, env in specs]
     for proc in procs:
         proc.wait_ready()
     return procs

@@ -1,6 +1,7 @@
 """calibration_node: the `calibrate_rest_strain` service (hsa_msgs/srv/CalibrateRestStrain) from the live state stream.
 
-It keeps the newest `state` samples (EE pose, mocap stamp) and `phi_present` samples (the driver's present twist). A
+It keeps the newest `state` samples (EE pose, mocap stamp, receive time) and `phi_present` samples (the driver's
+present twist, receive time; receive times pair the two streams, so an unsynchronised mocap clock does no harm). A
 request takes the last `num_samples` states, refuses unless the robot is at rest with phi = 0 over that window
 (hsa_core.calibration.rest_problem: phi, pose spread and drift), and otherwise returns sigma_a_eq of both virtual
 rods with its one-sigma uncertainty and residual (hsa_core.calibration.calibrate, planning_and_control.md §6.5). With
@@ -42,8 +43,8 @@ SPECS = (
               "[rad] largest peak-to-peak EE angle in the window at rest", low=0.0, high=1.0),
     ParamSpec("max_speed", calibration.MAX_SPEED, "[m/s] largest EE drift speed (fitted slope) at rest",
               low=0.0, high=1.0),
-    ParamSpec("phi_timeout", 0.5, "[s] phi_present older than this (before the window) does not count", low=0.01,
-              high=60.0),
+    ParamSpec("phi_timeout", 0.5, "[s] phi_present received more than this before the window's first state does "
+              "not count", low=0.01, high=60.0),
     ParamSpec("write_file", "", "parameter YAML to write on request (empty = params_file; the packaged set is "
               "never overwritten)", read_only=True),
 )
@@ -58,7 +59,7 @@ class CalibrationNode(Node):
         self._values = declare(self, SPECS)
         guard_updates(self, SPECS, self._values.update)
         self._params = load_model(self._values)
-        self._states: deque[tuple[float, np.ndarray]] = deque(maxlen=self._values["buffer_size"])
+        self._states: deque[tuple[float, float, np.ndarray]] = deque(maxlen=self._values["buffer_size"])
         self._phis: deque[tuple[float, np.ndarray]] = deque(maxlen=self._values["buffer_size"])
         n = self._values["num_samples"]
         calibration.calibrate(self._params, np.tile([0.0, float(self._params.l), 0.0], (n, 1)))  # compile now
@@ -72,15 +73,18 @@ class CalibrationNode(Node):
         diagnostics = Diagnostics(self)
         diagnostics.add("calibration", self._report)
 
+    def _now(self) -> float:
+        """Node clock [s]."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _on_state(self, msg: PlanarState) -> None:
-        """Keep the sample (mocap stamp, EE pose)."""
+        """Keep the sample (mocap stamp, receive time, EE pose)."""
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self._states.append((stamp, np.array([msg.chiee.x, msg.chiee.y, msg.chiee.theta])))
+        self._states.append((stamp, self._now(), np.array([msg.chiee.x, msg.chiee.y, msg.chiee.theta])))
 
     def _on_phi(self, msg: PlanarActuation) -> None:
-        """Keep the present twist with its read stamp."""
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self._phis.append((stamp, np.asarray(msg.phi, dtype=float)))
+        """Keep the present twist with its receive time."""
+        self._phis.append((self._now(), np.asarray(msg.phi, dtype=float)))
 
     def _serve(self, request: CalibrateRestStrain.Request,
                response: CalibrateRestStrain.Response) -> CalibrateRestStrain.Response:
@@ -90,8 +94,9 @@ class CalibrationNode(Node):
         if len(states) < n:
             return self._refuse(response, f"not enough samples: {len(states)} of {n} state samples buffered")
         t = np.array([s[0] for s in states])
-        chiee = np.array([s[1] for s in states])
-        phi = np.array([p for stamp, p in self._phis if stamp >= t[0] - self._values["phi_timeout"]]).reshape(-1, 2)
+        chiee = np.array([s[2] for s in states])
+        since = states[0][1] - self._values["phi_timeout"]
+        phi = np.array([p for received, p in self._phis if received >= since]).reshape(-1, 2)
         problem = calibration.rest_problem(
             t, chiee, phi, phi_tol=self._values["phi_tol"], max_spread=self._values["max_spread"],
             max_angle_spread=self._values["max_angle_spread"], max_speed=self._values["max_speed"])

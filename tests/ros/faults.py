@@ -132,14 +132,14 @@ class MocapStream:
         next_t = time.monotonic()
         while not self._stop.is_set():
             next_t += self.period
-            if not self.paused.is_set():
-                stamp = self.node.get_clock().now().nanoseconds
-                self.pub.publish(pose_msg(stamp, *self.world))
-                self.sent.append(stamp)
-                with self._lock:
+            with self._lock:  # pause() cannot interleave: no sample leaves after it read the last stamp
+                if not self.paused.is_set():
+                    stamp = self.node.get_clock().now().nanoseconds
+                    self.pub.publish(pose_msg(stamp, *self.world))
+                    self.sent.append(stamp)
                     extra, self._extra = self._extra, []
-                for make in extra:
-                    self.pub.publish(make(stamp))
+                    for make in extra:
+                        self.pub.publish(make(stamp))
             time.sleep(max(0.0, next_t - time.monotonic()))
 
     def inject(self, make: Callable[[int], PoseStamped]) -> None:
@@ -150,10 +150,10 @@ class MocapStream:
     def pause(self, duration: float) -> tuple[int, int]:
         """Stop the stream for ``duration`` seconds; return the stamps [ns] of the last sample before and the first
         after the outage."""
-        self.paused.set()
-        time.sleep(self.period)  # a sample being published now lands before the recorded last stamp
-        last = self.sent[-1]
-        time.sleep(max(0.0, duration - self.period))
+        with self._lock:
+            self.paused.set()
+            last = self.sent[-1]
+        time.sleep(duration)
         n = len(self.sent)
         self.paused.clear()
         assert wait_until(lambda: len(self.sent) > n, 2.0), "the stream did not resume"

@@ -525,9 +525,11 @@ def parameter_updates(result: IdentificationResult) -> dict[str, list[float]]:
     return {key: [value, value] for key, value in result.values.items()}
 
 
-def format_report(result: IdentificationResult, reference: dict[str, float] | None = None) -> str:
-    """Plain-text fit report: estimates with standard errors and 95 % intervals, per-step residuals and checks."""
-    ref_head = "  reference    rel. diff" if reference else ""
+def format_report(result: IdentificationResult, reference: dict[str, float] | None = None, label: str = "base set"
+                  ) -> str:
+    """Plain-text fit report: estimates with standard errors and 95 % intervals (compared with `reference`, named
+    `label`), per-step rows, condition numbers and residuals, rest strains per record and the stiffness check."""
+    ref_head = f"  {label:>11s}    rel. diff" if reference else ""
     lines = [f"{'parameter':10s} {'estimate':>14s} {'std':>11s} {'95% CI':>29s}{ref_head}"]
     for key in ELASTIC_KEYS:
         value, (lo, hi) = result.values[key], result.ci[key]

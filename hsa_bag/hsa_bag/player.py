@@ -1,7 +1,7 @@
 """bag_player: publish a bag into the live graph with the recorded timing.
 
 ``bag_player BAG [--topics T ...] [--remap FROM:=TO ...] [--rate R] [--start-offset S] [--loop [N]] [--clock [HZ]]
-[--delay S] [--wait-for-subscribers [TIMEOUT]] [--busy-wait-ms MS] [--ros-args ...]``
+[--delay S] [--wait-for-subscribers [TIMEOUT]] [--wait-topics T ...] [--busy-wait-ms MS] [--ros-args ...]``
 
 * **Order and timing.** Messages are published in timestamp order across all files of the bag (:mod:`hsa_bag.bagio`),
   whatever the order of files and chunks. Message i of pass k is due at monotonic time
@@ -17,6 +17,9 @@
 * **Topics.** ``--topics`` selects by recorded name; ``--remap FROM:=TO`` publishes FROM under TO. Messages go out as
   the recorded bytes; each type's class comes from ``importlib`` (``<pkg>.msg``) and the QoS from the offers stored in
   the bag (:func:`hsa_bag.qos.publisher_profile`).
+* **Start.** ``--wait-for-subscribers`` first waits (bounded) for a subscriber on every played topic, or only on the
+  recorded names given to ``--wait-topics`` (e.g. the inputs of the nodes under test, not topics only a recorder or
+  viewer may take).
 * **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 2 for a bad bag or argument.
 """
 
@@ -58,7 +61,8 @@ class Options:
     loops: int = 1  # passes; 0 = forever
     clock_hz: float = 0.0  # 0 = no /clock
     delay: float = 0.0  # s before the first message
-    wait_for_subscribers: float = 0.0  # s to wait for a subscriber on every played topic; 0 = don't
+    wait_for_subscribers: float = 0.0  # s to wait for a subscriber on every awaited topic; 0 = don't
+    wait_topics: tuple[str, ...] = ()  # recorded names of the awaited topics; empty = every played topic
     busy_wait: float = 1e-3  # s busy-waited before each due time
 
 
@@ -77,6 +81,9 @@ def message_classes(bag: Bag, options: Options) -> dict[str, type]:
     topics = list(options.topics) or sorted(bag.topics)
     for name in [*topics, *options.remap]:
         bag.topic(name)
+    for name in options.wait_topics:
+        if name not in topics:
+            raise BagError(f"--wait-topics {name} is not a played topic")
     classes = {}
     for name in topics:
         msgtype = bag.topics[name].msgtype
@@ -141,13 +148,15 @@ class Player:
         return self._wait(due)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait (bounded) until every played topic has a matched subscription; report the ones that have none."""
+        """Wait (bounded) until every awaited topic has a matched subscription; report the ones that have none."""
+        awaited = {n: p for n, p in self.publishers.items()
+                   if not self.options.wait_topics or n in self.options.wait_topics}
         deadline = time.monotonic() + self.options.wait_for_subscribers
         while time.monotonic() < deadline and not self.stop.is_set():
-            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
+            if all(p.get_subscription_count() > 0 for p in awaited.values()):
                 return
             self.stop.wait(0.05)
-        missing = [n for n, p in self.publishers.items() if p.get_subscription_count() == 0]
+        missing = [n for n, p in awaited.items() if p.get_subscription_count() == 0]
         if missing:
             print(f"bag_player: no subscriber for {', '.join(missing)}; playing anyway", flush=True)
 
@@ -224,6 +233,8 @@ def parse_args(argv: list[str]) -> tuple[Path, Options]:
     parser.add_argument("--delay", type=_non_negative, default=0.0, metavar="S", help="wait S seconds before playing")
     parser.add_argument("--wait-for-subscribers", type=_positive, nargs="?", const=30.0, default=0.0,
                         metavar="TIMEOUT", help="first wait up to TIMEOUT s (default 30) for a subscriber per topic")
+    parser.add_argument("--wait-topics", nargs="+", default=[], metavar="T",
+                        help="wait for subscribers on these recorded topics only (default: every played topic)")
     parser.add_argument("--busy-wait-ms", type=_non_negative, default=1.0, metavar="MS",
                         help="busy-wait this long before each message instead of sleeping (default 1)")
     args = parser.parse_args(argv)
@@ -232,6 +243,7 @@ def parse_args(argv: list[str]) -> tuple[Path, Options]:
     options = Options(
         topics=tuple(args.topics), remap=dict(args.remap), rate=args.rate, start_offset=args.start_offset,
         loops=args.loop, clock_hz=args.clock, delay=args.delay, wait_for_subscribers=args.wait_for_subscribers,
+        wait_topics=tuple(args.wait_topics),
         busy_wait=args.busy_wait_ms * 1e-3,
     )  # fmt: skip
     return args.bag, options

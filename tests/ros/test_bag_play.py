@@ -175,7 +175,26 @@ def test_loop_with_start_offset_and_clock_never_goes_back(ros_node: Node, bag: P
     assert clock[-1] - clock[0] == pytest.approx((2 * loop_span + 0.475) * 1e9, abs=0.05e9)  # to the last message
 
 
+def test_wait_topics_awaits_only_the_named_subscribers(ros_node: Node, bag: Path) -> None:
+    got: list[int] = []
+    ros_node.create_subscription(ControllerInfo, INFO, lambda m: got.append(m.setpoint.trajectory_index), qos.INFO)
+    exe = find_executable("hsa_bag", "bag_player")
+    start = time.monotonic()  # /nobody has no subscriber: waiting for it would take the whole 60 s
+    proc = start_process([exe, str(bag), "--topics", STATE, INFO, "--remap", f"{STATE}:=/nobody",
+                          "--wait-for-subscribers", "60", "--wait-topics", INFO])
+    try:
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 0, out
+    assert time.monotonic() - start < 40.0 and "no subscriber" not in out
+    time.sleep(0.3)
+    assert got == list(range(80))  # the awaited subscriber had it all
+
+
 def test_unknown_topic_is_refused(bag: Path, capsys) -> None:
     assert player.main([str(bag), "--topics", "/nope"]) == 2
     assert "topic /nope is not in the bag" in capsys.readouterr().err
     assert player.main([str(bag), "--remap", "/nope:=/x"]) == 2
+    assert player.main([str(bag), "--topics", INFO, "--wait-topics", STATE]) == 2
+    assert f"--wait-topics {STATE} is not a played topic" in capsys.readouterr().err

@@ -16,6 +16,7 @@ from hsa_core.mocap import world_to_planar
 from hsa_msgs.msg import PlanarActuation
 
 from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.faults import DiagnosticsLog
 
 pytestmark = pytest.mark.ros
 
@@ -33,6 +34,7 @@ def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     yield port
     stop_process(proc)
     assert not port.exists(), "the emulated bus outlived the simulator"
+    assert "emulated bus removed with torque off on every servo (off since monotonic" in proc.stdout.read()
 
 
 def planar(msg: PoseStamped) -> np.ndarray:
@@ -63,12 +65,14 @@ def test_resting_plant_is_published_at_the_mocap_rate(sim, ros_node) -> None:
 
 
 def test_driver_commands_move_the_simulated_robot(sim, ros_node) -> None:
-    """Equal twists elongate (y grows); φ₁ > φ₂ bends towards x > 0 with θ < 0 (model.md §3 sign convention)."""
+    """Equal twists elongate (y grows); φ₁ > φ₂ bends towards x > 0 with θ < 0 (model.md §3 sign convention); the
+    emulator's diagnostics show the driver's traffic."""
     driver = start_process([find_executable("hsa_dynamixel_driver", "dynamixel_driver"), "--ros-args",
                             "-p", f"port:={sim}"])
     try:
         wait_for_line(driver, "torque on", timeout=60.0)
         pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
+        diagnostics = DiagnosticsLog(ros_node)
         poses: list[PoseStamped] = []
         ros_node.create_subscription(PoseStamped, "/mocap/platform/pose", poses.append, qos.SENSOR)
 
@@ -84,6 +88,8 @@ def test_driver_commands_move_the_simulated_robot(sim, ros_node) -> None:
         assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, f"equal twists bent the robot: χ_ee = {chiee}"
         chiee = drive((2.0, 0.5), lambda c: c[0] > 0.01)
         assert chiee[0] > 0.01 and chiee[2] < -0.1, f"φ₁ > φ₂ did not bend towards +x: χ_ee = {chiee}"
+        _, values = diagnostics.wait("sim_node: emulator", lambda s, v: float(v["sync_reads_per_s"]) > 20.0)
+        assert values["unresponsive_ids"] == "[]" and values["torque_21"] == "True"
     finally:
         assert stop_process(driver) in (0, 1)
 

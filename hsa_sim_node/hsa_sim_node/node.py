@@ -21,7 +21,6 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from jax import Array
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.time import Time
 
 from hsa_common import qos
@@ -33,6 +32,7 @@ from hsa_core.actuation import MotorMap
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.kinematics import end_effector_pose
 from hsa_core.mocap import planar_to_world
+from hsa_core.params import HsaParams
 from hsa_core.simulation import simulate, steady_state_rollout
 from hsa_sim_node.mx28_emulator import ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
 

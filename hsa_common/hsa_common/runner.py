@@ -1,8 +1,9 @@
 """Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown that always runs.
 
 ``run(MyNode)`` returns the process exit code: 0 after SIGINT/SIGTERM or when the node shuts its context down, 2 when
-the parameters are refused at start (the error names the parameter), 1 after an uncaught exception. In every case the
-node's ``on_shutdown()`` hook runs before the process exits — the driver turns torque off there.
+the parameters are refused at start (the error names the parameter, or the parameter file rcl cannot parse), 1 after
+an uncaught exception. In every case the node's ``on_shutdown()`` hook runs before the process exits — the driver
+turns torque off there.
 
 Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python ``SingleThreadedExecutor`` for
 our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
@@ -36,8 +37,12 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: stop.append(signum))
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     logger = rclpy.logging.get_logger(name)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RCLError as exc:  # malformed command line or parameter file: rcl names it
+        logger.fatal(f"refusing to start: {exc}")
+        return 2
     try:
         node = node_factory()
     except ParameterValidationError as exc:

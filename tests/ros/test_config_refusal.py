@@ -1,8 +1,8 @@
 """Configuration faults (issue 6) for mocap_bridge, kinematics_node, controller_node, planner_node and
 setpoint_sequencer as real processes: a parameter file with an out-of-range or ill-typed value, or with a misspelt
-name, makes the node refuse to start (exit 2) naming the parameter; a malformed YAML file stops it too; an
-out-of-range or read-only update at run time is refused with a reason naming the parameter, and the node keeps
-running with the old value."""
+name, makes the node refuse to start (exit 2) naming the parameter; a malformed YAML file too (exit 2, naming the
+file); an out-of-range or read-only update at run time is refused with a reason naming the parameter, and the node
+keeps running with the old value."""
 
 from __future__ import annotations
 
@@ -93,8 +93,8 @@ def test_bad_parameter_file_is_refused_naming_the_parameter(refused, node: str, 
 @pytest.mark.slow
 def test_malformed_parameter_file_stops_the_node(refused) -> None:
     code, out, _ = refused["mocap_bridge", "malformed YAML"]
-    assert code != 0 and "ready" not in out
-    assert "Couldn't parse params file" in out and "broken.yaml" in out, out[-3000:]
+    assert code == 2 and "ready" not in out and "Traceback" not in out, out[-3000:]
+    assert "refusing to start" in out and "Couldn't parse params file" in out and "broken.yaml" in out, out[-3000:]
 
 
 @pytest.fixture(scope="module")

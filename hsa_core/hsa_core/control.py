@@ -383,7 +383,9 @@ class Controller:
         chiee_dot: ArrayLike,
         setpoint: Setpoint | None = None,
     ) -> tuple[np.ndarray, ControllerInfo]:
-        """One control tick; a setpoint other than the active one is activated first. Returns (phi_cmd, info)."""
+        """One control tick; a setpoint other than the active one is activated first. Returns (phi_cmd, info).
+
+        Non-finite measurements raise ValueError before anything changes (NaN would otherwise enter the integrators)."""
         if setpoint is not None and setpoint is not self._setpoint:
             self.set_setpoint(setpoint)
         if self._ref is None:
@@ -392,6 +394,8 @@ class Controller:
                                np.asarray(chiee_dot, np.float64)])
         if meas.shape != (12,):
             raise ValueError("q, q_dot, chiee and chiee_dot must have 3 elements each")
+        if not np.all(np.isfinite(meas)):
+            raise ValueError("measurement contains non-finite values: refused, the controller state is unchanged")
         out = np.asarray(
             _packed_tick(self.kind, self.params, self.gains, self.ee_integral, self._ref, self._state, meas, self.dt)
         )

@@ -250,6 +250,22 @@ def test_invalid_configuration_and_setpoints(params, controllers):
         assert c.setpoint is not bad
 
 
+@pytest.mark.parametrize("kind", ["psatid", "psatid_gc", "pid"])
+def test_non_finite_measurements_are_refused_without_touching_the_integrators(params, kind):
+    c = Controller(kind, params, ee_integral=EeIntegralGains() if kind != "pid" else None)
+    c.set_setpoint(SETPOINT)
+    c.step(Q, Q_DOT, CHIEE, CHIEE_DOT)
+    before = c.state
+    for bad in (np.nan, np.inf):
+        for which in range(4):
+            args = [np.array(v, dtype=float) for v in (Q, Q_DOT, CHIEE, CHIEE_DOT)]
+            args[which][1] = bad
+            with pytest.raises(ValueError, match="non-finite"):
+                c.step(*args)
+    after = c.state
+    assert np.array_equal(before.e_int, after.e_int) and np.array_equal(before.z_ee, after.z_ee)
+
+
 def test_steady_state_sensitivity_matches_finite_differences(params):
     """S_ss of §3.8 (implicit-function theorem) equals central differences of p_ee(q_eq(phi))."""
     S_ss, _ = control.ee_integral_maps(params, SETPOINT.q_des, SETPOINT.phi_ss)

@@ -7,6 +7,8 @@ Measured from the recorded bag and from the processes while they run:
 * compute path: controller tick (phi_cmd header stamp) → that goal leaving the driver, p50/p99;
 * controller loop: tick period jitter (controller_info header stamps) and deadline misses (a tick later than 1.5
   nominal periods after the previous one), over the ticks while tracking;
+* stage ages: the recorder's receive time minus the mocap stamp for the pose, ee_pose and state streams (an upper
+  bound of each stage's output time: it includes the recorder's own delivery delay), p50/p99;
 * CPU per node (psutil, user+system over the tracking window, in % of one core).
 Writes benchmarks/results/graph.json. Targets (node-suite issue): latency p99 ≤ 5 ms; < 1 % deadline misses at
 200 Hz with the whole graph on 2 cores.
@@ -38,6 +40,7 @@ from hsa_core.trajectories import step_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"
+STAGES = ("/mocap/platform/pose", "/hsa/ee_pose", "/hsa/state")
 
 
 def run_graph(rate: float, steps: int, step_period: float, work: Path) -> tuple[Path, dict[str, float]]:
@@ -80,12 +83,19 @@ def analyse(bag: Path, rate: float) -> dict[str, float]:
     registry = TypeRegistry()
     registry.ensure("hsa_msgs/msg/ControllerInfo")
     registry.ensure("hsa_msgs/msg/PlanarActuation")
+    registry.ensure("hsa_msgs/msg/PlanarPoseStamped")
+    registry.ensure("hsa_msgs/msg/PlanarState")
+    registry.ensure("geometry_msgs/msg/PoseStamped")
     store = registry.store
     sec = lambda t: t.sec + t.nanosec * 1e-9  # noqa: E731
     latency, ticks, writes, tick_of_source = [], [], [], {}
+    stages: dict[str, list[float]] = {topic: [] for topic in STAGES}
     with Reader(bag) as reader:
-        for conn, _, raw in reader.messages():
-            if conn.topic == "/hsa/motor_goal_stamp":
+        for conn, received, raw in reader.messages():
+            if conn.topic in stages:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                stages[conn.topic].append(received * 1e-9 - sec(msg.header.stamp))
+            elif conn.topic == "/hsa/motor_goal_stamp":
                 msg = store.deserialize_cdr(raw, conn.msgtype)
                 if sec(msg.source_stamp) > 0:
                     latency.append(sec(msg.header.stamp) - sec(msg.source_stamp))
@@ -113,6 +123,8 @@ def analyse(bag: Path, rate: float) -> dict[str, float]:
         "period_dev_ms_p99": round(float(np.percentile(np.abs(periods - nominal), 99) * 1e3), 3),
         "deadline_misses": int(np.sum(periods > 1.5 * nominal)),
         "deadline_miss_fraction": round(float(np.mean(periods > 1.5 * nominal)), 4),
+        **{f"recorder_rx_minus_mocap_stamp_ms_p50_p99 {topic}": [
+            round(float(np.percentile(ages, p) * 1e3), 3) for p in (50, 99)] for topic, ages in stages.items()},
     }
 
 

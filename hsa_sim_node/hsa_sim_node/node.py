@@ -1,8 +1,9 @@
 """sim_node: replaces the hardware — an emulated MX-28 bus for the driver and mocap poses from the JAX plant.
 
-Mocap samples lie on a regular grid of stamps (period 1/rate of the node clock), as a camera system's do. Each timer
-callback reads the emulated servos' present ticks, converts them to φ and, for every sample due by now, advances the
-plant by one period (φ held) and publishes the platform pose in the world frame with that sample's stamp. A callback
+Mocap samples lie on a regular grid of stamps (period 1/rate of the node clock), as a camera system's do. For every
+sample due by now a timer callback publishes the platform pose (world frame) of the plant state at that stamp, then
+reads the emulated servos' present ticks, converts them to φ and advances the plant by one period with φ held — the
+integration happens after the publication, off the latency path. A callback
 that comes late catches up (up to MAX_CATCH_UP samples); a longer stall skips samples, counted in diagnostics.
 See docs/nodes/hsa_sim_node.md.
 """
@@ -153,23 +154,29 @@ class SimNode(Node):
             self._next_ns += skipped * self._period_ns
             due = MAX_CATCH_UP
         self._stats["overruns"] += due > 1
-        self._phi = self._map.present_twists([self._emulator.present_ticks()[i] for i in self._map.ids])
-        for _ in range(due):
-            if not self._diverged:
-                x, chiee = self._step(self._x, self._phi, self._period / self._p["substeps"])
-                chiee = np.asarray(chiee)
-                if np.all(np.isfinite(chiee)):
-                    self._x, self._chiee = x, chiee
-                    self._stats["sim_time"] += self._period
-                else:
-                    self._diverged = True
-                    self.get_logger().error(f"plant diverged at φ = {self._phi.tolist()}; holding the last finite pose")
-            self._publish(Time(nanoseconds=self._next_ns))
+        for k in range(due):
+            self._publish(Time(nanoseconds=self._next_ns))  # the plant state at this stamp, computed beforehand
             self._next_ns += self._period_ns
             self._stats["ticks"] += 1
+            if k == 0:  # the present twists now drive the plant over the next period (zero-order hold)
+                self._phi = self._map.present_twists([self._emulator.present_ticks()[i] for i in self._map.ids])
+            self._advance()
         compute = time.perf_counter() - started
         self._stats["compute_sum"] += compute
         self._stats["compute_max"] = max(self._stats["compute_max"], compute)
+
+    def _advance(self) -> None:
+        """Advance the plant by one mocap period with φ held; a non-finite result freezes it at the last finite pose."""
+        if self._diverged:
+            return
+        x, chiee = self._step(self._x, self._phi, self._period / self._p["substeps"])
+        chiee = np.asarray(chiee)
+        if np.all(np.isfinite(chiee)):
+            self._x, self._chiee = x, chiee
+            self._stats["sim_time"] += self._period
+        else:
+            self._diverged = True
+            self.get_logger().error(f"plant diverged at φ = {self._phi.tolist()}; holding the last finite pose")
 
     def _publish(self, now: Time) -> None:
         """Platform (and base) body poses as a mocap system would report them."""

@@ -182,9 +182,19 @@ class Launcher:
         self.sigterm_timeout = sigterm_timeout
         self.sigkill_timeout = sigkill_timeout
         self._stop_requested = False
+        self._interrupted: set[int] = set()  # pids of the children sent SIGINT
 
     def _request_stop(self, signum: int, _frame: object) -> None:
+        """SIGINT/SIGTERM: forward SIGINT to the children at once (torque-off must not wait for the poll loop)."""
         self._stop_requested = True
+        self._interrupt([p for p in self.procs if p.popen is not None and p.popen.poll() is None])
+
+    def _interrupt(self, procs: list[Process]) -> None:
+        """SIGINT each process once: a second one could land in its interpreter teardown, where it kills."""
+        for p in procs:
+            if p.popen.pid not in self._interrupted:
+                self._interrupted.add(p.popen.pid)
+                p.popen.send_signal(signal.SIGINT)
 
     def run(self) -> int:
         """Start everything, wait for a stop condition, stop everything; return the worst child exit code."""
@@ -208,8 +218,11 @@ class Launcher:
             alive = [p for p in self.procs if p.popen.poll() is None]
             if not alive:
                 break
-            for p in alive:
-                p.popen.send_signal(sig)
+            if sig == signal.SIGINT:
+                self._interrupt(alive)
+            else:
+                for p in alive:
+                    p.popen.send_signal(sig)
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline and any(p.popen.poll() is None for p in alive):
                 time.sleep(0.02)

@@ -9,6 +9,8 @@ Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the P
 our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
 SIGINT/SIGTERM only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
 interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
+Nodes without an ``on_shutdown`` hook tear down at the lowest CPU priority: when a whole graph stops at once on two
+cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind their teardown.
 """
 
 from __future__ import annotations
@@ -66,6 +68,8 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         hook = getattr(node, "on_shutdown", None)
         if hook is not None:
             hook()
+        else:
+            os.nice(19)  # nothing safety-relevant left here: yield the CPU to the driver's torque-off in a graph stop
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()

@@ -134,7 +134,7 @@ class SimNode(Node):
         self._diverged = False
         self._period_ns = round(self._period * 1e9)
         self._next_ns: int | None = None  # stamp of the next mocap sample [ns, node clock]
-        self.create_timer(self._period, self._tick)
+        self._timer = self.create_timer(self._period, self._tick)
         diagnostics = Diagnostics(self, hardware_id=port)
         diagnostics.add("plant", self._plant_report)
         diagnostics.add("emulator", self._emulator_report)
@@ -143,8 +143,8 @@ class SimNode(Node):
         """Produce every mocap sample due by now, on a regular grid of stamps like a camera system's."""
         started = time.perf_counter()
         now = self.get_clock().now().nanoseconds
-        if self._next_ns is None:
-            self._next_ns = now
+        if self._next_ns is None:  # the grid starts at this call's scheduled time: stamps age by the timer jitter only
+            self._next_ns = now - max(self._period_ns - (self._timer.time_until_next_call() or 0), 0)
         due = (now - self._next_ns) // self._period_ns + 1
         if due <= 0:
             return

@@ -555,10 +555,7 @@ def format_report(result: IdentificationResult, reference: dict[str, float] | No
 
 def plot_fit(result: IdentificationResult, path: Path) -> Path:
     """Figure: measured target b against the fitted A Pi per step and row type (points on the diagonal = perfect)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
 
     fig, axes = plt.subplots(1, len(result.fits), figsize=(4.2 * len(result.fits), 4.0))
     for ax, (name, fit) in zip(np.atleast_1d(axes), result.fits.items()):
@@ -572,9 +569,4 @@ def plot_fit(result: IdentificationResult, path: Path) -> Path:
         ax.set_xlabel("target b (gravity and known terms)")
         ax.set_ylabel("fitted A Pi")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save(fig, path)

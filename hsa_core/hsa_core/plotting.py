@@ -22,8 +22,11 @@ from hsa_core.runlog import RunLog  # noqa: E402
 MM = 1e3  # m → mm for axes
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def save(fig: plt.Figure, path: Path | str) -> Path:
+    """Lay out, write (creating missing directories) and close a figure; returns the path."""
     fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
@@ -45,7 +48,7 @@ def end_effector(log: RunLog, path: Path) -> Path:
     axes[0].legend(loc="best")
     axes[0].set_title(_title(log, "End-effector position"))
     axes[-1].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def configuration(log: RunLog, path: Path) -> Path:
@@ -60,7 +63,7 @@ def configuration(log: RunLog, path: Path) -> Path:
     axes[0].legend(loc="best")
     axes[0].set_title(_title(log, "Configuration"))
     axes[-1].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def collocated(log: RunLog, path: Path) -> Path:
@@ -74,7 +77,7 @@ def collocated(log: RunLog, path: Path) -> Path:
     axes[0].legend(loc="best")
     axes[0].set_title(_title(log, "Collocated coordinates"))
     axes[-1].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def actuation(log: RunLog, path: Path, phi_max: float | None = None) -> Path:
@@ -91,7 +94,7 @@ def actuation(log: RunLog, path: Path, phi_max: float | None = None) -> Path:
     axes[0].legend(loc="best")
     axes[0].set_title(_title(log, "Actuation"))
     axes[-1].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def cartesian_path(log: RunLog, path: Path) -> Path:
@@ -106,7 +109,7 @@ def cartesian_path(log: RunLog, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     ax.set_title(_title(log, "End-effector path"))
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def all_figures(log: RunLog, out_dir: Path, prefix: str = "", phi_max: float | None = None,

@@ -177,10 +177,7 @@ def format_table(results: dict[str, Verification]) -> str:
 def plot(result: Verification, path: Path, window: tuple[float, float] | None = (0.0, 4.0), title: str = "") -> Path:
     """The paper's verification figure: strains (kappa left, sigma_sh and sigma_ax right) and EE pose (x, y in mm
     left, theta right), measured solid, simulated dashed, over `window` s (None: the whole record)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
 
     t = result.t
     if window is None:
@@ -202,9 +199,4 @@ def plot(result: Verification, path: Path, window: tuple[float, float] | None = 
         ax.legend(handles=handles, fontsize=7, ncol=2, loc="upper left")
     ax_p.set_xlabel("t [s]")
     ax_q.set_title(title or "model verification: measured (solid) vs simulated (dashed)")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save(fig, path)

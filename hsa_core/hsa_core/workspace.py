@@ -141,10 +141,7 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
 
     The samples are the grid nodes nearest to SAMPLE_PHI_FRACTIONS (exact for an odd grid size n).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
 
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     pts = wmap.chiee.reshape(-1, 3)
@@ -167,9 +164,4 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
     ax.set_aspect("equal")
     ax.set_title(f"{wmap.material.upper()} workspace: EE equilibria for phi in [0, phi_max]^2")
     ax.legend(fontsize=8, loc="lower left")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save(fig, path)

@@ -99,6 +99,49 @@ def ros_node() -> Iterator[Node]:
         rclpy.try_shutdown()
 
 
+class CollectedProcess:
+    """A started process whose output is collected by a reader thread once it has logged ``ready``."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.proc = proc
+        self.lines: list[str] = []
+        self._reader: threading.Thread | None = None
+
+    def wait_ready(self, timeout: float = 180.0) -> CollectedProcess:
+        """Block until the node logged ``ready``, then keep reading its output in the background."""
+        self.lines += wait_for_line(self.proc, "ready", timeout)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        return self
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    def log(self, text: str) -> list[str]:
+        """Output lines containing ``text``."""
+        return [line for line in list(self.lines) if text in line]
+
+    def output(self) -> str:
+        """Everything the process printed so far."""
+        return "".join(self.lines)
+
+    def wait_exit(self, timeout: float = 20.0) -> int:
+        """The exit code once the process ended by itself (its output fully read)."""
+        code = self.proc.wait(timeout=timeout)
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+        return code
+
+    def stop(self) -> int:
+        """SIGINT (escalating) and the exit code."""
+        code = stop_process(self.proc)
+        if self._reader is not None:
+            self._reader.join(timeout=5.0)
+        return code
+
+
 class ParameterClient:
     """Set and get single parameters of a running node through its parameter services (arrays come back as lists)."""
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import os
 import subprocess
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -20,7 +19,7 @@ from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
 from hsa_core import rosenv
-from tests.ros.conftest import stop_process, wait_for_line
+from tests.ros.conftest import CollectedProcess
 
 __all__ = ["ADDR_GOAL", "ADDR_TORQUE", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
            "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
@@ -55,7 +54,7 @@ def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:
     return MX28Emulator(IDS, model=FAST_SERVO, initial_ticks=NEUTRAL, link_path=tmp_path / name).start()
 
 
-class DriverProcess:
+class DriverProcess(CollectedProcess):
     """A dynamixel_driver process on ``port`` whose output is collected by a reader thread after ``ready``."""
 
     def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None,
@@ -63,44 +62,14 @@ class DriverProcess:
         args = [DRIVER, "--ros-args", "-r", f"__node:={name}", "-p", f"port:={port}", "-p", "reconnect_period:=0.2"]
         for override in overrides:
             args += ["-p", override]
-        self.proc = subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
-                                     start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True)
-        self.lines: list[str] = []
-        self._reader: threading.Thread | None = None
+        super().__init__(subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
+                                          start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                          text=True))
 
     def wait_ready(self, timeout: float = 90.0) -> DriverProcess:
-        """Block until the node logged ``ready``, then keep reading its output in the background."""
-        self.lines += wait_for_line(self.proc, "ready", timeout)
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
+        """Block until the driver logged ``ready`` (see CollectedProcess)."""
+        super().wait_ready(timeout)
         return self
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line)
-
-    def log(self, text: str) -> list[str]:
-        """Output lines containing ``text``."""
-        return [line for line in list(self.lines) if text in line]
-
-    def output(self) -> str:
-        return "".join(self.lines)
-
-    def wait_exit(self, timeout: float = 20.0) -> int:
-        """The exit code once the process ended by itself (its output fully read)."""
-        code = self.proc.wait(timeout=timeout)
-        if self._reader is not None:
-            self._reader.join(timeout=5.0)
-        return code
-
-    def stop(self) -> int:
-        """SIGINT (escalating) and the exit code."""
-        code = stop_process(self.proc)
-        if self._reader is not None:
-            self._reader.join(timeout=5.0)
-        return code
 
 
 def start_drivers(specs: Sequence[tuple[str, str, dict[str, str] | None]]) -> list[DriverProcess]:

@@ -18,7 +18,7 @@ from rclpy.time import Time
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core import mocap
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import CollectedProcess, start_process
 from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until
 
@@ -72,35 +72,12 @@ def fault(name: str, behaviour: str, recovery: float | str) -> str:
     return line
 
 
-class NodeProcess:
+class NodeProcess(CollectedProcess):
     """One node process (console script, ``--ros-args`` list) whose output is collected by a reader thread."""
 
     def __init__(self, executable: str, ros_args: Sequence[str]) -> None:
-        self.proc = start_process([find_executable(EXECUTABLES[executable], executable), "--ros-args", *ros_args])
-        self.lines: list[str] = []
-        self._reader: threading.Thread | None = None
-
-    def wait_ready(self, timeout: float = 180.0) -> None:
-        """Block until the node logged ``ready``, then keep reading its output in the background."""
-        self.lines += wait_for_line(self.proc, "ready", timeout)
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line)
-
-    def log(self, text: str) -> list[str]:
-        """Output lines containing ``text``."""
-        return [line for line in list(self.lines) if text in line]
-
-    def stop(self) -> int:
-        """SIGINT (escalating) and the exit code."""
-        code = stop_process(self.proc)
-        if self._reader is not None:
-            self._reader.join(timeout=5.0)
-        return code
+        super().__init__(start_process([find_executable(EXECUTABLES[executable], executable), "--ros-args",
+                                        *ros_args]))
 
 
 def start_all(specs: dict[str, tuple[str, Sequence[str]]]) -> dict[str, NodeProcess]:

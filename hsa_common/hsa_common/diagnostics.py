@@ -15,6 +15,22 @@ from rclpy.node import Node
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE)
 
 
+def log_level_change(logger: object, previous: bytes | None, level: bytes, message: str) -> bytes:
+    """Log ``message`` at the severity of ``level`` when it differs from ``previous``; returns ``level``.
+
+    Nodes log their diagnostic state changes once this way, not on every report. One call line per severity: rclpy
+    refuses a call site whose severity changes between calls.
+    """
+    if level != previous:
+        if level == OK:
+            logger.info(message)  # type: ignore[attr-defined]
+        elif level == WARN:
+            logger.warning(message)  # type: ignore[attr-defined]
+        else:
+            logger.error(message)  # type: ignore[attr-defined]
+    return level
+
+
 @dataclass(frozen=True)
 class Report:
     """Result of one diagnostic check."""

@@ -19,7 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
@@ -148,14 +148,7 @@ class KinematicsNode(Node):
             level, message = WARN, f"velocity not ready (window {values['window_samples']})"
         else:
             level, message = OK, f"estimating ({self._mode})"
-        if level != self._level:  # log state changes only (one call site per severity, as rclpy requires)
-            self._level = level
-            if level == OK:
-                self.get_logger().info(message)
-            elif level == WARN:
-                self.get_logger().warning(message)
-            else:
-                self.get_logger().error(message)
+        self._level = log_level_change(self.get_logger(), self._level, level, message)
         return Report(level, message, values)
 
 

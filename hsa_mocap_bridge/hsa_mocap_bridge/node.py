@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
 from hsa_core import mocap
@@ -261,14 +261,7 @@ class MocapBridge(Node):
                 level, message = WARN, f"no valid platform pose for {silence:.3g} s"
             else:
                 level, message = OK, "publishing ee_pose"
-        if level != self._level:  # log state changes only (one call site per severity, as rclpy requires)
-            self._level = level
-            if level == OK:
-                self.get_logger().info(message)
-            elif level == WARN:
-                self.get_logger().warning(message)
-            else:
-                self.get_logger().error(message)
+        self._level = log_level_change(self.get_logger(), self._level, level, message)
         return Report(level, message, values)
 
     def _rest_report(self) -> Report:

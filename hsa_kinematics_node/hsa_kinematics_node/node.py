@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.time import Time
 
 from hsa_common import qos

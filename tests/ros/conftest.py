@@ -99,6 +99,19 @@ def ros_node() -> Iterator[Node]:
         rclpy.try_shutdown()
 
 
+def wait_until(condition: Callable[[], object], timeout: float = 20.0, step: Callable[[], None] | None = None,
+               poll: float = 0.01) -> bool:
+    """Poll ``condition`` (calling ``step`` between polls) until it holds or ``timeout`` s pass; return whether it held."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        if step is not None:
+            step()
+        time.sleep(poll)
+    return bool(condition())
+
+
 class CollectedProcess:
     """A started process whose output is collected by a reader thread once it has logged ``ready``."""
 

@@ -7,7 +7,7 @@ import math
 import os
 import subprocess
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +19,9 @@ from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
 from hsa_core import rosenv
-from tests.ros.conftest import CollectedProcess
+from tests.ros.conftest import CollectedProcess, wait_until
 
-__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
+__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
            "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
            "torque", "torque_off_time", "torque_on_time", "wait_until"]
 
@@ -34,19 +34,6 @@ MARGIN = 0.02  # default goal_margin [rad]
 TICKS_PER_RAD = 2048 / math.pi
 ADDR_TORQUE, ADDR_GOAL = 64, 116
 FAST_SERVO = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = 10.0, step: Callable[[], None] | None = None,
-               poll: float = 0.01) -> bool:
-    """Poll ``condition`` (calling ``step`` between polls) until it holds or the time is up."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        if step is not None:
-            step()
-        time.sleep(poll)
-    return condition()
 
 
 def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:

@@ -27,7 +27,7 @@ from hsa_bag.bagio import Bag
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -79,16 +79,6 @@ def content(state: PlanarState) -> np.ndarray:
     ])  # fmt: skip
 
 
-def wait_until(condition, timeout: float = 60.0) -> bool:
-    """Poll ``condition`` until it holds or ``timeout`` passes."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
-
-
 def test_replayed_mocap_regenerates_the_recorded_states(ros_node: Node, processes, tmp_path: Path) -> None:
     bag = tmp_path / "mocap_run"
     ee_pose = ros_node.create_publisher(PlanarPoseStamped, "/hsa/ee_pose", qos.SENSOR)
@@ -107,8 +97,8 @@ def test_replayed_mocap_regenerates_the_recorded_states(ros_node: Node, processe
     recorded_topics = ("/hsa/ee_pose", "/hsa/state")
     assert wait_until(lambda: all(
         any(s.node_name == "bag_recorder" for s in ros_node.get_subscriptions_info_by_topic(t)) for t in recorded_topics
-    )), "bag_recorder did not subscribe"  # fmt: skip
-    assert wait_until(lambda: ee_pose.get_subscription_count() >= 2), "ee_pose not matched by node and recorder"
+    ), timeout=60.0), "bag_recorder did not subscribe"  # fmt: skip
+    assert wait_until(lambda: ee_pose.get_subscription_count() >= 2, timeout=60.0), "ee_pose not matched by node and recorder"
 
     start = time.monotonic()
     for i in range(N):  # run 1: live

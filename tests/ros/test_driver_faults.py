@@ -54,7 +54,7 @@ def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
 def start(emulator: MX28Emulator, drivers: list[DriverProcess], *overrides: str) -> DriverProcess:
     """A driver on the emulator, ready and holding with torque on."""
     drivers.append(driver := DriverProcess(emulator.port, overrides).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}), driver.output()
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
     return driver
 
 

@@ -19,21 +19,15 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from hsa_common import qos
-from hsa_common.launcher import find_executable
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
-from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator, ServoModel
+from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
 
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
+from tests.ros.driver_harness import DRIVER, IDS, NEUTRAL, PHI_MAX, clamp_range, make_emulator
 
 pytestmark = pytest.mark.ros
 
-DRIVER = find_executable("hsa_dynamixel_driver", "dynamixel_driver")
-IDS = (21, 22, 23, 24)
-NEUTRAL = {21: 1000, 22: 3000, 23: -500, 24: 5000}
-SIGN = {21: 1, 22: -1, 23: 1, 24: -1}  # spec §7: ψ = [+φ₂, −φ₂, +φ₁, −φ₁]
-PHI_MAX = math.radians(200.0)  # FPU parameter set
-MARGIN = 0.02  # default goal_margin [rad]
 TICK = math.pi / 2048
 
 
@@ -43,30 +37,14 @@ def spec_goal_ticks(phi1: float, phi2: float) -> dict[int, int]:
     return {i: NEUTRAL[i] + math.trunc(psi[i] * 2048 / math.pi) for i in IDS}
 
 
-def clamp_range(dxl_id: int) -> tuple[float, float]:
-    """Goal range in ticks of a motor: neutral + sign·[0, φ_max]·2048/π widened by the margin."""
-    ends = sorted((0.0, SIGN[dxl_id] * PHI_MAX))
-    return (NEUTRAL[dxl_id] + (ends[0] - MARGIN) * 2048 / math.pi,
-            NEUTRAL[dxl_id] + (ends[1] + MARGIN) * 2048 / math.pi)
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = 10.0, step: Callable[[], None] | None = None) -> bool:
-    """Poll ``condition`` (calling ``step`` between polls) until it holds or the time is up."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        if step is not None:
-            step()
-        time.sleep(0.02)
-    return condition()
-
-
 @pytest.fixture
 def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    fast = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)
-    with MX28Emulator(IDS, model=fast, initial_ticks=NEUTRAL, link_path=tmp_path / "ttyDXL") as emu:
+    """The emulated bus with the test neutrals and fast servos."""
+    emu = make_emulator(tmp_path)
+    try:
         yield emu
+    finally:
+        emu.stop()
 
 
 @pytest.fixture
@@ -112,7 +90,7 @@ def test_phi_cmd_gives_spec_goal_ticks_state_comes_back_and_sigint_turns_torque_
 ) -> None:
     stored = tmp_path / "home" / "neutral.yaml"  # absent: the driver stores the present positions there
     proc = driver("neutral_source:=file", f"neutral_file:={stored}")
-    assert wait_until(lambda: torque(emulator) == {True}), "torque was not enabled at activation"
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), "torque was not enabled at activation"
     assert f"neutral_ticks: {[NEUTRAL[i] for i in IDS]}" in stored.read_text()
     states: list[JointState] = []
     present: list[PlanarActuation] = []
@@ -127,12 +105,12 @@ def test_phi_cmd_gives_spec_goal_ticks_state_comes_back_and_sigint_turns_torque_
     def publish() -> None:
         pub.publish(command(0.7, 1.3, source))
 
-    assert wait_until(lambda: emulator.goal_ticks() == expected, step=publish), emulator.goal_ticks()
+    assert wait_until(lambda: emulator.goal_ticks() == expected, step=publish, timeout=10.0), emulator.goal_ticks()
     psi = [1.3, -1.3, 0.7, -0.7]
-    assert wait_until(lambda: bool(states) and np.allclose(states[-1].position, psi, atol=TICK), step=publish)
+    assert wait_until(lambda: bool(states) and np.allclose(states[-1].position, psi, atol=TICK), step=publish, timeout=10.0)
     assert states[-1].name == [f"motor_{i}" for i in IDS] and len(states[-1].velocity) == 4
-    assert wait_until(lambda: bool(present) and np.allclose(present[-1].phi, [0.7, 1.3], atol=TICK))
-    assert wait_until(lambda: bool(goals))
+    assert wait_until(lambda: bool(present) and np.allclose(present[-1].phi, [0.7, 1.3], atol=TICK), timeout=10.0)
+    assert wait_until(lambda: bool(goals), timeout=10.0)
     assert (goals[-1].source_stamp.sec, goals[-1].source_stamp.nanosec) == (123, 456)
     assert np.allclose(goals[-1].phi, [0.7, 1.3], atol=TICK) and goals[-1].header.stamp.sec > 0
 
@@ -143,7 +121,7 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
     driver, emulator, ros_node
 ) -> None:
     proc = driver()
-    assert wait_until(lambda: torque(emulator) == {True})
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0)
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     seen: list[dict[int, int]] = []
 
@@ -154,8 +132,8 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
         return step
 
     saturated = spec_goal_ticks(PHI_MAX, 0.0)  # φ₁ clipped to φ_max, φ₂ to 0
-    assert wait_until(lambda: emulator.goal_ticks() == saturated, step=send(50.0, -20.0)), emulator.goal_ticks()
-    assert wait_until(lambda: emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX), step=send(-1e300, 1e300))
+    assert wait_until(lambda: emulator.goal_ticks() == saturated, step=send(50.0, -20.0), timeout=10.0), emulator.goal_ticks()
+    assert wait_until(lambda: emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX), step=send(-1e300, 1e300), timeout=10.0)
     for bad in ((math.nan, 0.5), (math.inf, 0.5)):
         deadline = time.monotonic() + 0.5
         while time.monotonic() < deadline:
@@ -189,7 +167,7 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
 
     # An overload shuts servo 22 down: the driver switches every servo off and refuses torque-on while it lasts.
     emulator.set_hardware_error(22, HW_OVERLOAD)
-    assert wait_until(lambda: torque(emulator) == {False}), "torque stayed on after a hardware error"
+    assert wait_until(lambda: torque(emulator) == {False}, timeout=10.0), "torque stayed on after a hardware error"
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
     answer = client.call(SetBool.Request(data=True), timeout_sec=10.0)
@@ -199,7 +177,7 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
 
 def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(driver, emulator, ros_node) -> None:
     proc = driver()
-    assert wait_until(lambda: torque(emulator) == {True})
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0)
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
     off = client.call(SetBool.Request(data=False), timeout_sec=10.0)
@@ -214,7 +192,7 @@ def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(
     assert wait_until(lambda: torque(emulator) == {True}, timeout=15.0), "torque not re-enabled after the replug"
     states: list[JointState] = []
     ros_node.create_subscription(JointState, "motor_states", states.append, qos.SENSOR)
-    assert wait_until(lambda: len(states) > 5), "no motor_states after the reconnect"
+    assert wait_until(lambda: len(states) > 5, timeout=10.0), "no motor_states after the reconnect"
 
     assert_signal_turns_torque_off(proc, signal.SIGTERM, emulator)
 

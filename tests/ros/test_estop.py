@@ -44,12 +44,12 @@ def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
 
 def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_it(emulator, drivers, ros_node) -> None:
     drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}), driver.output()
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
     services = DriverServices(ros_node)
     diagnostics = DiagnosticsLog(ros_node)
     latched: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: latched.append(m.data), qos.LATCHED)
-    assert wait_until(lambda: latched == [False]), f"no latched released state: {latched}"
+    assert wait_until(lambda: latched == [False], timeout=10.0), f"no latched released state: {latched}"
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     request_pub = ros_node.create_publisher(Bool, "estop_request", qos.INFO)
 
@@ -69,7 +69,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert off is not None and torque(emulator) == {False}
     service_latency = off - sent
     assert service_latency < STOP_BOUND, f"E-stop took {service_latency * 1e3:.1f} ms"
-    assert wait_until(lambda: latched[-1:] == [True])
+    assert wait_until(lambda: latched[-1:] == [True], timeout=10.0)
     quiet_since = time.monotonic()
     drive(1.0, 1.0, 0.5)
     request_pub.publish(Bool(data=False))
@@ -80,7 +80,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert torque_on_time(emulator, quiet_since) is None and torque(emulator) == {False}
     late: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: late.append(m.data), qos.LATCHED)
-    assert wait_until(lambda: late == [True]), f"a late subscriber got {late}"
+    assert wait_until(lambda: late == [True], timeout=10.0), f"a late subscriber got {late}"
     status, values = diagnostics.wait("dynamixel_driver: estop", lambda s, v: v["engaged"] == "True")
     assert status.level == DiagnosticStatus.ERROR and "estop service" in values["reason"]
     assert int(values["ignored_commands"]) > 0
@@ -93,7 +93,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert response.success, response.message
     on = torque_on_time(emulator, sent)
     assert on is not None and torque(emulator) == {True}
-    assert wait_until(lambda: latched[-1:] == [False])
+    assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
     resumed = time.monotonic()
     drive(1.0, 1.0, 0.3)
     assert goal_writes(emulator, resumed), "commands not followed after clear_estop"
@@ -106,7 +106,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert wait_until(lambda: torque_off_time(emulator, sent) is not None, 2.0), "estop_request True did not stop"
     topic_latency = torque_off_time(emulator, sent) - sent
     assert topic_latency < STOP_BOUND, f"E-stop by topic took {topic_latency * 1e3:.1f} ms"
-    assert wait_until(lambda: latched[-1:] == [True])
+    assert wait_until(lambda: latched[-1:] == [True], timeout=10.0)
     emulator.set_hardware_error(22, HW_OVERLOAD)
     assert wait_until(lambda: bool(driver.log("hardware error")), 5.0), driver.output()
     response, _ = services.call("clear_estop")
@@ -116,7 +116,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert wait_until(lambda: bool(driver.log("hardware errors cleared")), 5.0), driver.output()
     response, sent = services.call("clear_estop")
     assert response.success and torque(emulator) == {True}, response.message
-    assert wait_until(lambda: latched[-1:] == [False])
+    assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
     fault("E-stop request topic", f"estop_request True: torque off in {topic_latency * 1e3:.1f} ms; clear_estop "
           "refused while a servo reports overload (stays latched), accepted after the error cleared",
           torque_on_time(emulator, sent) - sent)
@@ -125,7 +125,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
 
 def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(emulator, drivers, ros_node) -> None:
     drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}), driver.output()
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
     services = DriverServices(ros_node)
     emulator.unplug()
     assert wait_until(lambda: bool(driver.log("bus lost")), 5.0), driver.output()

@@ -20,7 +20,7 @@ from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
-from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
+from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -56,16 +56,6 @@ def bridges() -> Iterator[None]:
         wait_for_line(proc, "ready", timeout=120.0)
     yield
     assert [stop_process(proc) for proc in procs] == [0, 0]
-
-
-def wait_until(predicate: Callable[[], object], timeout: float = 20.0) -> bool:
-    """Poll predicate until true or timeout; return whether it became true."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 def pose_msg(stamp_ns: int, position: Sequence[float], quaternion: Sequence[float]) -> PoseStamped:

@@ -60,7 +60,7 @@ def test_sigint_sigterm_and_an_uncaught_exception_turn_torque_off_within_100_ms(
             ("driver_exception", emulators["exception"].port, {FAULT_FILE_ENV: str(fault_file)}),
         ])
         for emulator in emulators.values():
-            assert wait_until(lambda emu=emulator: torque(emu) == {True}), [d.output() for d in drivers]
+            assert wait_until(lambda emu=emulator: torque(emu) == {True}, timeout=10.0), [d.output() for d in drivers]
         stream = CommandStream(ros_node)
         for case, emulator in emulators.items():  # ≥ 10 sync writes of commanded goals after the torque-on hold
             assert wait_until(lambda emu=emulator: len(emu.writes(116)) >= 4 * 11, 10.0), f"{case}: no goals written"

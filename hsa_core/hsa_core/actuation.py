@@ -15,6 +15,11 @@ Conventions (planning_and_control.md §7):
   clamped goal is never outside the configured interval. The Max/Min Position Limit registers do not apply in
   extended-position mode, so this clamp is the only limit.
 * Rate limit (``limit_goal_rate``): each goal moves by at most ⌊max_rate · dt · 2048/π⌋ ticks from the previous goal.
+  The default ``DEFAULT_MAX_GOAL_RATE`` is twice the MX-28's no-load speed (55 rev/min at 12 V, ROBOTIS e-Manual;
+  spec identification.md §2.2): no motion of the servo can need a faster goal, a flood of full-range swings cannot.
+* Absolute limits: the neutral ticks behind ``MotorLimits`` are configured (parameter or persisted calibration file),
+  never taken from a value read at start. ``neutral_check`` decides whether a start may enable torque, ``accept_read_neutral``
+  lets a read neutral only refine the φ map within a tolerance of the configured one.
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ from numpy.typing import ArrayLike
 
 TICKS_PER_RAD = 2048.0 / math.pi
 RAD_PER_TICK = math.pi / 2048.0
+MX28_NO_LOAD_SPEED = 55.0 * 2.0 * math.pi / 60.0  # rad/s: 55 rev/min at 12 V (ROBOTIS e-Manual, MX-28(2.0))
+DEFAULT_MAX_GOAL_RATE = 2.0 * MX28_NO_LOAD_SPEED  # rad/s ≈ 11.5: above any speed the servo can execute
 _TRUNC_GUARD = 1e-6  # ticks
 
 
@@ -150,3 +157,49 @@ def limit_goal_rate(previous_goal: ArrayLike, new_goal: ArrayLike, dt: float, ma
     previous = np.asarray(previous_goal, dtype=np.int64)
     step = np.clip(np.asarray(new_goal, dtype=np.int64) - previous, -max_step, max_step)
     return (previous + step).astype(np.int32)
+
+
+def neutral_check(deviation: ArrayLike, tolerance: float, held: bool) -> str | None:
+    """Why a start must not enable torque at this deviation [rad] from the configured neutral, or None.
+
+    At rest the present positions must lie within ``tolerance`` of the configured neutral. A twisted pose is accepted
+    only while ``held``: every servo still had torque on when the driver connected, so the servos have not been
+    power-cycled since a driver enabled them at a checked pose and the calibration still applies (a driver restart).
+    """
+    deviation = np.asarray(deviation, dtype=np.float64)
+    if held or np.all(np.abs(deviation) <= tolerance):
+        return None
+    return (f"present positions deviate from the configured neutral ticks by {np.round(deviation, 3).tolist()} rad "
+            f"(tolerance {tolerance} rad) and the servos were not held: untwist the robot or re-home")
+
+
+def accept_read_neutral(read_ticks: ArrayLike, configured_ticks: ArrayLike, tolerance: float) -> str | None:
+    """Why neutral ticks read at start must not be used for the φ map, or None: they must lie within ``tolerance``
+    [rad] of the configured neutral (the limits stay on the configured neutral either way)."""
+    deviation = ticks_to_angles(read_ticks, configured_ticks)
+    if np.all(np.abs(deviation) <= tolerance):
+        return None
+    return (f"read neutral ticks {np.asarray(read_ticks).tolist()} deviate from the configured neutral ticks by "
+            f"{np.round(deviation, 3).tolist()} rad (tolerance {tolerance} rad)")
+
+
+@dataclass
+class RejectionLog:
+    """Throttle for the log of repeated rejected or clipped commands: the first of a kind at once, then one summary
+    line per ``period`` [s] with the count since the last line (times are passed in, any monotonic clock)."""
+
+    period: float = 5.0
+    _last: dict[str, float] = field(default_factory=dict)
+    _pending: dict[str, int] = field(default_factory=dict)
+
+    def record(self, kind: str, detail: str, now: float) -> str | None:
+        """Count one ``kind`` event; the line to log now, or None while throttled."""
+        self._pending[kind] = self._pending.get(kind, 0) + 1
+        last = self._last.get(kind)
+        if last is not None and now - last < self.period:
+            return None
+        count = self._pending.pop(kind)
+        self._last[kind] = now
+        if last is None:
+            return f"{kind} phi_cmd: {detail} (repeats are logged at most every {self.period:g} s)"
+        return f"{count} {kind} phi_cmd in the last {now - last:.1f} s, latest: {detail}"

@@ -1,7 +1,8 @@
 """dynamixel_driver: lifecycle node between ``phi_cmd`` and the 4 MX-28 servos (one sync write + one sync read a cycle).
 
-Safety (planning_and_control.md §5, §7; ecosystem.md §2): goals are clipped to [0, φ_max] and clamped around the
-neutral ticks whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM, uncaught
+Safety (planning_and_control.md §5, §7; ecosystem.md §2): goals are clipped to [0, φ_max], clamped to absolute tick
+limits around the configured neutral ticks (parameter or persisted calibration, never a value read at start) and
+rate-limited whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM, uncaught
 exceptions and the E-stop (latched until ``clear_estop``); torque is enabled only while the servos answer, report no
 hardware error and their present positions are sane; a command watchdog holds or relaxes the motors; bus errors are
 counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
@@ -30,9 +31,19 @@ from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core.actuation import MotorLimits, MotorMap, limit_goal_rate, ticks_to_angles
+from hsa_core.actuation import (
+    DEFAULT_MAX_GOAL_RATE,
+    MotorLimits,
+    MotorMap,
+    RejectionLog,
+    accept_read_neutral,
+    limit_goal_rate,
+    neutral_check,
+    ticks_to_angles,
+)
 from hsa_core.params import ParameterError, load_params
 from hsa_dynamixel_driver.bus import (
+    ADDR_TORQUE_ENABLE,
     SDK_BAUDRATES,
     VELOCITY_UNIT_RAD_S,
     BusError,
@@ -77,9 +88,11 @@ SPECS = (
               high=2.0 * math.pi, read_only=True),
     ParamSpec("goal_margin", 0.02, "goal clamp widening beyond [0, phi_max] on both ends [rad]", low=0.0, high=0.5,
               read_only=True),
-    ParamSpec("neutral_source", "read", "neutral ticks: read at configure, the neutral_ticks list, or neutral_file",
-              choices=("read", "param", "file"), read_only=True),
-    ParamSpec("neutral_ticks", [0, 0, 0, 0], "neutral positions [ticks] when neutral_source is 'param'", length=4,
+    ParamSpec("neutral_source", "param", "neutral ticks (and so the absolute goal limits): the neutral_ticks list, "
+              "neutral_file, or read (the φ map only, accepted within neutral_tolerance of neutral_ticks; the limits "
+              "stay on neutral_ticks)", choices=("param", "file", "read"), read_only=True),
+    ParamSpec("neutral_ticks", [2048, 2048, 2048, 2048], "configured neutral positions [ticks] (neutral_source "
+              "'param' or 'read'); the default is the emulated servos' power-on position", length=4,
               low=-1_000_000, high=1_000_000, read_only=True),
     ParamSpec("neutral_file", "", "YAML of stored neutral ticks; written from the present positions if absent",
               read_only=True),
@@ -89,8 +102,8 @@ SPECS = (
               read_only=True),
     ParamSpec("rate", 100.0, "control cycle rate: one sync write + one sync read [Hz]", low=1.0, high=500.0,
               read_only=True),
-    ParamSpec("max_goal_rate", 0.0, "largest goal speed of a motor [rad/s]; 0 = no rate limit", low=0.0,
-              high=100.0),
+    ParamSpec("max_goal_rate", DEFAULT_MAX_GOAL_RATE, "largest goal speed of a motor [rad/s] (default: twice the "
+              "MX-28 no-load speed); 0 = no rate limit", low=0.0, high=100.0),
     ParamSpec("write_on_command", True, "sync-write a goal as soon as a phi_cmd arrives (else only in the cycle); "
               "the read cycle, watchdog and rate limit are unchanged", read_only=True),
     ParamSpec("command_timeout", 0.1, "command watchdog: phi_cmd older than this [s] -> watchdog_action; 0 = off",
@@ -135,10 +148,13 @@ class DynamixelDriver(LifecycleNode):
         self._ids: list[int] = self._p["motor_ids"]
         self._phi_max = self._twist_limit()
         self._stored_neutral = self._configured_neutral()
+        self._held = False  # every servo still had torque on at the first connection (a driver restart)
+        self._rejections = RejectionLog()
         self._bus: DynamixelBus | None = None
         self._map: MotorMap | None = None
         self._limits: MotorLimits | None = None
         self._sane: MotorLimits | None = None
+        self._neutral: np.ndarray | None = None  # configured neutral ticks: the limits' reference
         self._cycle_timer: Timer | None = None
         self._reconnect_timer: Timer | None = None
         self._active = False
@@ -168,7 +184,8 @@ class DynamixelDriver(LifecycleNode):
         self._consecutive_failures = 0
         self._counts = dict.fromkeys(
             ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
-             "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops"), 0)
+             "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops", "rate_limited"),
+            0)
         self._rate_base = (time.monotonic(), dict(self._counts))
         self._fault_file = os.environ.get(FAULT_FILE_ENV) or None
         if self._fault_file:
@@ -224,9 +241,10 @@ class DynamixelDriver(LifecycleNode):
         return float(np.min(np.asarray(params.phi_max)))
 
     def _configured_neutral(self) -> list[int] | None:
-        """Neutral ticks fixed before the bus is opened (param or existing file), or None (read at configure)."""
+        """Neutral ticks fixed before the bus is opened (param, read's reference, or an existing file), or None (the
+        first start with neutral_source 'file': the calibration is written from the present positions)."""
         source, path = self._p["neutral_source"], self._p["neutral_file"]
-        if source == "param":
+        if source in ("param", "read"):
             return list(self._p["neutral_ticks"])
         if source == "file":
             if not path:
@@ -239,12 +257,27 @@ class DynamixelDriver(LifecycleNode):
         return None
 
     def _set_neutral(self, ticks: list[int]) -> None:
-        """Build the motor map, the goal clamp and the wider 'sane position' range around these neutral ticks."""
+        """Build the motor map, the absolute goal clamp and the wider 'sane position' range around the configured
+        neutral ticks; a read neutral may later replace the map's zero (``_refine_map``), never these limits."""
         self._map = MotorMap(tuple(ticks), tuple(self._ids), rho=tuple(self._p["rho"]), h=tuple(self._p["h"]),
                              phi_max=self._phi_max, margin=self._p["goal_margin"])
         self._limits = MotorLimits.from_map(self._map)
         wider = dataclasses.replace(self._map, margin=self._p["goal_margin"] + self._p["neutral_tolerance"])
         self._sane = MotorLimits.from_map(wider)
+        self._neutral = np.asarray(ticks, dtype=np.int64)
+
+    def _refine_map(self) -> None:
+        """neutral_source 'read': the present positions become the φ map's zero if they lie within neutral_tolerance
+        of the configured neutral ticks; the goal limits stay where the configuration put them."""
+        assert self._bus is not None and self._map is not None
+        present = self._bus.read_positions().ticks
+        ticks = [present[i] for i in self._ids]
+        problem = accept_read_neutral(ticks, self._neutral, self._p["neutral_tolerance"])
+        if problem is not None:
+            self.get_logger().warning(f"{problem}: the φ map keeps the configured neutral ticks")
+            return
+        self._map = dataclasses.replace(self._map, neutral_ticks=tuple(ticks))
+        self.get_logger().info(f"φ map zero read from the servos: {ticks} (limits on {self._neutral.tolist()})")
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -253,7 +286,8 @@ class DynamixelDriver(LifecycleNode):
         self._map = self._limits = self._sane = None
         if self._stored_neutral is not None:
             self._set_neutral(self._stored_neutral)
-        self._startup_checked = self._stored_neutral is None  # read neutrals are trivially the present positions
+        self._startup_checked = self._stored_neutral is None  # a first calibration is the present positions
+        self._held = False
         self._torque_note = "inactive"
         self._reconnect_timer = self.create_timer(self._p["reconnect_period"], self._reconnect)
         self._connect()
@@ -319,9 +353,13 @@ class DynamixelDriver(LifecycleNode):
         try:
             self._bus.close()
             self._bus.open()
+            if not self._startup_checked:  # before configure() turns torque off: were the servos still held?
+                self._held = all(self._bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1 for i in self._ids)
             self._bus.configure(return_delay=self._p["return_delay"])
             if self._map is None:
                 self._adopt_present_as_neutral()
+            elif self._p["neutral_source"] == "read" and not self._startup_checked:
+                self._refine_map()
         except BusError as exc:
             self._count_error(exc)
             self._bus.close()
@@ -346,22 +384,19 @@ class DynamixelDriver(LifecycleNode):
             self._enable_torque()
 
     def _adopt_present_as_neutral(self) -> None:
-        """neutral_source 'read' (or a missing neutral file): the present positions become the neutral ticks."""
+        """First start with a missing neutral file: the present positions become the stored calibration."""
         assert self._bus is not None
         present = self._bus.read_positions().ticks
         ticks = [present[i] for i in self._ids]
         self._set_neutral(ticks)
         path = self._p["neutral_file"]
-        if self._p["neutral_source"] == "file":
-            try:
-                write_neutral_file(Path(path), self._ids, ticks)
-            except OSError as exc:
-                self.get_logger().error(f"cannot store neutral ticks {ticks} in {path}: {exc}")
-                return
-            self._stored_neutral = ticks
-            self.get_logger().info(f"stored neutral ticks {ticks} in {path}")
-        else:
-            self.get_logger().info(f"neutral ticks read from the servos: {ticks}")
+        try:
+            write_neutral_file(Path(path), self._ids, ticks)
+        except OSError as exc:
+            self.get_logger().error(f"cannot store neutral ticks {ticks} in {path}: {exc}")
+            return
+        self._stored_neutral = ticks
+        self.get_logger().info(f"stored neutral ticks {ticks} in {path}")
 
     def _reconnect(self) -> None:
         """Reconnect timer: reopen the bus while it is down."""
@@ -371,12 +406,14 @@ class DynamixelDriver(LifecycleNode):
 
     def _position_problem(self, ticks: np.ndarray) -> str | None:
         """Why torque must not be enabled at these present positions, or None."""
-        assert self._map is not None and self._sane is not None
+        assert self._map is not None and self._sane is not None and self._neutral is not None
         if not self._startup_checked:
-            deviation = self._map.neutral_deviation(ticks)
-            if np.any(np.abs(deviation) > self._p["neutral_tolerance"]):
-                return (f"present positions deviate from the stored neutral ticks by {np.round(deviation, 3).tolist()}"
-                        f" rad (tolerance {self._p['neutral_tolerance']} rad): untwist the robot or re-home")
+            problem = neutral_check(ticks_to_angles(ticks, self._neutral), self._p["neutral_tolerance"], self._held)
+            if problem is not None:
+                return problem
+            if self._held:
+                self.get_logger().warning("servos still held at start (driver restart): keeping their pose within "
+                                          f"the limits of the configured neutral ticks {self._neutral.tolist()}")
             self._startup_checked = True
         inside = self._sane.contains(ticks)
         if not np.all(inside):
@@ -457,6 +494,7 @@ class DynamixelDriver(LifecycleNode):
         """Keep the newest finite command (ignored while the E-stop is engaged); the cycle writes it."""
         if not np.all(np.isfinite(msg.phi)):
             self._counts["rejected"] += 1
+            self._log_rejection("rejected", f"non-finite phi {list(msg.phi)}")
             return
         if self._estop is not None:
             self._counts["ignored"] += 1
@@ -470,6 +508,12 @@ class DynamixelDriver(LifecycleNode):
                 self._write_goal()
             except BusError as exc:
                 self._count_error(exc)  # the next cycle retries the write and handles a lost link
+
+    def _log_rejection(self, kind: str, detail: str) -> None:
+        """WARN about a rejected or clipped command, throttled by RejectionLog (the counters count every one)."""
+        line = self._rejections.record(kind, detail, time.monotonic())
+        if line is not None:
+            self.get_logger().warning(line)
 
     def _clear_command(self) -> None:
         self._command = self._command_time = self._target = None
@@ -606,7 +650,10 @@ class DynamixelDriver(LifecycleNode):
             phi = np.asarray(self._command.phi)
             clipped = np.clip(phi, 0.0, self._phi_max)
             self._target, clamped = self._limits.clamp(self._map.goal_ticks(clipped))
-            self._counts["clamped"] += bool(np.any(clipped != phi) or np.any(clamped))
+            if np.any(clipped != phi) or np.any(clamped):
+                self._counts["clamped"] += 1
+                self._log_rejection("clipped", f"phi {np.round(phi, 4).tolist()} rad outside [0, {self._phi_max:.4f}]"
+                                    if np.any(clipped != phi) else f"goal ticks clamped to the limits for phi {phi}")
             self._target_source, self._pending = self._command.source_stamp, False
         if self._target is None:
             return
@@ -614,7 +661,9 @@ class DynamixelDriver(LifecycleNode):
         now = time.monotonic()
         if self._p["max_goal_rate"] > 0.0:  # per write: max_goal_rate x the time since the last one, at most a period
             dt = min(now - self._last_write, 1.0 / self._p["rate"])
-            goal = self._limits.clamp(limit_goal_rate(self._last_goal, goal, dt, self._p["max_goal_rate"]))[0]
+            limited = self._limits.clamp(limit_goal_rate(self._last_goal, goal, dt, self._p["max_goal_rate"]))[0]
+            self._counts["rate_limited"] += fresh and not np.array_equal(limited, goal)
+            goal = limited
         if not fresh and np.array_equal(goal, self._last_goal):
             return
         self._bus.write_goals({i: int(t) for i, t in zip(self._ids, goal)})
@@ -672,6 +721,8 @@ class DynamixelDriver(LifecycleNode):
     def _servo_report(self) -> Report:
         values = {"torque": self._torque_note, "neutral_ticks": list(self._map.neutral_ticks) if self._map else [],
                   "neutral_source": self._p["neutral_source"],
+                  "goal_limits": [[int(lo), int(hi)] for lo, hi in zip(self._limits.lower, self._limits.upper)]
+                  if self._limits else [], "held_at_start": self._held,
                   **{f"hardware_error_{i}": describe_hardware_error(self._hw_errors.get(i, 0)) for i in self._ids}}
         if self._hw_errors:
             return Report(ERROR, self._hardware_problem() or "", values)
@@ -691,7 +742,8 @@ class DynamixelDriver(LifecycleNode):
         age = "none" if self._command_time is None else f"{now - self._command_time:.3f} s"
         watchdog = f"{self._watchdog} ({'relaxed' if self._relaxed else self._p['watchdog_action']})" \
             if self._watchdog == "expired" else self._watchdog
-        values = {**rates, **{k: self._counts[k] for k in ("commands", "rejected", "clamped", "ignored")},
+        values = {**rates, **{k: self._counts[k] for k in ("commands", "rejected", "clamped", "rate_limited",
+                                                            "ignored")},
                   "watchdog": watchdog, "command_age": age, "command_timeout": self._p["command_timeout"],
                   "max_goal_rate": self._p["max_goal_rate"], "phi_max": self._phi_max}
         level = WARN if self._watchdog == "expired" else OK

@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 
 from hsa_core.actuation import (
+    DEFAULT_MAX_GOAL_RATE,
     MotorLimits,
     MotorMap,
+    RejectionLog,
+    accept_read_neutral,
     angles_to_ticks,
     limit_goal_rate,
+    neutral_check,
     ticks_to_angles,
 )
 
@@ -145,3 +149,42 @@ def test_invalid_maps_rejected():
         MotorMap(rod=(0, 0, 0, 0))
     with pytest.raises(ValueError):
         MotorMap(phi_max=-1.0)
+
+
+def test_default_goal_rate_is_twice_the_mx28_no_load_speed():
+    # ROBOTIS e-Manual: 55 rev/min at 12 V; the paper's servo motions cannot be faster than that
+    assert DEFAULT_MAX_GOAL_RATE == pytest.approx(2 * 55 * 2 * math.pi / 60)
+    assert DEFAULT_MAX_GOAL_RATE > 55 * 2 * math.pi / 60
+
+
+def test_neutral_check_at_rest_passes_twisted_only_while_held():
+    assert neutral_check([0.05, -0.1, 0.0, 0.0], 0.1, held=False) is None
+    problem = neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=False)
+    assert problem is not None and "untwist the robot or re-home" in problem and "\n" not in problem
+    assert neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=True) is None  # a driver restart: the servos were held
+
+
+def test_read_neutral_is_accepted_only_near_the_configured_one():
+    configured = (2048, 2048, 2048, 2048)
+    assert accept_read_neutral((2050, 2040, 2048, 2100), configured, 0.1) is None  # 52 ticks = 0.08 rad
+    problem = accept_read_neutral((2700, 1396, 2048, 2048), configured, 0.1)  # twisted by 1 rad
+    assert problem is not None and "configured neutral" in problem
+
+
+def test_limits_depend_on_the_configured_neutral_only():
+    """The goal clamp of a φ command is the same whatever present positions exist: it is built from the map alone."""
+    limits = MotorLimits.from_map(MotorMap(neutral_ticks=(2048,) * 4))
+    upper = 2048 + math.ceil((math.radians(200) + 0.02) * 2048 / math.pi)
+    assert limits.upper[0] == upper and limits.lower[1] == 2048 - upper + 2048
+
+
+def test_rejection_log_throttles_and_counts():
+    log = RejectionLog(period=5.0)
+    first = log.record("rejected", "nan", 0.0)
+    assert first is not None and "rejected" in first
+    assert all(log.record("rejected", "nan", 0.001 * k) is None for k in range(1, 1000))
+    other = log.record("clipped", "phi 9", 0.5)  # another kind is not held back by the first
+    assert other is not None
+    summary = log.record("rejected", "inf", 5.0)
+    assert summary is not None and summary.startswith("1000 rejected") and "inf" in summary
+    assert log.record("rejected", "nan", 6.0) is None

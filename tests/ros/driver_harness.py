@@ -21,7 +21,7 @@ from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
 from hsa_core import rosenv
 from tests.ros.conftest import CollectedProcess, wait_until
 
-__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
+__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
            "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
            "torque", "torque_off_time", "torque_on_time", "wait_until"]
 
@@ -34,6 +34,7 @@ MARGIN = 0.02  # default goal_margin [rad]
 TICKS_PER_RAD = 2048 / math.pi
 ADDR_TORQUE, ADDR_GOAL = 64, 116
 FAST_SERVO = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)
+NEUTRAL_PARAM = f"neutral_ticks:={[NEUTRAL[i] for i in IDS]}"  # the configured neutral = the emulator's power-on
 
 
 def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:
@@ -46,7 +47,8 @@ class DriverProcess(CollectedProcess):
 
     def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None,
                  name: str = "dynamixel_driver") -> None:
-        args = [DRIVER, "--ros-args", "-r", f"__node:={name}", "-p", f"port:={port}", "-p", "reconnect_period:=0.2"]
+        args = [DRIVER, "--ros-args", "-r", f"__node:={name}", "-p", f"port:={port}", "-p", "reconnect_period:=0.2",
+                "-p", NEUTRAL_PARAM]
         for override in overrides:
             args += ["-p", override]
         super().__init__(subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),

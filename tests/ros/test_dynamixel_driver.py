@@ -24,7 +24,7 @@ from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
 
 from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
-from tests.ros.driver_harness import DRIVER, IDS, NEUTRAL, PHI_MAX, clamp_range, make_emulator
+from tests.ros.driver_harness import DRIVER, IDS, NEUTRAL, NEUTRAL_PARAM, PHI_MAX, clamp_range, make_emulator
 
 pytestmark = pytest.mark.ros
 
@@ -53,7 +53,7 @@ def driver(emulator: MX28Emulator) -> Iterator[Callable[..., subprocess.Popen]]:
     procs: list[subprocess.Popen] = []
 
     def _start(*overrides: str, ready: bool = True) -> subprocess.Popen:
-        args = [DRIVER, "--ros-args", "-p", f"port:={emulator.port}", "-p", "reconnect_period:=0.2"]
+        args = [DRIVER, "--ros-args", "-p", f"port:={emulator.port}", "-p", "reconnect_period:=0.2", "-p", NEUTRAL_PARAM]
         for override in overrides:
             args += ["-p", override]
         proc = start_process(args)

@@ -20,7 +20,8 @@ from hsa_common import qos
 from hsa_dynamixel_driver.node import FAULT_FILE_ENV
 from hsa_msgs.msg import PlanarActuation
 from tests.ros.conftest import start_process, stop_process, wait_for_line
-from tests.ros.driver_harness import command, drivers, make_emulator, start_drivers, torque, torque_off_time, wait_until
+from tests.ros.driver_harness import (IDS, NEUTRAL, command, drivers, make_emulator, start_drivers, torque,
+                                     torque_off_time, wait_until)
 from tests.ros.faults import BEST_EFFORT, fault
 
 pytestmark = pytest.mark.ros
@@ -131,7 +132,8 @@ def test_sigterm_to_the_launcher_turns_the_drivers_torque_off_within_100_ms(tmp_
     emulator = make_emulator(tmp_path)
     graph = tmp_path / "driver.launch.yaml"
     graph.write_text(f"launch:\n- node: {{pkg: hsa_dynamixel_driver, exec: dynamixel_driver, name: dynamixel_driver, "
-                     f"param: [{{name: port, value: '{emulator.port}'}}]}}\n")
+                     f"param: [{{name: port, value: '{emulator.port}'}}, "
+                     f"{{name: neutral_ticks, value: {[NEUTRAL[i] for i in IDS]}}}]}}\n")
     launcher = start_process([sys.executable, "-m", "hsa_common.launcher", str(graph)])
     try:
         wait_for_line(launcher, "torque on", timeout=90.0)

@@ -18,8 +18,8 @@ Conventions (planning_and_control.md §7):
   The default ``DEFAULT_MAX_GOAL_RATE`` is twice the MX-28's no-load speed (55 rev/min at 12 V, ROBOTIS e-Manual;
   spec identification.md §2.2): no motion of the servo can need a faster goal, a flood of full-range swings cannot.
 * Absolute limits: the neutral ticks behind ``MotorLimits`` are configured (parameter or persisted calibration file),
-  never taken from a value read at start. ``neutral_check`` decides whether a start may enable torque, ``accept_read_neutral``
-  lets a read neutral only refine the φ map within a tolerance of the configured one.
+  never taken from a value read at start. ``neutral_check`` decides whether a start may enable torque;
+  ``accept_read_neutral`` lets a read neutral only refine the φ map within a tolerance of the configured one.
 """
 
 from __future__ import annotations

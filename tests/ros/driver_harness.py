@@ -21,8 +21,8 @@ from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
 from hsa_core import rosenv
 from tests.ros.conftest import CollectedProcess, wait_until
 
-__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX", "TICKS_PER_RAD", "DriverProcess",
-           "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
+__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX", "TICKS_PER_RAD",
+           "DriverProcess", "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
            "torque", "torque_off_time", "torque_on_time", "wait_until"]
 
 DRIVER = find_executable("hsa_dynamixel_driver", "dynamixel_driver")

@@ -53,7 +53,8 @@ def driver(emulator: MX28Emulator) -> Iterator[Callable[..., subprocess.Popen]]:
     procs: list[subprocess.Popen] = []
 
     def _start(*overrides: str, ready: bool = True) -> subprocess.Popen:
-        args = [DRIVER, "--ros-args", "-p", f"port:={emulator.port}", "-p", "reconnect_period:=0.2", "-p", NEUTRAL_PARAM]
+        args = [DRIVER, "--ros-args", "-p", f"port:={emulator.port}", "-p", "reconnect_period:=0.2",
+                "-p", NEUTRAL_PARAM]
         for override in overrides:
             args += ["-p", override]
         proc = start_process(args)

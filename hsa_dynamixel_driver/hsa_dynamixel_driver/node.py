@@ -149,6 +149,7 @@ class DynamixelDriver(LifecycleNode):
         self._phi_max = self._twist_limit()
         self._stored_neutral = self._configured_neutral()
         self._held = False  # every servo still had torque on at the first connection (a driver restart)
+        self._uncalibrated: str | None = None  # why there is no trustworthy neutral (torque stays off), or None
         self._rejections = RejectionLog()
         self._bus: DynamixelBus | None = None
         self._map: MotorMap | None = None
@@ -288,6 +289,7 @@ class DynamixelDriver(LifecycleNode):
             self._set_neutral(self._stored_neutral)
         self._startup_checked = self._stored_neutral is None  # a first calibration is the present positions
         self._held = False
+        self._uncalibrated = None
         self._torque_note = "inactive"
         self._reconnect_timer = self.create_timer(self._p["reconnect_period"], self._reconnect)
         self._connect()
@@ -353,7 +355,7 @@ class DynamixelDriver(LifecycleNode):
         try:
             self._bus.close()
             self._bus.open()
-            if not self._startup_checked:  # before configure() turns torque off: were the servos still held?
+            if self._map is None or not self._startup_checked:  # before configure() turns torque off: still held?
                 self._held = all(self._bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1 for i in self._ids)
             self._bus.configure(return_delay=self._p["return_delay"])
             if self._map is None:
@@ -384,12 +386,18 @@ class DynamixelDriver(LifecycleNode):
             self._enable_torque()
 
     def _adopt_present_as_neutral(self) -> None:
-        """First start with a missing neutral file: the present positions become the stored calibration."""
+        """First start with a missing neutral file: the present positions become the stored calibration — unless the
+        servos were held (a pose someone commanded, not the rest pose): then nothing is stored and torque stays off."""
         assert self._bus is not None
         present = self._bus.read_positions().ticks
         ticks = [present[i] for i in self._ids]
-        self._set_neutral(ticks)
+        self._set_neutral(ticks)  # also gives the state topics their zero while uncalibrated
         path = self._p["neutral_file"]
+        if self._held:
+            self._uncalibrated = (f"no neutral file {path} and the servos were held at start (not necessarily at "
+                                  "rest): switch their torque off or power-cycle them at rest, then restart")
+            self.get_logger().error(f"not calibrating: {self._uncalibrated}")
+            return
         try:
             write_neutral_file(Path(path), self._ids, ticks)
         except OSError as exc:
@@ -407,6 +415,8 @@ class DynamixelDriver(LifecycleNode):
     def _position_problem(self, ticks: np.ndarray) -> str | None:
         """Why torque must not be enabled at these present positions, or None."""
         assert self._map is not None and self._sane is not None and self._neutral is not None
+        if self._uncalibrated is not None:
+            return self._uncalibrated
         if not self._startup_checked:
             problem = neutral_check(ticks_to_angles(ticks, self._neutral), self._p["neutral_tolerance"], self._held)
             if problem is not None:

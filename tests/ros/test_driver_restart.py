@@ -22,6 +22,8 @@ from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator
 from tests.ros.driver_harness import (
+    ADDR_GOAL,
+    ADDR_TORQUE,
     IDS,
     NEUTRAL,
     PHI_MAX,
@@ -150,3 +152,18 @@ def test_disagreeing_neutral_file_refuses_torque_even_after_a_restart(emulator, 
         os.killpg(driver.proc.pid, signal.SIGKILL)
         driver.proc.wait(timeout=10.0)
     assert stored.read_text() == f"ids: {list(IDS)}\nneutral_ticks: {[NEUTRAL[i] + 400 for i in IDS]}\n"
+
+
+def test_first_calibration_is_not_taken_from_held_servos(emulator, drivers, tmp_path) -> None:
+    """No neutral file yet and the servos held twisted (torque on): nothing is stored, torque stays off."""
+    for dxl_id, ticks in spec_ticks(TWIST).items():
+        emulator.set_present_ticks(dxl_id, ticks)
+        emulator.poke(dxl_id, ADDR_GOAL, ticks)
+        emulator.poke(dxl_id, ADDR_TORQUE, 1)
+    stored = tmp_path / "home" / "neutral.yaml"
+    drivers.append(driver := DriverProcess(emulator.port, ["neutral_source:=file", f"neutral_file:={stored}"])
+                   .wait_ready())
+    assert wait_until(lambda: bool(driver.log("torque stays off")), timeout=20.0), driver.output()
+    assert "servos were held at start" in driver.log("torque stays off")[0]
+    assert not stored.exists() and torque(emulator) == {False} and not goal_writes(emulator)
+    assert emulator.present_ticks() == spec_ticks(TWIST)

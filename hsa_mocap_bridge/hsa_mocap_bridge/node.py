@@ -1,11 +1,10 @@
 """mocap_bridge: motion-capture PoseStamped of the platform (and base) rigid bodies → validated planar pose ``ee_pose``.
 
-Each platform sample is projected to χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published
-with its mocap stamp in frame ``hsa_base``, unless a check drops it. Checks, in this order: non-finite values, a
-non-unit quaternion, a stamp older ("stale") or newer ("future") than ``max_age`` against the node clock, a stamp equal
-to ("duplicate") or older than ("out_of_order") the newest accepted one, no base pose yet (``use_base_pose``), a pose
-outside the workspace box, an implausible jump from the last accepted pose. Every drop is counted per reason on
-/diagnostics. Parameters and topics: docs/nodes/hsa_mocap_bridge.md.
+Each platform sample goes through the check chain of ``hsa_core.mocap_gate`` (frame_id, non-finite values, quaternion,
+stale/future/duplicate/out-of-order stamp against the node clock, missing base, workspace box, jump), is projected to
+χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published with its mocap stamp in frame
+``hsa_base``. Every drop is counted per reason on /diagnostics and logged at most every 5 s. Parameters and topics:
+docs/nodes/hsa_mocap_bridge.md.
 """
 
 from __future__ import annotations
@@ -16,17 +15,16 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.parameters import ParamSpec, declare, guard_updates
-from hsa_common.runner import run, seconds
+from hsa_common.runner import run
 from hsa_core import mocap
+from hsa_core.mocap_gate import MAX_FUTURE, REASONS, GateConfig, MocapGate, Sample
 from hsa_msgs.msg import PlanarPoseStamped
 
 FRAME_ID = "hsa_base"
-REASONS = ("non_finite", "quaternion", "stale", "future", "duplicate", "out_of_order", "no_base", "workspace", "jump")
 
 
 def _unit_quaternion(value: list[float]) -> str | None:
@@ -68,8 +66,12 @@ SPECS = (
               low=1.0, high=2000.0),
     ParamSpec("quaternion_tolerance", 0.01, "[-] accepted deviation of a measured quaternion norm from 1",
               low=1e-6, high=0.5),
-    ParamSpec("max_age", 0.5, "[s] drop samples stamped more than this before or after the node clock; 0 disables",
+    ParamSpec("frame_id", "world", "expected header frame_id of the mocap poses; any other is dropped (frame)",
+              validator=lambda value: None if value else "must name a frame, not be empty"),
+    ParamSpec("max_age", 0.5, "[s] drop samples stamped more than this before the node clock; 0 disables",
               low=0.0, high=60.0),
+    ParamSpec("max_future", MAX_FUTURE, "[s] drop samples stamped more than this after the node clock",
+              low=0.0, high=1.0),
     ParamSpec("stale_timeout", 0.25, "[s] diagnostics ERROR when no sample was accepted for this long",
               low=0.001, high=60.0),
     ParamSpec("max_jump", 0.02,
@@ -101,24 +103,21 @@ def _plain(value: Any) -> Any:
     return list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
 
 
-
 class MocapBridge(Node):
     """Projects platform poses to the plane, drops and counts implausible samples, publishes ``ee_pose``."""
 
     def __init__(self) -> None:
         super().__init__("mocap_bridge")
         self._p = declare(self, SPECS)
+        self._gate: MocapGate | None = None
         self._configure()
         guard_updates(self, SPECS, self._update)
         self._counts = dict.fromkeys(("received", "published", "base_received", "base_rejected", *REASONS), 0)
         self._last_rejection = ""
-        self._last_stamp: Time | None = None  # mocap stamp of the newest accepted sample
-        self._last_chiee: np.ndarray | None = None
-        self._last_accepted_at: Time | None = None  # node-clock time it arrived
-        self._base: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._last_accepted_at: int | None = None  # node-clock time [ns] the newest accepted sample arrived
         self._rest: str | None = None  # rest-check result: None = pending, "" = fine, else the problem
         self._level: bytes | None = None  # diagnostics level last reported
-        self._report_at = self.get_clock().now()
+        self._report_at = self.get_clock().now().nanoseconds
         self._reported = (0, 0)
         self._pub = self.create_publisher(
             PlanarPoseStamped, "ee_pose", qos.SENSOR, qos_overriding_options=qos.overridable())
@@ -133,13 +132,23 @@ class MocapBridge(Node):
             self._diagnostics.add("rest pose", self._rest_report)
 
     def _configure(self) -> None:
-        """Build the frame chain and workspace box from the current parameter values."""
+        """Build the check chain (bounds, frame chain, workspace box) from the current parameter values, keeping the
+        references (newest accepted stamp and pose, base pose) of the previous one."""
         p = self._p
-        self._config = mocap.MocapConfig(
-            tuple(p["base_quaternion"]), tuple(p["base_offset"]), tuple(p["marker_offset"]),
-            use_base_orientation=p["use_base_pose"])
-        self._workspace = mocap.WorkspaceBox(
-            tuple(p["workspace_x"]), tuple(p["workspace_y"]), tuple(p["workspace_theta"]))
+        rate = p["mocap_rate"]  # bounds per period → speed bounds; a bound of 0 disables (→ inf)
+        config = GateConfig(
+            frame_id=p["frame_id"], quaternion_tolerance=p["quaternion_tolerance"], max_age=p["max_age"],
+            max_future=p["max_future"], max_speed=p["max_jump"] * rate or math.inf,
+            max_angular_speed=p["max_jump_angle"] * rate or math.inf,
+            workspace=mocap.WorkspaceBox(tuple(p["workspace_x"]), tuple(p["workspace_y"]), tuple(p["workspace_theta"])))
+        chain = mocap.MocapConfig(tuple(p["base_quaternion"]), tuple(p["base_offset"]), tuple(p["marker_offset"]),
+                                  use_base_orientation=p["use_base_pose"])
+        gate = MocapGate(config, chain, tuple(p["base_position"]))
+        if self._gate is not None:
+            old = self._gate
+            gate.base, gate.last_stamp_ns, gate.last_chiee, gate.time_resets = (
+                old.base, old.last_stamp_ns, old.last_chiee, old.time_resets)
+        self._gate = gate
 
     def _update(self, changes: dict[str, Any]) -> None:
         """Apply accepted run-time parameter updates."""
@@ -148,82 +157,38 @@ class MocapBridge(Node):
 
     def _on_base(self, msg: PoseStamped) -> None:
         """Keep the newest valid base pose."""
-        position, quaternion = _pose(msg)
-        problem = mocap.pose_problem(position, quaternion, self._p["quaternion_tolerance"])
+        problem = self._gate.base_sample(_sample(msg))
         if problem:
             self._counts["base_rejected"] += 1
             self._last_rejection = f"base: {problem}"
+            self.get_logger().warning(f"dropped base sample ({problem})", throttle_duration_sec=5.0)
             return
-        if self._base is None:
+        if self._counts["base_received"] == 0:
             self.get_logger().info(f"receiving base poses on {self._p['base_topic']}")
         self._counts["base_received"] += 1
-        self._base = position, quaternion
 
     def _on_platform(self, msg: PoseStamped) -> None:
         """Check, project and publish one platform sample, or count why it was dropped."""
         self._counts["received"] += 1
-        now = self.get_clock().now()
-        stamp = Time.from_msg(msg.header.stamp)
-        position, quaternion = _pose(msg)
-        problem = self._input_problem(now, stamp, position, quaternion)
-        if problem is None:
-            base_position, base_quaternion = self._base if self._p["use_base_pose"] else (
-                self._p["base_position"], None)
-            chiee = mocap.world_to_planar(base_position, position, quaternion, self._config, base_quaternion)
-            if self._p["rest_check"] and self._rest is None:
-                self._check_rest(chiee)
-            problem = self._pose_problem(stamp, chiee)
-        if problem is not None:
-            reason, text = problem
-            self._counts[reason] += 1
-            self._last_rejection = f"{reason}: {text}"
-            self.get_logger().warning(f"dropped platform sample ({reason}: {text})", throttle_duration_sec=5.0)
+        now = self.get_clock().now().nanoseconds
+        verdict = self._gate.check(_sample(msg), now)
+        if verdict.reason is not None:
+            self._counts[verdict.reason] += 1
+            self._last_rejection = f"{verdict.reason}: {verdict.text}"
+            self.get_logger().warning(f"dropped platform sample ({self._last_rejection}); counts on /diagnostics",
+                                      throttle_duration_sec=5.0)
             return
+        if self._p["rest_check"] and self._rest is None:
+            self._check_rest(verdict.chiee)
         if self._last_accepted_at is None:
             self.get_logger().info(f"receiving platform poses on {self._p['platform_topic']}")
-        self._last_stamp, self._last_chiee, self._last_accepted_at = stamp, chiee, now
+        self._last_accepted_at = now
         out = PlanarPoseStamped()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = FRAME_ID
-        out.pose.x, out.pose.y, out.pose.theta = (float(v) for v in chiee)
+        out.pose.x, out.pose.y, out.pose.theta = (float(v) for v in verdict.chiee)
         self._pub.publish(out)
         self._counts["published"] += 1
-
-    def _input_problem(
-        self, now: Time, stamp: Time, position: tuple[float, ...], quaternion: tuple[float, ...]
-    ) -> tuple[str, str] | None:
-        """Reason and text why a raw sample is unusable (values, stamp, missing base), or None."""
-        if mocap.pose_problem(position, quaternion, norm_tol=math.inf):  # an infinite tolerance checks finiteness
-            return "non_finite", "non-finite position or quaternion"
-        problem = mocap.pose_problem(position, quaternion, self._p["quaternion_tolerance"])
-        if problem:
-            return "quaternion", problem
-        max_age, age = self._p["max_age"], seconds(now - stamp)
-        if max_age and age > max_age:
-            return "stale", f"stamp {age:.3g} s old (max_age {max_age} s)"
-        if max_age and -age > max_age:
-            return "future", f"stamp {-age:.3g} s ahead of the node clock (max_age {max_age} s)"
-        if self._last_stamp is not None and stamp == self._last_stamp:
-            return "duplicate", "stamp equals the newest accepted one"
-        if self._last_stamp is not None and stamp < self._last_stamp:
-            return "out_of_order", f"stamp {seconds(self._last_stamp - stamp):.3g} s older than the newest accepted"
-        if self._p["use_base_pose"] and self._base is None:
-            return "no_base", f"no valid base pose on {self._p['base_topic']} yet"
-        return None
-
-    def _pose_problem(self, stamp: Time, chiee: np.ndarray) -> tuple[str, str] | None:
-        """Reason and text why a projected pose is implausible (workspace, jump), or None."""
-        problem = self._workspace.problem(chiee)
-        if problem:
-            return "workspace", problem
-        if self._last_chiee is None:
-            return None
-        rate = self._p["mocap_rate"]  # bounds per period → speed bounds; a bound of 0 disables (→ inf)
-        problem = mocap.jump_problem(
-            self._last_chiee, chiee, seconds(stamp - self._last_stamp),
-            max_speed=self._p["max_jump"] * rate or math.inf,
-            max_angular_speed=self._p["max_jump_angle"] * rate or math.inf)
-        return ("jump", problem) if problem else None
 
     def _check_rest(self, chiee: np.ndarray) -> None:
         """Start-up check of the sign chain on the first valid sample; the result goes to /diagnostics."""
@@ -236,8 +201,8 @@ class MocapBridge(Node):
 
     def _report(self) -> Report:
         """Staleness level, counts per drop reason, rates and the age of the newest accepted sample."""
-        now = self.get_clock().now()
-        elapsed = max(seconds(now - self._report_at), 1e-9)
+        now = self.get_clock().now().nanoseconds
+        elapsed = max((now - self._report_at) * 1e-9, 1e-9)
         counts = (self._counts["received"], self._counts["published"])
         rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
         self._report_at, self._reported = now, counts
@@ -245,16 +210,17 @@ class MocapBridge(Node):
             "received": counts[0], "published": counts[1],
             **{f"rejected_{reason}": self._counts[reason] for reason in REASONS},
             "input_rate_hz": round(rates[0], 1), "output_rate_hz": round(rates[1], 1),
-            "last_rejection": self._last_rejection,
+            "last_rejection": self._last_rejection, "clock_resets": self._gate.time_resets,
         }
         if self._p["use_base_pose"]:
             values.update(base_received=self._counts["base_received"], base_rejected=self._counts["base_rejected"])
         if self._last_accepted_at is None:
             level, message = WARN, "no valid platform pose yet"
         else:
-            silence = seconds(now - self._last_accepted_at)
+            silence = (now - self._last_accepted_at) * 1e-9
             values["time_since_last_sample_s"] = round(silence, 4)
-            values["last_sample_age_s"] = round(seconds(now - self._last_stamp), 4)
+            if self._gate.last_stamp_ns is not None:  # None right after the clock went back
+                values["last_sample_age_s"] = round((now - self._gate.last_stamp_ns) * 1e-9, 4)
             if silence > self._p["stale_timeout"]:
                 level, message = ERROR, f"stale: no valid platform pose for {silence:.3g} s"
             elif silence > 3.0 / self._p["mocap_rate"]:
@@ -271,10 +237,12 @@ class MocapBridge(Node):
         return Report(ERROR, self._rest, {}) if self._rest else Report(OK, "rest pose as expected", {})
 
 
-def _pose(msg: PoseStamped) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Position (x, y, z) and quaternion (x, y, z, w) of a PoseStamped."""
+def _sample(msg: PoseStamped) -> Sample:
+    """The check-chain sample of a PoseStamped: stamp [ns], frame_id, position (x, y, z), quaternion (x, y, z, w)."""
     p, o = msg.pose.position, msg.pose.orientation
-    return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w)
+    stamp = msg.header.stamp
+    return Sample(stamp.sec * 1_000_000_000 + stamp.nanosec, msg.header.frame_id, (p.x, p.y, p.z),
+                  (o.x, o.y, o.z, o.w))
 
 
 def main() -> None:

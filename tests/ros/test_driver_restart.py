@@ -76,8 +76,12 @@ def outside_limits(emulator: MX28Emulator) -> list[tuple[int, int, int]]:
     return found
 
 
-def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(emulator, drivers, ros_node) -> None:
-    drivers.append(first := DriverProcess(emulator.port).wait_ready())
+@pytest.mark.parametrize("source", ["param", "read"])
+def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(emulator, drivers, ros_node,
+                                                                            source: str) -> None:
+    """Both modes of the sim graph's kind: the configured neutral, and a read one that may only refine the φ map."""
+    overrides = [f"neutral_source:={source}"]
+    drivers.append(first := DriverProcess(emulator.port, overrides).wait_ready())
     assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), first.output()
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     twisted = spec_ticks(TWIST)
@@ -88,7 +92,7 @@ def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(emul
     first.proc.wait(timeout=10.0)
     killed = time.monotonic()
     assert torque(emulator) == {True}
-    drivers.append(second := DriverProcess(emulator.port).wait_ready())
+    drivers.append(second := DriverProcess(emulator.port, overrides).wait_ready())
     assert wait_until(lambda: torque_on_time(emulator, killed) is not None, timeout=20.0), second.output()
     restarted = torque_on_time(emulator, killed) - killed
     # The same φ = 1 rad as before the kill: nothing may move (old main re-zeroed here and jumped to φ = 2.06 rad).
@@ -113,7 +117,7 @@ def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(emul
     assert wait_until(lambda: emulator.present_ticks() == spec_ticks(PHI_MAX),
                       step=lambda: pub.publish(command(PHI_MAX, PHI_MAX)), timeout=20.0)
     assert max(true_twists(emulator)) <= PHI_MAX + 0.5 / TICKS_PER_RAD
-    fault("driver SIGKILLed with the rods twisted 1.0 rad, restarted", "servos still held: the restarted driver keeps "
+    fault(f"driver SIGKILLed with the rods twisted 1.0 rad, restarted (neutral_source {source})", "servos still held: the restarted driver keeps "
           f"the pose (twist unchanged, {len(goal_writes(emulator))} goals all inside the absolute limits, "
           "phi_max + 0.5 rad stops at phi_max)", restarted)
 

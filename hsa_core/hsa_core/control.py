@@ -33,9 +33,14 @@ from jax.typing import ArrayLike
 from hsa_core import dynamics, kinematics
 from hsa_core.params import HsaParams
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
+from hsa_core.validation import configuration_problem, q_bounds
 
 CONTROL_DT = 0.025
 """Nominal control period of the experiments, 40 Hz [s] (§3.1)."""
+
+INTEGRAL_LIMIT = 1e3
+"""Bound on every integrator state [s, or m s for the PID and z_ee]: the collocated integrand is at most 1, so reaching
+it takes 1000 s of saturated error (the PID: 1 m of error for 1000 s); it only keeps the state finite by design."""
 
 
 class ControllerKind(str, enum.Enum):
@@ -327,6 +332,7 @@ class Controller:
         self.reset_integral_on_setpoint_change = bool(reset_integral_on_setpoint_change)
         phi_max = np.asarray(params.phi_max) * np.asarray(params.h)
         self._phi_lo, self._phi_hi = np.minimum(0.0, phi_max), np.maximum(0.0, phi_max)
+        self._q_bounds = q_bounds(params)
         self._state = np.zeros(4)
         self._setpoint: Setpoint | None = None
         self._ref: ControlReference | None = None
@@ -355,7 +361,8 @@ class Controller:
         self._state = np.zeros(4)
 
     def set_setpoint(self, setpoint: Setpoint) -> None:
-        """Activate a setpoint after the sanity checks of §5 (finite, ||r|| <= 1e-3, phi^ss in [0, phi_max])."""
+        """Activate a setpoint after the sanity checks of §5 (finite, 0 <= ||r|| <= 1e-3, phi^ss in [0, phi_max], q^d
+        plausible); the model consistency check is hsa_core.validation.SetpointValidator."""
         chiee_des, q_des, phi_ss = (
             np.asarray(v, dtype=np.float64) for v in (setpoint.chiee_des, setpoint.q_des, setpoint.phi_ss)
         )
@@ -363,8 +370,11 @@ class Controller:
             raise ValueError("setpoint needs chiee_des (3,), q_des (3,) and phi_ss (2,)")
         if not (np.all(np.isfinite(chiee_des)) and np.all(np.isfinite(q_des)) and np.all(np.isfinite(phi_ss))):
             raise ValueError("setpoint contains non-finite values")
-        if not setpoint.optimality_error <= MAX_OPTIMALITY_ERROR:
-            raise ValueError(f"setpoint optimality error {setpoint.optimality_error!r} > {MAX_OPTIMALITY_ERROR:g}")
+        if not 0.0 <= setpoint.optimality_error <= MAX_OPTIMALITY_ERROR:
+            raise ValueError(f"setpoint optimality error {setpoint.optimality_error!r} outside "
+                             f"[0, {MAX_OPTIMALITY_ERROR:g}]")
+        if (problem := configuration_problem(q_des, self._q_bounds)) is not None:
+            raise ValueError(f"setpoint {problem}")
         if np.any(phi_ss < self._phi_lo) or np.any(phi_ss > self._phi_hi):
             raise ValueError(f"setpoint phi_ss {phi_ss.tolist()} outside [0, phi_max]")
         self._ref = make_reference(self.params, setpoint, ee_integral=self.ee_integral is not None)
@@ -385,7 +395,9 @@ class Controller:
     ) -> tuple[np.ndarray, ControllerInfo]:
         """One control tick; a setpoint other than the active one is activated first. Returns (phi_cmd, info).
 
-        Non-finite measurements raise ValueError before anything changes (NaN would otherwise enter the integrators)."""
+        Non-finite measurements raise ValueError before anything changes (NaN would otherwise enter the integrators).
+        The integrator state stays finite and within +-INTEGRAL_LIMIT by construction: a tick whose command or new state
+        is not finite raises ValueError and leaves the state as it was."""
         if setpoint is not None and setpoint is not self._setpoint:
             self.set_setpoint(setpoint)
         if self._ref is None:
@@ -404,6 +416,10 @@ class Controller:
             fields.append(out[k:k + size])
             k += size
         fields[11] = bool(fields[11][0])
-        info = ControllerInfo(*fields)
-        self._state = np.concatenate([info.e_int, info.z_ee])
-        return out[:2], info
+        new_state = np.concatenate([fields[6], fields[7]])
+        if not (np.all(np.isfinite(out[:2])) and np.all(np.isfinite(new_state))):
+            raise ValueError("non-finite command or integrator state: tick refused, the controller state is unchanged")
+        new_state = np.clip(new_state, -INTEGRAL_LIMIT, INTEGRAL_LIMIT)
+        fields[6], fields[7] = new_state[:2], new_state[2:]
+        self._state = new_state
+        return out[:2], ControllerInfo(*fields)

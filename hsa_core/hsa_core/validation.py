@@ -1,0 +1,168 @@
+"""Physical plausibility of the controller's inputs (issue 10): setpoints, states and sample delays, ROS-free.
+
+* `configuration_problem` / `state_problem`: magnitude gates on q, q_dot, chiee, chiee_dot. The bounds are loose
+  physical limits (`q_bounds`: a bend of at most pi/2 over the rod length l, strains within +-50 % / -50..+100 %), far
+  outside every pose the robot can reach, so they only catch absurd values (1e9, 1e308) before they reach any equation.
+* `SetpointValidator`: a setpoint must also be an equilibrium of the model under its own phi^ss, i.e.
+  ||G + K - alpha||(q^d, phi^ss) <= residual_tol (the planner's own acceptance threshold by default), with phi^ss in
+  [0, phi_max] and chiee^d = FK(q^d) within pose_tol. Together this puts q^d inside the workspace (an equilibrium under
+  an admissible twist) and phi^ss consistent with q^d. The two model functions are compiled once, in the constructor.
+* `DelayGate`: drops a sample that arrives much later, relative to its stamp, than the promptest sample of the recent
+  stream (e.g. one held in a queue while its consumer was stalled), without an absolute clock comparison, so it works
+  with recorded stamps as well.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.typing import ArrayLike
+
+from hsa_core import dynamics, kinematics
+from hsa_core.params import HsaParams
+from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
+
+MAX_BEND = 0.5 * math.pi
+"""Plausible |kappa_be| l [rad]: a bend of at most pi/2 over the rods (the paper's workspace needs < 0.4 rad)."""
+SIGMA_LOW = np.array([-0.5, -0.5])
+SIGMA_HIGH = np.array([0.5, 1.0])
+"""Plausible [sigma_sh, sigma_ax] relative to xi_eq: shear within +-50 %, axial strain within -50 %..+100 % (the
+paper's workspace needs |sigma_sh| < 0.03 and sigma_ax in 0.19..0.35)."""
+Q_DOT_MAX = np.array([1e3, 1e2, 1e2])
+"""Plausible |q_dot| [rad/(m s), 1/s, 1/s]: 40x the fastest servo-driven motion of the robot."""
+CHIEE_MAX = np.array([0.5, 0.5, math.pi])
+"""Plausible |chiee| [m, m, rad] in {0}: the robot is 0.13 m tall."""
+CHIEE_DOT_MAX = np.array([10.0, 10.0, 1e2])
+"""Plausible |chiee_dot| [m/s, m/s, rad/s]."""
+POSE_TOLERANCE = 1e-4
+"""Default tolerance on ||chiee^d - FK(q^d)|| [m, rad]: 0.1 mm, far above rounding, far below the paper's errors."""
+
+
+def _out_of(name: str, values: np.ndarray, low: np.ndarray, high: np.ndarray) -> str | None:
+    """Reason if values are non-finite or outside [low, high], else None."""
+    if not np.all(np.isfinite(values)):
+        return f"non-finite {name}: {values.tolist()}"
+    if np.any(values < low) or np.any(values > high):
+        return f"implausible {name}: {values.tolist()} (bounds {low.tolist()}..{high.tolist()})"
+    return None
+
+
+def q_bounds(params: HsaParams) -> tuple[np.ndarray, np.ndarray]:
+    """Plausible q = [kappa_be [rad/m], sigma_sh, sigma_ax] of the model: |kappa_be| <= MAX_BEND / l, SIGMA_* bounds."""
+    kappa_max = MAX_BEND / float(params.l)
+    return np.concatenate([[-kappa_max], SIGMA_LOW]), np.concatenate([[kappa_max], SIGMA_HIGH])
+
+
+def configuration_problem(q: ArrayLike, bounds: tuple[np.ndarray, np.ndarray]) -> str | None:
+    """Why q is not a plausible configuration (non-finite or outside `q_bounds`), or None."""
+    return _out_of("q", np.asarray(q, dtype=np.float64), *bounds)
+
+
+def state_problem(bounds: tuple[np.ndarray, np.ndarray], q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
+                  chiee_dot: ArrayLike, velocity_valid: bool) -> str | None:
+    """Why a measured state must not reach the control law, or None: "<non-finite|implausible> <pose or
+    configuration|rates>: <detail>". The rates are checked only when velocity_valid (they are NaN by contract else)."""
+    pose = configuration_problem(q, bounds) or _out_of("chiee", np.asarray(chiee, dtype=np.float64), -CHIEE_MAX,
+                                                       CHIEE_MAX)
+    if pose is not None:
+        return f"{pose.split()[0]} pose or configuration: {pose}"
+    if velocity_valid:
+        rates = (_out_of("q_dot", np.asarray(q_dot, dtype=np.float64), -Q_DOT_MAX, Q_DOT_MAX)
+                 or _out_of("chiee_dot", np.asarray(chiee_dot, dtype=np.float64), -CHIEE_DOT_MAX, CHIEE_DOT_MAX))
+        if rates is not None:
+            return f"{rates.split()[0]} rates: {rates}"
+    return None
+
+
+@jax.jit
+def _consistency(params: HsaParams, q_des: jax.Array, phi_ss: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """||G + K - alpha|| at (q^d, phi^ss) and FK(q^d)."""
+    residual = jnp.linalg.norm(dynamics.static_residual(params, q_des, phi_ss))
+    return residual, kinematics.end_effector_pose(params, q_des)
+
+
+class SetpointValidator:
+    """Checks a setpoint against the model: plausible, finite, phi^ss admissible and an equilibrium at q^d."""
+
+    def __init__(self, params: HsaParams, residual_tol: float = MAX_OPTIMALITY_ERROR,
+                 pose_tol: float = POSE_TOLERANCE) -> None:
+        """Keep the model and tolerances, compile the residual and FK once."""
+        if not (residual_tol > 0.0 and pose_tol > 0.0):
+            raise ValueError(f"tolerances must be > 0, got residual_tol={residual_tol!r}, pose_tol={pose_tol!r}")
+        self.params = params
+        self.residual_tol = float(residual_tol)
+        self.pose_tol = float(pose_tol)
+        phi_max = np.asarray(params.phi_max) * np.asarray(params.h)
+        self.phi_lo, self.phi_hi = np.minimum(0.0, phi_max), np.maximum(0.0, phi_max)
+        self.q_bounds = q_bounds(params)
+        self._check(np.zeros(3), 0.5 * (self.phi_lo + self.phi_hi))
+
+    def _check(self, q_des: np.ndarray, phi_ss: np.ndarray) -> tuple[float, np.ndarray]:
+        """Residual norm at (q^d, phi^ss) and FK(q^d) as NumPy values."""
+        residual, chiee = _consistency(self.params, q_des, phi_ss)
+        return float(residual), np.asarray(chiee)
+
+    def problem(self, setpoint: Setpoint) -> str | None:
+        """Why the setpoint must be refused ("<reason>: <detail>"), or None; cheap gates first, the model only for
+        plausible values."""
+        try:
+            chiee_des, q_des, phi_ss = (np.asarray(v, dtype=np.float64)
+                                        for v in (setpoint.chiee_des, setpoint.q_des, setpoint.phi_ss))
+            error = float(setpoint.optimality_error)
+        except (TypeError, ValueError):
+            return "malformed: fields are not numbers"
+        if chiee_des.shape != (3,) or q_des.shape != (3,) or phi_ss.shape != (2,):
+            return "malformed: needs chiee_des (3,), q_des (3,) and phi_ss (2,)"
+        if not (0.0 <= error <= MAX_OPTIMALITY_ERROR):
+            return f"optimality error outside [0, {MAX_OPTIMALITY_ERROR:g}]: {error!r}"
+        problem = (configuration_problem(q_des, self.q_bounds) or _out_of("chiee_des", chiee_des, -CHIEE_MAX, CHIEE_MAX)
+                   or _out_of("phi_ss", phi_ss, self.phi_lo, self.phi_hi))
+        if problem is not None:
+            return problem
+        residual, chiee = self._check(q_des, phi_ss)
+        if not residual <= self.residual_tol:
+            return (f"phi_ss not an equilibrium at q_des: static residual {residual:.3g} > {self.residual_tol:g} "
+                    f"(phi_ss {phi_ss.tolist()}, q_des {q_des.tolist()})")
+        mismatch = float(np.max(np.abs(chiee - chiee_des)))
+        if not mismatch <= self.pose_tol:
+            return (f"chiee_des differs from FK(q_des): by {mismatch:.3g} > {self.pose_tol:g} (chiee_des "
+                    f"{chiee_des.tolist()}, FK {chiee.tolist()})")
+        return None
+
+
+class DelayGate:
+    """Flags samples delayed by more than max_lag [s] beyond the promptest of the last `history` arrivals.
+
+    latency = arrival time - stamp (any constant clock offset cancels); a sample is late when its latency exceeds the
+    minimum latency of the last `history` arrivals (late ones included, so a permanent latency step is accepted again
+    after `history` samples) by more than max_lag. Times are int nanoseconds.
+    """
+
+    def __init__(self, max_lag: float, history: int) -> None:
+        """max_lag [s] > 0 (0 disables the gate); history [samples] >= 1."""
+        if max_lag < 0.0 or history < 1:
+            raise ValueError(f"max_lag must be >= 0 and history >= 1, got {max_lag!r}, {history!r}")
+        self.max_lag_ns = int(max_lag * 1e9)
+        self._latencies: deque[tuple[int, int]] = deque()  # (index, latency) with increasing latencies: running min
+        self._history = history
+        self._index = 0
+
+    def lag(self, stamp_ns: int, arrival_ns: int) -> float:
+        """Record one arrival; return its lag [s] behind the promptest recent sample (0 for the promptest)."""
+        latency = arrival_ns - stamp_ns
+        while self._latencies and self._latencies[-1][1] >= latency:
+            self._latencies.pop()
+        self._latencies.append((self._index, latency))
+        while self._latencies[0][0] <= self._index - self._history:
+            self._latencies.popleft()
+        self._index += 1
+        return (latency - self._latencies[0][1]) * 1e-9
+
+    def late(self, stamp_ns: int, arrival_ns: int) -> bool:
+        """Record one arrival; True if it is more than max_lag behind (never when the gate is disabled)."""
+        lag = self.lag(stamp_ns, arrival_ns)
+        return self.max_lag_ns > 0 and lag * 1e9 > self.max_lag_ns

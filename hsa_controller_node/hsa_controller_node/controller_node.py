@@ -1,11 +1,19 @@
 """controller_node: one control law of planning_and_control.md §3 at a fixed rate, with the supervision of §5.
 
-Per tick, in this order: E-stop active (latched `estop` true) -> nothing is sent, the integrators were reset; no
-setpoint or no usable state (finite, velocity_valid) yet -> nothing is sent; the last usable state was received more
-than `stale_timeout` ago -> the last command is re-published unchanged and the controller is not stepped (no integral
-wind-up) for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the motors);
-otherwise the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports
-every tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate.
+Every input is checked before it can reach the law (hsa_core.validation): a setpoint must be plausible and an
+equilibrium of the model under its own phi^ss (static residual at q^d within `setpoint_residual_tol`, chiee^d = FK(q^d)
+within `setpoint_pose_tol`, 0 <= optimality error <= 1e-3); a refused one leaves the previous one active. A state must
+have plausible magnitudes and a stamp newer than the newest accepted one. Refusals are counted on /diagnostics and
+logged at most once per `rejection_log_period`.
+
+The mode of each tick is decided by hsa_core.supervision.Supervisor, fed by this node with the node clock (the clock
+of the state stamps): E-stop (latched `estop` true) -> nothing is sent, the integrators were reset; no setpoint, no
+driver heartbeat (`phi_present`) within `driver_timeout`, or no usable state -> nothing is sent; a state whose stamp
+is older than `stale_timeout` -> the last command is re-published unchanged and the controller is not stepped (no
+integral wind-up) for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the
+motors); otherwise the controller steps and `phi_cmd` is published. From the first tracking tick on,
+`controller_info` reports every tick. The math is hsa_core.control's Controller, compiled in the constructor; the
+integrators use dt = 1/rate and stay finite by construction (Controller.step).
 """
 
 from __future__ import annotations
@@ -27,7 +35,10 @@ from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, 
 from hsa_common.runner import run, seconds
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
+from hsa_core.planning import MAX_OPTIMALITY_ERROR
 from hsa_core.planning import Setpoint as CoreSetpoint
+from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
+from hsa_core.validation import POSE_TOLERANCE, SetpointValidator, q_bounds, state_problem
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
 from hsa_common.model_params import MODEL_SPECS, load_model
 
@@ -68,20 +79,34 @@ SPECS = (
     ParamSpec("ee_z_max", _EE.z_max, "[m s] clamp of each EE integral state", low=0.0, high=1.0),
     ParamSpec("ee_reset_on_setpoint_change", _EE.reset_on_setpoint_change,
               "zero the EE integral state when a new setpoint is accepted", read_only=True),
-    ParamSpec("stale_timeout", 0.1, "[s] a state received longer ago than this is stale: hold the last command",
-              low=0.001, high=10.0, read_only=True),
-    ParamSpec("hold_timeout", 0.25, "[s] stop re-publishing the held command after states have been missing this "
-              "long (>= stale_timeout)", low=0.001, high=60.0, read_only=True),
+    ParamSpec("stale_timeout", 0.1, "[s] a state whose stamp is older than this (node clock) is stale: hold the last "
+              "command; states stamped more than this in the future are refused", low=0.001, high=10.0,
+              read_only=True),
+    ParamSpec("hold_timeout", 0.25, "[s] stop re-publishing the held command once the newest state is this old "
+              "(>= stale_timeout)", low=0.001, high=60.0, read_only=True),
+    ParamSpec("stamp_clock", True, "state stamps are on the node clock (age judged by stamp); false only where they "
+              "are not, e.g. replayed recorded stamps (age then judged by arrival)", read_only=True),
+    ParamSpec("driver_timeout", 0.25, "[s] no phi_present from the driver for this long: driver lost, nothing is "
+              "sent, integrators frozen; 0 = no driver in this graph (replay, controller-only tests)",
+              low=0.0, high=10.0, read_only=True),
+    ParamSpec("setpoint_residual_tol", MAX_OPTIMALITY_ERROR, "[N m, N] largest ||G + K - alpha|| at (q_des, phi_ss) "
+              "of an accepted setpoint (the planner's acceptance threshold)", low=1e-12, high=1.0, read_only=True),
+    ParamSpec("setpoint_pose_tol", POSE_TOLERANCE, "[m, rad] largest |chiee_des - FK(q_des)| of an accepted "
+              "setpoint", low=1e-12, high=0.1, read_only=True),
+    ParamSpec("rejection_log_period", 5.0, "[s] refused setpoints and states are logged at most once per period "
+              "(all are counted on /diagnostics)", low=0.0, high=3600.0, read_only=True),
     ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
               read_only=True),
 )
 GAIN_NAMES = ("kp", "ki", "kd", "gamma", "kp_pid", "ki_pid", "kd_pid", "ee_ki", "ee_e_on", "ee_z_max")
 
-_MODE_NAMES = {
-    ControllerInfo.STATE_WAITING_FOR_SETPOINT: "waiting for setpoint", ControllerInfo.STATE_WAITING_FOR_STATE:
-    "waiting for state", ControllerInfo.STATE_TRACKING: "tracking", ControllerInfo.STATE_HOLD_STALE: "holding (stale)",
-    ControllerInfo.STATE_STOPPED: "stopped (E-stop)",
+INFO_STATE = {
+    Mode.WAITING_FOR_SETPOINT: ControllerInfo.STATE_WAITING_FOR_SETPOINT, Mode.TRACKING: ControllerInfo.STATE_TRACKING,
+    Mode.HOLD: ControllerInfo.STATE_HOLD_STALE, Mode.ESTOP: ControllerInfo.STATE_STOPPED,
+    **{m: ControllerInfo.STATE_WAITING_FOR_STATE
+       for m in (Mode.WAITING_FOR_DRIVER, Mode.WAITING_FOR_STATE, Mode.STALE, Mode.DRIVER_LOST)},
 }
+"""controller_info state of each mode (hsa_msgs has no driver constants: those ticks send nothing, as WAITING_FOR_STATE)."""
 NOTHING_SENT = np.full(2, math.nan)
 """φ fields of the info on ticks that send no command."""
 
@@ -90,7 +115,7 @@ class ControllerNode(Node):
     """Runs the selected law on a timer; publishes phi_cmd and controller_info; reports on /diagnostics."""
 
     def __init__(self) -> None:
-        """Declare and validate parameters, build and compile the controller, then start the timer."""
+        """Declare and validate parameters, build and compile the controller and the checks, then start the timer."""
         super().__init__("controller_node")
         self._p = declare(self, SPECS)
         if self._p["hold_timeout"] < self._p["stale_timeout"]:
@@ -106,25 +131,29 @@ class ControllerNode(Node):
             ee_integral=self._ee_gains(self._p) if self._p["ee_integral"] else None,
             reset_integral_on_setpoint_change=self._p["reset_integral_on_setpoint_change"],
         )
+        self._validator = SetpointValidator(params, self._p["setpoint_residual_tol"], self._p["setpoint_pose_tol"])
+        self._q_bounds = q_bounds(params)
+        self._supervisor = Supervisor(SupervisorConfig(
+            self._p["stale_timeout"], self._p["hold_timeout"], self._p["driver_timeout"], self._p["stamp_clock"]))
         guard_updates(self, SPECS, self._apply)
         self._motor_map = MotorMap(h=tuple(int(v) for v in np.asarray(params.h)))
         self._period = 1.0 / self._p["rate"]
-        self._stale_ns = int(self._p["stale_timeout"] * 1e9)
-        self._hold_ns = int(self._p["hold_timeout"] * 1e9)
-        self._state: PlanarState | None = None  # the newest usable state (finite, velocity_valid)
-        self._state_rx: Time | None = None  # when it arrived (node clock)
+        self._state: PlanarState | None = None  # the newest usable state (plausible, velocity_valid, newest stamp)
         self._setpoint_msg: Setpoint | None = None
         self._last_cmd: PlanarActuation | None = None
         self._last_info: ControllerInfo | None = None  # info of the newest tracking tick
-        self._estop = False
-        self._mode = ControllerInfo.STATE_WAITING_FOR_SETPOINT
+        self._mode = Mode.WAITING_FOR_SETPOINT
+        self._decision_age = math.nan  # state age [s] at the newest tick
+        self._driver_silence = math.nan  # driver silence [s] at the newest tick
         self._last_tick: Time | None = None
         self._tracked_at: Time | None = None  # newest tracking tick
         self._lost_at: Time | None = None  # last tracking tick before the current outage (None while tracking)
         self._last_outage = math.nan
         self._stats = {"ticks": 0, "deadline_misses": 0, "stale_events": 0, "held_ticks": 0, "stale_stops": 0,
-                       "estop_events": 0, "saturated": 0, "setpoints": 0, "rejected_setpoints": 0}
+                       "estop_events": 0, "driver_lost_events": 0, "refused_ticks": 0, "saturated": 0,
+                       "setpoints": 0, "rejected_setpoints": 0}
         self._rejected_states: Counter[str] = Counter()
+        self._rejected_setpoints: Counter[str] = Counter()
         self._rejections = {"state": "-", "setpoint": "-"}
         self._reported_rejections = 0
         self._window: dict[str, Any] = {"ticks": 0, "compute": [], "start": self.get_clock().now()}
@@ -137,10 +166,15 @@ class ControllerNode(Node):
         self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED,
                                  qos_overriding_options=qos.overridable())
         self.create_subscription(Bool, "estop", self._on_estop, qos.LATCHED, qos_overriding_options=qos.overridable())
+        if self._p["driver_timeout"] > 0.0:
+            self.create_subscription(PlanarActuation, "phi_present", self._on_driver, qos.SENSOR,
+                                     qos_overriding_options=qos.overridable())
         self.create_timer(self._period, self._tick)
         diagnostics = Diagnostics(self, self._p["diagnostics_period"])
         diagnostics.add("control loop", self._report)
-        self.get_logger().info(f"'{self._kind.value}' at {self._p['rate']:g} Hz, waiting for setpoint")
+        driver = (f"watching the driver (timeout {self._p['driver_timeout']:g} s)" if self._p["driver_timeout"] > 0.0
+                  else "no driver in this graph")
+        self.get_logger().info(f"'{self._kind.value}' at {self._p['rate']:g} Hz, {driver}, waiting for setpoint")
 
     def _gains(self, v: dict[str, Any]) -> CollocatedGains | PidGains:
         """Gains of the selected law from parameter values."""
@@ -166,41 +200,64 @@ class ControllerNode(Node):
         self._controller.reset_integral_on_setpoint_change = self._p["reset_integral_on_setpoint_change"]
         self.get_logger().info(f"parameters updated: {changes}")
 
+    def _now_ns(self) -> int:
+        """Node clock [ns], the clock of the state stamps."""
+        return self.get_clock().now().nanoseconds
+
+    def _on_driver(self, _msg: PlanarActuation) -> None:
+        """A phi_present sample: the driver is alive."""
+        self._supervisor.driver_heartbeat(self._now_ns())
+
     def _on_state(self, msg: PlanarState) -> None:
-        """Keep the newest usable state and when it arrived; refuse non-finite ones (staleness is judged on receipt)."""
-        problem = _state_problem(msg)
+        """Keep the newest usable state: plausible magnitudes, velocity_valid, stamp newer than the newest and not in
+        the future; refusals are counted and logged at most once per rejection_log_period."""
+        problem = state_problem(self._q_bounds, _q(msg.q), _q(msg.q_dot), _pose(msg.chiee), _pose(msg.chiee_dot),
+                                msg.velocity_valid)
+        if problem is None and msg.velocity_valid:
+            problem = self._supervisor.state(Time.from_msg(msg.header.stamp).nanoseconds, self._now_ns())
+            if problem is None:
+                self._state = msg
+                return
         if problem is not None:
-            self._rejected_states[problem] += 1
+            reason = problem.split(":")[0]
+            self._rejected_states[reason] += 1
             self._rejections["state"] = problem
-            self.get_logger().warning(f"rejected state: {problem}", throttle_duration_sec=5.0)
-        elif msg.velocity_valid:
-            self._state, self._state_rx = msg, self.get_clock().now()
+            self.get_logger().warning(f"rejected state: {problem} ({sum(self._rejected_states.values())} so far)",
+                                      throttle_duration_sec=self._p["rejection_log_period"])
 
     def _on_setpoint(self, msg: Setpoint) -> None:
-        """Activate a setpoint after the controller's sanity checks; a rejected one leaves the previous active."""
+        """Activate a setpoint after the physical checks; a refused one leaves the previous active."""
         setpoint = CoreSetpoint(
             np.array([msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta]),
             np.array([msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax]),
             np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error,
         )
-        try:
-            self._controller.set_setpoint(setpoint)
-        except ValueError as exc:
+        problem = self._validator.problem(setpoint)
+        if problem is None:
+            try:
+                self._controller.set_setpoint(setpoint)
+            except ValueError as exc:
+                problem = str(exc)
+        if problem is not None:
             self._stats["rejected_setpoints"] += 1
-            self._rejections["setpoint"] = str(exc)
+            self._rejected_setpoints[problem.split(":")[0]] += 1
+            self._rejections["setpoint"] = problem
             kept = "keeping the previous setpoint" if self._setpoint_msg is not None else "no setpoint active"
-            self.get_logger().warning(f"rejected setpoint {msg.trajectory_index}: {exc}; {kept}")
+            self.get_logger().warning(
+                f"rejected setpoint {msg.trajectory_index}: {problem}; {kept} "
+                f"({self._stats['rejected_setpoints']} rejected so far)",
+                throttle_duration_sec=self._p["rejection_log_period"])
             return
         self._setpoint_msg = msg
+        self._supervisor.setpoint_accepted()
         self._stats["setpoints"] += 1
         self.get_logger().debug(f"setpoint {msg.trajectory_index}/{msg.trajectory_length} active")
 
     def _on_estop(self, msg: Bool) -> None:
         """E-stop state from the driver: on entry the integrators are reset and the held command is dropped."""
-        if bool(msg.data) == self._estop:
+        if bool(msg.data) == self._supervisor.estop:
             return
-        self._estop = bool(msg.data)
-        if self._estop:
+        if self._supervisor.set_estop(bool(msg.data)):
             self._controller.reset()
             self._last_cmd = None
             self._stats["estop_events"] += 1
@@ -209,26 +266,31 @@ class ControllerNode(Node):
             self.get_logger().warning("E-stop cleared: resuming from a fresh controller state (integrators zero)")
 
     def _tick(self) -> None:
-        """One control period: decide the mode, then step and publish, re-publish the held command, or send nothing."""
+        """One control period: the supervisor decides; step and publish, re-publish the held command, or send nothing."""
         now = self.get_clock().now()
         self._count_tick(now)
-        if self._estop:
-            self._idle(now, ControllerInfo.STATE_STOPPED)
-        elif self._setpoint_msg is None:
-            self._set_mode(ControllerInfo.STATE_WAITING_FOR_SETPOINT, now)
-        elif self._state is None:
-            self._set_mode(ControllerInfo.STATE_WAITING_FOR_STATE, now)
-        elif (now - self._state_rx).nanoseconds > self._stale_ns:
-            self._hold(now, (now - self._state_rx).nanoseconds)
+        decision = self._supervisor.tick(now.nanoseconds)
+        self._decision_age, self._driver_silence = decision.age_s, decision.driver_silence_s
+        if decision.action is Action.STEP and self._step(now, self._state):
+            self._set_mode(decision.mode, now)
+        elif decision.action is Action.HOLD and self._last_cmd is not None:
+            self._set_mode(decision.mode, now)
+            self._hold(now)
         else:
-            self._set_mode(ControllerInfo.STATE_TRACKING, now)
-            self._step(now, self._state)
+            mode = decision.mode if decision.action is Action.NONE else Mode.STALE
+            self._set_mode(mode, now)
+            self._publish_info(now, INFO_STATE[mode], commanded=False)
 
-    def _step(self, now: Time, state: PlanarState) -> None:
-        """Step the controller on the state and publish the command and the tick's info."""
+    def _step(self, now: Time, state: PlanarState) -> bool:
+        """Step the controller on the state and publish the command and the tick's info; False if the core refused."""
         t0 = time.perf_counter()
-        phi, info = self._controller.step(
-            _q(state.q), _q(state.q_dot), _pose(state.chiee), _pose(state.chiee_dot))
+        try:
+            phi, info = self._controller.step(
+                _q(state.q), _q(state.q_dot), _pose(state.chiee), _pose(state.chiee_dot))
+        except ValueError as exc:
+            self._stats["refused_ticks"] += 1
+            self.get_logger().error(f"tick refused: {exc}", throttle_duration_sec=self._p["rejection_log_period"])
+            return False
         compute_time = time.perf_counter() - t0
         self._window["compute"].append(compute_time)
         self._stats["saturated"] += int(info.saturated)
@@ -249,30 +311,22 @@ class ControllerNode(Node):
         self._cmd_pub.publish(cmd)
         self._info_pub.publish(out)
         self._last_cmd, self._last_info, self._tracked_at = cmd, out, now
+        return True
 
-    def _hold(self, now: Time, stale_ns: int) -> None:
-        """Re-publish the last command (same phi and source stamp) while the hold lasts; afterwards send nothing."""
-        if self._last_cmd is None or stale_ns > self._hold_ns:
-            self._idle(now, ControllerInfo.STATE_WAITING_FOR_STATE)
-            return
-        self._set_mode(ControllerInfo.STATE_HOLD_STALE, now)
+    def _hold(self, now: Time) -> None:
+        """Re-publish the last command (same phi and source stamp); the controller is not stepped."""
         self._stats["held_ticks"] += 1
         self._last_cmd.header.stamp = now.to_msg()
         self._cmd_pub.publish(self._last_cmd)
         self._publish_info(now, ControllerInfo.STATE_HOLD_STALE, commanded=True)
 
-    def _idle(self, now: Time, mode: int) -> None:
-        """A tick that sends no command: E-stop, or states missing beyond the hold."""
-        self._set_mode(mode, now)
-        self._publish_info(now, mode, commanded=False)
-
-    def _publish_info(self, now: Time, mode: int, commanded: bool) -> None:
-        """Info of a tick without a controller step: the last tracking tick's fields with this tick's mode, stamp,
+    def _publish_info(self, now: Time, state: int, commanded: bool) -> None:
+        """Info of a tick without a controller step: the last tracking tick's fields with this tick's state, stamp,
         setpoint and integrator state; φ fields NaN when nothing is sent. Nothing before the first tracking tick."""
         if self._last_info is None:
             return
         info = copy.deepcopy(self._last_info)
-        info.header.stamp, info.state, info.compute_time = now.to_msg(), mode, 0.0
+        info.header.stamp, info.state, info.compute_time = now.to_msg(), state, 0.0
         info.setpoint = self._setpoint_msg
         info.state_age = (now - Time.from_msg(info.state_stamp)).nanoseconds * 1e-9
         integrators = self._controller.state
@@ -283,28 +337,32 @@ class ControllerNode(Node):
             info.saturated = False
         self._info_pub.publish(info)
 
-    def _set_mode(self, mode: int, now: Time) -> None:
-        """Record the controller mode; log changes once (INFO back to tracking, WARN entering the hold, ERROR when
-        commands stop for missing states)."""
+    def _set_mode(self, mode: Mode, now: Time) -> None:
+        """Record the mode; log changes once (INFO back to tracking, WARN entering the hold, ERROR when commands stop
+        for missing states or a lost driver)."""
         if mode == self._mode:
             return
         old, self._mode = self._mode, mode
-        text = f"{_MODE_NAMES[old]} -> {_MODE_NAMES[mode]}"
-        if old == ControllerInfo.STATE_TRACKING:
+        text = f"{old.value} -> {mode.value}"
+        if old is Mode.TRACKING:
             self._lost_at = self._tracked_at
-        if mode == ControllerInfo.STATE_TRACKING:
+        if mode is Mode.TRACKING:
             if self._lost_at is not None:
                 self._last_outage, self._lost_at = seconds(now - self._lost_at), None
                 text += f" after {self._last_outage:.3f} s without tracking"
             self.get_logger().info(text)
-        elif mode == ControllerInfo.STATE_HOLD_STALE:
+        elif mode is Mode.HOLD:
             self._stats["stale_events"] += 1
-            self.get_logger().warning(f"{text}: no usable state for {seconds(now - self._state_rx):.3f} s; "
-                                      "re-publishing the last command, integrators frozen")
-        elif mode == ControllerInfo.STATE_WAITING_FOR_STATE and self._last_info is not None:
+            self.get_logger().warning(f"{text}: newest state {self._decision_age:.3f} s old; re-publishing the last "
+                                      "command, integrators frozen")
+        elif mode is Mode.STALE:
             self._stats["stale_stops"] += 1
-            self.get_logger().error(f"{text}: no usable state for {seconds(now - self._state_rx):.3f} s; no command "
-                                    "is sent (the driver's watchdog holds the motors), integrators frozen")
+            self.get_logger().error(f"{text}: newest state {self._decision_age:.3f} s old; no command is sent (the "
+                                    "driver's watchdog holds the motors), integrators frozen")
+        elif mode is Mode.DRIVER_LOST:
+            self._stats["driver_lost_events"] += 1
+            self.get_logger().error(f"{text}: no phi_present from the driver for {self._driver_silence:.3f} s; no "
+                                    "command is sent, integrators frozen until it returns")
         else:  # start-up, and E-stop changes (logged as ERROR/WARN when the estop message arrives)
             self.get_logger().info(text)
 
@@ -317,7 +375,7 @@ class ControllerNode(Node):
         self._window["ticks"] += 1
 
     def _report(self) -> Report:
-        """Mode, tick rate and compute time over the last period, stale-input and rejection counters."""
+        """Mode, tick rate and compute time over the last period, stale-input, driver and rejection counters."""
         now = self.get_clock().now()
         elapsed = (now - self._window["start"]).nanoseconds * 1e-9
         compute = self._window["compute"]
@@ -325,41 +383,38 @@ class ControllerNode(Node):
         self._window = {"ticks": 0, "compute": [], "start": now}
         rejections = sum(self._rejected_states.values()) + self._stats["rejected_setpoints"]
         new_rejections, self._reported_rejections = rejections > self._reported_rejections, rejections
-        silence = seconds(now - self._state_rx) if self._state_rx is not None else math.nan
+        age = self._supervisor.age_s(now.nanoseconds)
+        silence = self._supervisor.driver_silence_s(now.nanoseconds)
         values = {
-            "mode": _MODE_NAMES[self._mode], "estop": self._estop, "controller": self._kind.value,
+            "mode": self._mode.value, "estop": self._supervisor.estop, "controller": self._kind.value,
             "tick rate [Hz]": f"{rate:.1f}", "nominal rate [Hz]": f"{self._p['rate']:g}", **self._stats,
             "rejected_states": sum(self._rejected_states.values()),
             **{f"rejected_states {reason}": n for reason, n in sorted(self._rejected_states.items())},
+            **{f"rejected_setpoints {reason}": n for reason, n in sorted(self._rejected_setpoints.items())},
             "last_state_rejection": self._rejections["state"],
             "last_setpoint_rejection": self._rejections["setpoint"],
-            "time_since_last_state [s]": f"{silence:.3f}", "last_outage [s]": f"{self._last_outage:.3f}",
+            "time_since_last_state [s]": f"{age:.3f}", "driver silence [s]": f"{silence:.3f}",
+            "last_outage [s]": f"{self._last_outage:.3f}",
             "e_int": np.round(self._controller.state.e_int, 6).tolist(),
             "compute time mean [ms]": f"{1e3 * np.mean(compute):.3f}" if compute else "-",
             "compute time max [ms]": f"{1e3 * np.max(compute):.3f}" if compute else "-",
         }
-        if self._mode == ControllerInfo.STATE_STOPPED:
+        if self._mode is Mode.ESTOP:
             return Report(ERROR, "E-STOP: no command is sent", values)
-        if self._mode == ControllerInfo.STATE_WAITING_FOR_STATE and self._last_info is not None:
-            return Report(ERROR, f"stale: no usable state for {silence:.3g} s, no command is sent", values)
-        if self._mode == ControllerInfo.STATE_HOLD_STALE:
-            return Report(WARN, f"stale: no usable state for {silence:.3g} s, holding the last command", values)
-        if self._mode != ControllerInfo.STATE_TRACKING:
-            return Report(WARN, _MODE_NAMES[self._mode], values)
+        if self._mode is Mode.DRIVER_LOST:
+            return Report(ERROR, f"driver lost: no phi_present for {silence:.3g} s, no command is sent, integrators "
+                                 "frozen", values)
+        if self._mode is Mode.STALE:
+            return Report(ERROR, f"stale: newest state {age:.3g} s old, no command is sent", values)
+        if self._mode is Mode.HOLD:
+            return Report(WARN, f"stale: newest state {age:.3g} s old, holding the last command", values)
+        if self._mode is not Mode.TRACKING:
+            return Report(WARN, self._mode.value, values)
         if rate < 0.9 * self._p["rate"]:
             return Report(WARN, f"tracking, tick rate {rate:.1f} Hz below 90 % of {self._p['rate']:g} Hz", values)
         if new_rejections:
             return Report(WARN, "tracking; inputs were rejected in this period", values)
         return Report(OK, "tracking", values)
-
-
-def _state_problem(msg: PlanarState) -> str | None:
-    """Why a state must not reach the control law (non-finite values), or None."""
-    if not all(math.isfinite(v) for v in (*_pose(msg.chiee), *_q(msg.q))):
-        return "non-finite pose or configuration"
-    if msg.velocity_valid and not all(math.isfinite(v) for v in (*_pose(msg.chiee_dot), *_q(msg.q_dot))):
-        return "non-finite rates"
-    return None
 
 
 def _q(msg: CsConfiguration) -> np.ndarray:

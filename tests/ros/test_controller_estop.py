@@ -30,7 +30,8 @@ CONTROL = "controller_node: control loop"
 @pytest.fixture(scope="module")
 def controller() -> Iterator[NodeProcess]:
     """controller_node (FPU, P-satI-D, 40 Hz) in /es, diagnostics at 5 Hz."""
-    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2"])})
+    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2",
+                                                          "-p", "driver_timeout:=0.0"])})
     yield procs["controller"]
     assert procs["controller"].stop() == 0
 

@@ -32,7 +32,8 @@ def _exe() -> str:
 @pytest.fixture(scope="module")
 def controllers() -> Iterator[None]:
     """controller_node (FPU, P-satI-D) at 40 Hz in /c40 and at 200 Hz in /c200, started together."""
-    procs = [start_process([_exe(), "--ros-args", "-r", f"__ns:={ns}", "-p", f"rate:={rate}"])
+    procs = [start_process([_exe(), "--ros-args", "-r", f"__ns:={ns}", "-p", f"rate:={rate}",
+                            "-p", "driver_timeout:=0.0"])
              for ns, rate in RATES.items()]
     for proc in procs:
         wait_for_line(proc, "ready", timeout=120.0)

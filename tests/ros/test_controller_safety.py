@@ -1,0 +1,211 @@
+"""Controller safety against hostile inputs and a lost driver (issue 10), with real processes.
+
+* Poison setpoints (q_des 1e308 / 1e9, kappa 1e3, a phi_ss inconsistent with q_des, optimality error -1) are refused,
+  counted on /diagnostics and logged throttled; the previous setpoint stays active, every command stays finite, and a
+  valid setpoint afterwards is tracked.
+* States whose stamp is 2 s old (but newer than the newest) are not tracked on, although they arrive at 200 Hz.
+* The real dynamixel_driver on the emulated bus is killed while the controller tracks: the controller leaves tracking
+  (ERROR "driver lost"), sends nothing and its integral does not move; a restarted driver brings it back to tracking
+  with the integral where it was frozen.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from hsa_common import qos
+from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
+from tests.ros.driver_harness import DriverProcess, drivers, make_emulator
+from tests.ros.faults import (OFFSET_CHIEE, DiagnosticsLog, NodeProcess, Recorder, fault, sec, setpoint, start_all,
+                              wait_until)
+
+pytestmark = pytest.mark.ros
+__all__ = ["drivers"]  # fixture used below
+
+NS = "/cs"
+CONTROL = "controller_node: control loop"
+TRACKING = ControllerInfo.STATE_TRACKING
+POISON = {
+    "q_des 1e308": lambda m: setattr(m.q_des, "kappa_be", 1e308),
+    "q_des 1e9": lambda m: [setattr(m.q_des, f, 1e9) for f in ("kappa_be", "sigma_sh", "sigma_ax")],
+    "kappa 1e3": lambda m: setattr(m.q_des, "kappa_be", 1e3),
+    "phi_ss inconsistent with q_des": lambda m: setattr(m, "phi_ss", np.array([m.phi_ss[1], m.phi_ss[0]])),
+    "optimality error -1": lambda m: setattr(m, "optimality_error", -1.0),
+}
+
+
+class StateFeeder:
+    """Publishes a ready state at OFFSET_CHIEE at 200 Hz, stamped `age_s` seconds before now (node clock)."""
+
+    def __init__(self, node, topic: str, age_s: float = 0.0) -> None:  # noqa: ANN001 - rclpy node
+        self.node, self.age_ns = node, int(age_s * 1e9)
+        self.pub = node.create_publisher(PlanarState, topic, qos.SENSOR)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        msg = PlanarState(velocity_valid=True, window_samples=20)
+        msg.header.frame_id = "hsa_base"
+        msg.chiee.x, msg.chiee.y, msg.chiee.theta = OFFSET_CHIEE
+        msg.q.kappa_be, msg.q.sigma_sh, msg.q.sigma_ax = -1.12, 0.008, 0.303
+        while not self._stop.is_set():
+            t = self.node.get_clock().now().nanoseconds - self.age_ns
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
+            self.pub.publish(msg)
+            time.sleep(0.005)
+
+    def close(self) -> None:
+        """Stop publishing."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+@pytest.fixture(scope="module")
+def controller() -> Iterator[NodeProcess]:
+    """controller_node (FPU, P-satI-D, 40 Hz) in /cs without a driver, diagnostics at 5 Hz, default log throttle."""
+    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2",
+                                                          "-p", "driver_timeout:=0.0"])})
+    yield procs["controller"]
+    assert procs["controller"].stop() == 0
+
+
+def _finite(values) -> bool:  # noqa: ANN001 - float sequence
+    return all(math.isfinite(v) for v in values)
+
+
+def test_poison_setpoints_are_refused_and_control_stays_finite(controller, ros_node) -> None:
+    infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
+    cmds = Recorder(ros_node, PlanarActuation, f"{NS}/phi_cmd")
+    diagnostics = DiagnosticsLog(ros_node)
+    sp_pub = ros_node.create_publisher(Setpoint, f"{NS}/setpoint", qos.LATCHED)
+    feeder = StateFeeder(ros_node, f"{NS}/state")
+    try:
+        good = setpoint()
+        sp_pub.publish(good)
+        assert wait_until(lambda: any(m.state == TRACKING for m in infos.since(max(0, len(infos) - 5))), 20.0)
+        base = diagnostics.wait(CONTROL, lambda s, v: v["mode"] == "tracking")[1]
+        n_logged = len(controller.log("rejected setpoint"))
+        n_infos, n_cmds = len(infos), len(cmds)
+        for label, spoil in POISON.items():
+            msg = setpoint()
+            msg.trajectory_index = 7
+            spoil(msg)
+            sp_pub.publish(msg)
+            time.sleep(0.15)
+        after_poison = ros_node.get_clock().now().nanoseconds * 1e-9
+        valid = setpoint()
+        valid.trajectory_index = 8
+        sp_pub.publish(valid)  # a valid setpoint after the poison is tracked
+        time.sleep(0.5)
+        report = diagnostics.wait(CONTROL, lambda s, v: int(v["rejected_setpoints"]) - int(
+            base["rejected_setpoints"]) == len(POISON) and int(v["setpoints"]) > int(base["setpoints"]))[1]
+    finally:
+        feeder.close()
+    ticks, sent = infos.since(n_infos), cmds.since(n_cmds)
+    assert len(sent) > 20 and all(_finite(m.phi) for m in sent), "every command after the poison is finite"
+    tracked = [m for m in ticks if m.state == TRACKING]
+    assert all(_finite(m.e_int) and _finite(m.phi_des_sat) for m in tracked)
+    assert all(m.setpoint.trajectory_index in (0, 8) for m in ticks), "a poisoned setpoint became active"
+    assert any(sec(m.header.stamp) > after_poison and m.setpoint.trajectory_index == 8 for m in tracked)
+    e_int = [np.asarray(m.e_int) for m in tracked]
+    assert np.max(np.abs(e_int)) < 1.0, "the integral stays in the range of a few seconds of tracking"
+    assert report["last_setpoint_rejection"].startswith("optimality error")
+    for key in ("implausible q", "phi_ss not an equilibrium at q_des", "optimality error outside [0, 0.001]"):
+        assert int(report[f"rejected_setpoints {key}"]) >= 1, (key, report)
+    logged = len(controller.log("rejected setpoint")) - n_logged
+    assert 1 <= logged <= 2, f"{logged} log lines for {len(POISON)} refusals in < 1 s (throttled to one per 5 s)"
+    for label in POISON:
+        fault(f"Setpoint: {label}", "refused by controller_node (counted, throttled log), previous setpoint active, "
+              "commands finite", "next valid setpoint")
+
+
+def test_states_with_old_stamps_are_not_tracked_on(controller, ros_node) -> None:
+    infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
+    cmds = Recorder(ros_node, PlanarActuation, f"{NS}/phi_cmd")
+    diagnostics = DiagnosticsLog(ros_node)
+    ros_node.create_publisher(Setpoint, f"{NS}/setpoint", qos.LATCHED).publish(setpoint())
+    time.sleep(1.0)  # whatever the previous test left: no state for 1 s, the controller stops sending
+    n_infos, n_cmds = len(infos), len(cmds)
+    stale = StateFeeder(ros_node, f"{NS}/state", age_s=2.0)  # 200 Hz, each newer than the last, each 2 s old
+    try:
+        time.sleep(1.5)
+        report = diagnostics.wait(CONTROL, lambda s, v: float(v["time_since_last_state [s]"]) > 1.5)
+    finally:
+        stale.close()
+    ticks = infos.since(n_infos)
+    assert len(ticks) > 20, "the controller ticks on"
+    assert not [m for m in ticks if m.state == TRACKING], "tracked on states stamped 2 s ago"
+    assert not cmds.since(n_cmds), "sent commands computed from 2 s old states"
+    assert report[0].level == DiagnosticStatus.ERROR and "stale" in report[0].message
+    t0 = time.monotonic()
+    fresh = StateFeeder(ros_node, f"{NS}/state")
+    try:
+        assert wait_until(lambda: any(m.state == TRACKING for m in infos.since(n_infos + len(ticks))), 10.0)
+    finally:
+        fresh.close()
+    fault("state stamped 2 s ago, arriving at 200 Hz", "stale by stamp: no tracking, no command, ERROR",
+          time.monotonic() - t0)
+
+
+def test_driver_outage_freezes_the_integrators_and_resumes(tmp_path: Path, drivers, ros_node) -> None:
+    emulator = make_emulator(tmp_path)
+    drivers.append(DriverProcess(emulator.port))
+    controller = NodeProcess("controller_node", ["-p", "diagnostics_period:=0.2"])  # driver watched (default)
+    try:
+        controller.wait_ready()
+        drivers[-1].wait_ready()
+        _outage(emulator, drivers, controller, ros_node)
+    finally:
+        controller.stop()
+        emulator.stop()
+
+
+def _outage(emulator, drivers, controller: NodeProcess, ros_node) -> None:  # noqa: ANN001 - test objects
+    """Track, kill the driver, check the freeze, restart it, check the resume."""
+    infos = Recorder(ros_node, ControllerInfo, "/controller_info")
+    cmds = Recorder(ros_node, PlanarActuation, "/phi_cmd")
+    diagnostics = DiagnosticsLog(ros_node)
+    ros_node.create_publisher(Setpoint, "/setpoint", qos.LATCHED).publish(setpoint())
+    feeder = StateFeeder(ros_node, "/state")  # 2.2 mm off the setpoint: e_int grows steadily while tracking
+    try:
+        assert wait_until(lambda: sum(m.state == TRACKING for m in infos.since()) > 40, 30.0), controller.output()
+        drivers[-1].proc.send_signal(signal.SIGKILL)
+        drivers[-1].proc.wait(10.0)
+        killed = ros_node.get_clock().now().nanoseconds * 1e-9
+        n_killed = len(infos)
+        status = diagnostics.wait(CONTROL, lambda s, v: v["mode"] == "driver lost", timeout=10.0)[0]
+        time.sleep(2.0)  # a 2 s outage while the states keep coming
+        after_kill = infos.since(n_killed)
+        left = min(sec(m.header.stamp) for m in after_kill if m.state != TRACKING) - killed
+        lost = [m for m in after_kill if sec(m.header.stamp) > killed + 0.5]
+        late_cmds = [m for m in cmds.since() if sec(m.header.stamp) > killed + 0.5]
+        frozen = np.asarray(lost[-1].e_int)
+        t_restart = time.monotonic()
+        drivers.append(DriverProcess(emulator.port).wait_ready())
+        n_back = len(infos)
+        assert wait_until(lambda: any(m.state == TRACKING for m in infos.since(n_back)), 30.0), controller.output()
+        resumed = time.monotonic() - t_restart
+        first = next(m for m in infos.since(n_back) if m.state == TRACKING)
+    finally:
+        feeder.close()
+    assert left <= 0.25 + 0.5, f"left tracking {left:.3f} s after the kill (driver_timeout 0.25 s)"
+    assert status.level == DiagnosticStatus.ERROR and "driver lost" in status.message, status
+    assert len(lost) > 40 and not [m for m in lost if m.state == TRACKING], "tracked with the driver gone"
+    assert not late_cmds, f"{len(late_cmds)} commands sent to a dead driver"
+    for m in lost:
+        np.testing.assert_array_equal(m.e_int, frozen)  # no wind-up during the outage
+    assert np.all(np.abs(np.asarray(first.e_int) - frozen) <= 0.025 + 1e-12), "resumed from the frozen integral"
+    assert len(controller.log("driver lost")) >= 1
+    fault("driver killed while tracking (2 s)", f"controller leaves tracking {left:.3f} s after the kill (ERROR "
+          "'driver lost'), sends nothing, e_int frozen", f"restart to tracking {resumed:.2f} s (driver start-up "
+          "included)")

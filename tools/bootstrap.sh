@@ -52,7 +52,10 @@ if ! fresh msgs "$msg_hash"; then
 fi
 
 # 3. our Python packages: editable installs (code edits need no reinstall) plus the ament index entries, package.xml,
-#    config/ and launch/ linked into venv/share, as `colcon build --symlink-install` would do.
+#    config/ and launch/ linked into venv/share, and every console script linked as lib/<pkg>/<exe> (where
+#    `ros2 run`, `ros2 launch` and hsa_launch look for it; setup.cfg's script_dir/install_scripts put it there under
+#    colcon, but an editable wheel puts it in bin/ only) — the venv is laid out as `colcon build --symlink-install`
+#    lays out install/. The bin/ entry points stay for the README commands.
 pkg_hash=$(digest $(for p in "${PACKAGES[@]}"; do echo "$p/setup.py" "$p/setup.cfg" "$p/package.xml"; done))
 if ! fresh pkgs "$pkg_hash"; then
   log "installing hsa-ros packages"
@@ -67,5 +70,21 @@ if ! fresh pkgs "$pkg_hash"; then
       if [ -d "$ROOT/$p/$d" ]; then ln -sfn "$ROOT/$p/$d" "$V/share/$p/$d"; fi
     done
   done
+  "$V/bin/python" - "$V" "${PACKAGES[@]}" <<'PY'
+import sys
+from importlib.metadata import distribution
+from pathlib import Path
+
+venv = Path(sys.argv[1])
+for package in sys.argv[2:]:
+    lib = venv / "lib" / package
+    lib.mkdir(parents=True, exist_ok=True)
+    for entry in distribution(package).entry_points.select(group="console_scripts"):
+        if not (venv / "bin" / entry.name).is_file():
+            sys.exit(f"[bootstrap] console script {entry.name} of {package} is missing from {venv / 'bin'}")
+        link = lib / entry.name
+        link.unlink(missing_ok=True)
+        link.symlink_to(Path("../../bin") / entry.name)
+PY
   mark pkgs "$pkg_hash"
 fi

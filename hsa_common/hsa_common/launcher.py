@@ -1,19 +1,23 @@
 """Run a ROS 2 YAML launch file (launch_scripts/*.launch.yaml) without ros2launch, which is not installable here.
 
-The same file works with ``ros2 launch <file>`` on a full ROS install; this launcher implements the subset our
-graphs use, with the same meaning:
+The same file works with ``ros2 launch <file>`` (launch 3.4 / launch_ros 0.26, Jazzy): every entry is checked
+against the keys the real launch_yaml parser reads (``Unexpected key(s) found in 'node'`` there is a refusal here too),
+and the keys of that schema this launcher does not implement are refused by name instead of being ignored.
+Implemented, with the same meaning:
 
-* ``arg`` (name, default, description) — set as ``name:=value`` on the command line;
+* ``arg`` (name, default, description, choice) — set as ``name:=value``; a value outside ``choice`` is refused;
 * ``let`` (name, value);
 * ``node`` (pkg, exec, name, namespace, param [name/value or from], remap [from/to], args, ros_args, on_exit:
-  shutdown, output) and ``executable`` (cmd, name, on_exit);
+  shutdown, output: screen) and ``executable`` (cmd, name, on_exit, output: screen);
 * ``if`` / ``unless`` on any action;
 * substitutions ``$(var n)``, ``$(env N [default])``, ``$(find-pkg-share p)``, ``$(dirname)``.
 
-Every process gets the project ROS environment (hsa_core.rosenv) and stays in the launcher's process group, so
-SIGINT to the group stops all of them. On SIGINT/SIGTERM to the launcher, or when an ``on_exit: shutdown``
-process ends, the launcher sends SIGINT to every child, then SIGTERM after ``--sigterm-timeout`` and SIGKILL after
-``--sigkill-timeout``; nothing is orphaned.
+A node's executable is ``<prefix>/lib/<pkg>/<exec>`` on AMENT_PREFIX_PATH, as ``ros2 run`` and ``ros2 launch`` find it
+(tools/bootstrap.sh lays the venv out that way). Every process gets the project ROS environment (hsa_core.rosenv) and
+stays in the launcher's process group, so SIGINT to the group stops all of them. Fail fast: a process that exits
+non-zero while the graph runs stops the graph; the launcher names it with its last error line and exits with its
+code. On SIGINT/SIGTERM to the launcher, or when an ``on_exit: shutdown`` process ends, the launcher sends SIGINT to
+every child, then SIGTERM after ``--sigterm-timeout`` and SIGKILL after ``--sigkill-timeout``; nothing is orphaned.
 """
 
 from __future__ import annotations
@@ -27,16 +31,41 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from hsa_core import rosenv
+from hsa_core import cli, rosenv
 
 _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+# The keys the real parsers read (launch 3.4.3 ExecuteProcess/DeclareLaunchArgument/SetLaunchConfiguration.parse,
+# launch_ros 0.26.6 Node.parse; launch_yaml refuses any other key of an action with "Unexpected key(s) found in").
+_CONDITION = {"if", "unless"}
+_PROCESS = _CONDITION | {"cmd", "cwd", "name", "on_exit", "launch-prefix", "output", "respawn", "respawn_max_retries",
+                         "respawn_delay", "sigkill_timeout", "sigterm_timeout", "shell", "emulate_tty", "env"}
+SCHEMA: dict[str, set[str]] = {
+    "arg": _CONDITION | {"name", "default", "description", "choice"},
+    "let": _CONDITION | {"name", "value"},
+    "executable": _PROCESS,
+    "node": (_PROCESS - {"cmd"}) | {"args", "ros_args", "node-name", "exec_name", "pkg", "exec", "namespace", "remap",
+                                   "param"},
+}
+_REQUIRED = {"arg": {"name"}, "let": {"name", "value"}, "executable": {"cmd"}, "node": {"pkg", "exec"}}  # pkg: ours
+_IMPLEMENTED = {
+    "arg": SCHEMA["arg"], "let": SCHEMA["let"],
+    "executable": _CONDITION | {"cmd", "name", "on_exit", "output"},
+    "node": _CONDITION | {"pkg", "exec", "name", "namespace", "param", "remap", "args", "ros_args", "on_exit", "output"},
+}
+_WHY_NOT = {"respawn": "a process that exits stops the graph (fail fast); restart the graph instead"}
 
 
 class LaunchError(RuntimeError):
@@ -51,6 +80,52 @@ class Process:
     cmd: list[str]
     shutdown_on_exit: bool = False
     popen: subprocess.Popen | None = field(default=None, repr=False)
+    errors: deque[str] = field(default_factory=lambda: deque(maxlen=50), repr=False)  # last stderr lines
+    pump: threading.Thread | None = field(default=None, repr=False)
+
+    def message(self) -> str:
+        """The process's last ERROR/FATAL line (or the last line it wrote to stderr)."""
+        lines = [line for line in self.errors if line.strip()]
+        for line in reversed(lines):
+            if "FATAL" in line or "ERROR" in line or "Error" in line:
+                return line.strip()
+        return lines[-1].strip() if lines else "no message"
+
+
+def check_entity(kind: str, spec: object, where: str) -> None:
+    """Refuse what the real launch_yaml parser refuses, and what it accepts but this launcher does not implement."""
+    if not isinstance(spec, dict):
+        raise LaunchError(f"{where}: '{kind}' must be a mapping of keys, got {spec!r}")
+    unexpected = sorted(set(spec) - SCHEMA[kind])
+    if unexpected:
+        raise LaunchError(f"{where}: Unexpected key(s) found in '{kind}': {unexpected} (ros2 launch refuses them too; "
+                          f"allowed: {sorted(SCHEMA[kind])})")
+    missing = sorted(_REQUIRED[kind] - set(spec))
+    if missing:
+        raise LaunchError(f"{where}: '{kind}' needs {missing}")
+    for key in sorted(set(spec) - _IMPLEMENTED[kind]):
+        reason = _WHY_NOT.get(key, "use ros2 launch for it, or leave it out")
+        raise LaunchError(f"{where}: key '{key}' of '{kind}' is valid for ros2 launch but not implemented by "
+                          f"hsa_launch: {reason}")
+    for key in ("name", "pkg", "exec", "namespace", "args", "ros_args", "cmd", "default", "description", "if",
+                "unless", "on_exit", "output"):
+        if key in spec and not isinstance(spec[key], str):
+            raise LaunchError(f"{where}: '{key}' of '{kind}' must be a string (quote it), got {spec[key]!r}")
+    if "on_exit" in spec and spec["on_exit"] != "shutdown":
+        raise LaunchError(f"{where}: on_exit must be 'shutdown' (the only value launch_yaml accepts), "
+                          f"got {spec['on_exit']!r}")
+    if "output" in spec and spec["output"] != "screen":
+        raise LaunchError(f"{where}: hsa_launch implements output 'screen' only (every process writes to the "
+                          f"terminal), got {spec['output']!r}")
+    for key, allowed in (("param", ({"name", "value"}, {"from"})), ("remap", ({"from", "to"},)),
+                         ("choice", ({"value"},))):
+        items = spec.get(key, [])
+        if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
+            raise LaunchError(f"{where}: '{key}' of '{kind}' must be a list of mappings")
+        for item in items:
+            if not any(set(item) == keys for keys in allowed):
+                raise LaunchError(f"{where}: {key} entry {item!r} must have exactly the keys "
+                                  f"{' or '.join(str(sorted(k)) for k in allowed)} (hsa_launch)")
 
 
 def package_share(pkg: str) -> Path:
@@ -62,16 +137,14 @@ def package_share(pkg: str) -> Path:
 
 
 def find_executable(pkg: str, exe: str) -> str:
-    """Resolve like ``ros2 run``: <prefix>/lib/<pkg>/<exe>, else the venv's console script."""
+    """Resolve like ``ros2 run`` and ``ros2 launch``: the first <prefix>/lib/<pkg>/<exe> on AMENT_PREFIX_PATH."""
+    package_share(pkg)  # the package must be installed
     for prefix in os.environ.get("AMENT_PREFIX_PATH", sys.prefix).split(os.pathsep):
         candidate = Path(prefix) / "lib" / pkg / exe
         if candidate.is_file() and os.access(candidate, os.X_OK):
             return str(candidate)
-    candidate = Path(sys.prefix) / "bin" / exe
-    if candidate.is_file():
-        package_share(pkg)  # the package must exist too
-        return str(candidate)
-    raise LaunchError(f"executable '{exe}' of package '{pkg}' not found")
+    raise LaunchError(f"executable '{exe}' of package '{pkg}' not found in lib/{pkg}/ of any AMENT_PREFIX_PATH "
+                      f"prefix (run tools/bootstrap.sh, or colcon build)")
 
 
 class LaunchFile:
@@ -83,6 +156,14 @@ class LaunchFile:
         if not isinstance(doc, dict) or not isinstance(doc.get("launch"), list):
             raise LaunchError(f"{path}: expected a top-level 'launch:' list")
         self.actions: list[dict[str, Any]] = doc["launch"]
+        for index, action in enumerate(self.actions):
+            if not isinstance(action, dict) or len(action) != 1:
+                raise LaunchError(f"{path.name}: entry {index + 1} must be a mapping with one key (the action type)")
+            kind = next(iter(action))
+            if kind not in SCHEMA:
+                raise LaunchError(f"{path.name}: entry {index + 1}: action '{kind}' is not implemented by hsa_launch "
+                                  f"(implemented: {sorted(SCHEMA)})")
+            check_entity(kind, action[kind], f"{path.name} entry {index + 1}")
         self.vars: dict[str, str] = {}
         declared = set()
         for action in self.actions:
@@ -95,6 +176,10 @@ class LaunchFile:
                     self.vars[spec["name"]] = self.substitute(str(spec["default"]))
                 else:
                     raise LaunchError(f"launch argument '{spec['name']}' has no default and was not given")
+                choices = [c["value"] for c in spec.get("choice", [])]
+                if choices and self.vars[spec["name"]] not in choices:
+                    raise LaunchError(f"launch argument {spec['name']}:={self.vars[spec['name']]} is not one of "
+                                      f"{choices}")
             elif "let" in action:
                 self.vars[action["let"]["name"]] = self.substitute(str(action["let"]["value"]))
         unknown = set(args) - declared
@@ -197,19 +282,28 @@ class Launcher:
                 p.popen.send_signal(signal.SIGINT)
 
     def run(self) -> int:
-        """Start everything, wait for a stop condition, stop everything; return the worst child exit code."""
+        """Start everything, wait for a stop condition, stop everything; return the failed or worst exit code."""
         env = rosenv.ros_environment()  # inherits this process's reserved domain (rosenv.apply in main)
         signal.signal(signal.SIGINT, self._request_stop)
         signal.signal(signal.SIGTERM, self._request_stop)
         for proc in self.procs:
             print(f"[launch] starting {proc.name}: {shlex.join(proc.cmd)}", flush=True)
-            proc.popen = subprocess.Popen(proc.cmd, env=env)
+            proc.popen = subprocess.Popen(proc.cmd, env=env, stderr=subprocess.PIPE)
+            proc.pump = threading.Thread(target=_pump, args=(proc,), daemon=True)
+            proc.pump.start()
+        failed: Process | None = None
         while not self._stop_requested:
             ended = [p for p in self.procs if p.popen.poll() is not None]
-            if any(p.shutdown_on_exit for p in ended) or len(ended) == len(self.procs):
+            failed = next((p for p in ended if _failure(p.popen.returncode)), None)
+            if failed or any(p.shutdown_on_exit for p in ended) or len(ended) == len(self.procs):
                 break
             time.sleep(0.05)
-        return self.stop()
+        if failed is not None:
+            failed.pump.join(timeout=2.0)  # its last lines, before they are named
+            print(f"[launch] error: {failed.name} exited with {failed.popen.returncode}: {failed.message()}; "
+                  f"stopping the graph", file=sys.stderr, flush=True)
+        worst = self.stop()
+        return _exit_status(failed.popen.returncode) if failed is not None else worst
 
     def stop(self) -> int:
         """SIGINT all children, escalate after timeouts, and report how each ended."""
@@ -229,18 +323,40 @@ class Launcher:
         worst = 0
         for p in self.procs:
             code = p.popen.wait()
+            p.pump.join(timeout=2.0)
             print(f"[launch] {p.name} exited with {code}", flush=True)
-            if code not in (0, -signal.SIGINT) and not (p.shutdown_on_exit and code == 0):
-                worst = worst or (code if code > 0 else 128 - code)
+            if _failure(code):
+                worst = worst or _exit_status(code)
         return worst
+
+
+def _failure(code: int | None) -> bool:
+    """An exit that means the process failed (not 0, not the SIGINT the launcher or the terminal sent)."""
+    return code is not None and code not in (0, -signal.SIGINT)
+
+
+def _exit_status(code: int) -> int:
+    """A child's return code as a shell exit status (128 + N for a death by signal N)."""
+    return code if code > 0 else 128 - code
+
+
+def _pump(proc: Process) -> None:
+    """Copy the process's stderr to ours line by line, keeping the last lines for the failure message."""
+    assert proc.popen is not None and proc.popen.stderr is not None
+    out = sys.stderr.buffer
+    for raw in iter(proc.popen.stderr.readline, b""):
+        out.write(raw)
+        out.flush()
+        proc.errors.append(_ANSI.sub("", raw.decode(errors="replace")))
+    proc.popen.stderr.close()
 
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, dict[str, str]]:
     """Split the command line into options and ``name:=value`` launch arguments."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli.ArgumentParser(prog="hsa_launch", description=__doc__.splitlines()[0])
     parser.add_argument("launch_file", type=Path)
-    parser.add_argument("--sigterm-timeout", type=float, default=5.0)
-    parser.add_argument("--sigkill-timeout", type=float, default=5.0)
+    parser.add_argument("--sigterm-timeout", type=cli.positive, default=5.0, metavar="S")
+    parser.add_argument("--sigkill-timeout", type=cli.positive, default=5.0, metavar="S")
     parser.add_argument("--print", action="store_true", help="print the commands and exit")
     opts, rest = parser.parse_known_args(argv)
     launch_args = {}
@@ -259,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         procs = LaunchFile(opts.launch_file, launch_args).processes()
     except (LaunchError, OSError, KeyError, yaml.YAMLError) as exc:
-        print(f"[launch] error: {exc}", file=sys.stderr)
+        print(f"[launch] error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     if opts.print:
         for proc in procs:

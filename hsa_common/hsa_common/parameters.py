@@ -83,6 +83,7 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
     """Declare and validate all parameters; return their values by name (raises ParameterValidationError)."""
     values: dict[str, Any] = {}
     for spec in specs:
+        _accept_integer_spelling(node, spec)
         try:
             param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
         except Exception as exc:  # rclpy range/type rejection of an override: re-raise naming the parameter
@@ -98,6 +99,25 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
             f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant for another "
             f"node?); known: {sorted(s.name for s in specs)}")
     return values
+
+
+def _accept_integer_spelling(node: Node, spec: ParamSpec) -> None:
+    """Turn an integer override of a floating-point parameter (``rate:=2``, ``[1, 2]``) into the float it means.
+
+    rcl types ``2`` as INTEGER, and rclpy refuses it for a DOUBLE parameter ("expecting type 'DOUBLE'"); launch
+    arguments and parameter files are written by people, so ``2`` must mean ``2.0``, under ros2 launch as well.
+    """
+    given = node._parameter_overrides.get(spec.name)  # the resolved overrides (see unknown_overrides)
+    if given is None:
+        return
+    default = spec.default
+    floats = isinstance(default, list) and bool(default) and all(isinstance(v, float) for v in default)
+    if given.type_ == Parameter.Type.INTEGER and (
+            isinstance(default, float) or default == Parameter.Type.DOUBLE):
+        node._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(given.value))
+    elif given.type_ == Parameter.Type.INTEGER_ARRAY and (floats or default == Parameter.Type.DOUBLE_ARRAY):
+        node._parameter_overrides[spec.name] = Parameter(
+            spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in given.value])
 
 
 def unknown_overrides(node: Node) -> list[str]:

@@ -4,7 +4,9 @@ One ``state`` (hsa_msgs/PlanarState) per accepted ``ee_pose`` sample, with the m
 are the end-point derivative of a polynomial fit over the last ``window`` samples of [q, χ_ee]; until the window is
 full (after start-up or a stamp gap) ``velocity_valid`` is false and both rates are NaN, never a made-up zero. Samples
 the estimator rejects (non-finite, duplicate or out-of-order stamps) produce no ``state`` and are counted on
-/diagnostics. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
+/diagnostics. So are samples whose state would go out more than ``max_lag`` later, relative to their stamp, than the
+promptest of the last second (hsa_core.validation.DelayGate: samples queued, or in flight, while this node was
+stalled, which would otherwise come out as an old state with a valid velocity); they still enter the window. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, 
 from hsa_common.runner import run, seconds
 from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
+from hsa_core.validation import DelayGate
 from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
 
 NOT_AVAILABLE = (math.nan,) * 6  # rates [q̇, χ̇_ee] while the estimator is not ready
@@ -41,6 +44,9 @@ SPECS = (
               low=1.01, high=100.0),
     ParamSpec("regular_tol", 1e-3, "[-] stamp jitter, relative to T, up to which the precomputed coefficients are "
               "used (else a fit on the true stamps)", low=0.0, high=0.5),
+    ParamSpec("max_lag", 0.1, "[s] publish no state whose sample is this much later, relative to its stamp, than the "
+              "promptest of the last second of samples (queued or in flight during a stall); 0 = off",
+              low=0.0, high=10.0, read_only=True),
     ParamSpec("stale_timeout", 0.25, "[s] diagnostics ERROR when no ee_pose arrived for this long",
               low=0.001, high=60.0),
     ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
@@ -57,6 +63,7 @@ class KinematicsNode(Node):
         self._p = declare(self, SPECS)
         self._params = load_model(self._p)
         self._estimator = self._make_estimator()
+        self._delay = DelayGate(self._p["max_lag"], history=max(1, round(self._p["mocap_rate"])))
         configuration_from_pose(self._params, REST_POSE)  # JIT-compile the IK now, not on the first sample
         guard_updates(self, SPECS, self._update)
         self._received = self._published = self._restarts = 0
@@ -109,6 +116,11 @@ class KinematicsNode(Node):
         if estimate.reason:  # a stamp gap restarted the window
             self._restarts += 1
             self.get_logger().warning(estimate.reason, throttle_duration_sec=5.0)
+        if self._delay.late(stamp_ns, self.get_clock().now().nanoseconds):  # judged when it would go out
+            self._rejected["delayed sample"] += 1
+            self.get_logger().warning(f"dropped ee_pose sample: its state would go out > {self._p['max_lag']:g} s "
+                                      "late (queued or in flight while this node stalled)", throttle_duration_sec=5.0)
+            return
         self._last_stamp = Time.from_msg(msg.header.stamp)
         rates = estimate.derivative if estimate.derivative is not None else NOT_AVAILABLE
         out = PlanarState()

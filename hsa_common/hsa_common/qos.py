@@ -3,6 +3,9 @@
 * Streams (mocap, planar state, motor states): sensor-data profile, best effort, keep last 5. Late data is useless.
 * Commands (actuation): reliable, keep last 1 — never a queue of stale goals (reference_ros_graph.md §6, weakness 3).
 * Setpoints and the E-stop state: reliable and transient-local, keep last 1, so a late joiner gets the current one.
+* Services (``plan_setpoint``, server and clients): reliable, keep all. rclpy's default (keep last 10) let DDS overwrite
+  queued requests in a burst: of 200 back-to-back requests 12 were answered. With keep all no request or response is
+  overwritten; a full reader history makes the client's send fail loudly instead.
 Every publisher and subscription is created with ``OVERRIDABLE`` so a lab can change reliability/depth/durability by
 the standard ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` parameters.
 """
@@ -30,6 +33,10 @@ LATCHED = QoSProfile(
 INFO = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
+)
+
+SERVICE = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
 
 

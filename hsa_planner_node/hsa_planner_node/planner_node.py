@@ -2,7 +2,9 @@
 
 The planners are hsa_core.planning.Planner objects, one per kind in the `planners` parameter, compiled in the
 constructor; a request never compiles. Every outcome is a response: failures carry a status and a reason, so no
-setpoint is ever dropped silently (reference_ros_graph.md §6, weakness 9).
+setpoint is ever dropped silently (reference_ros_graph.md §6, weakness 9); they are counted on /diagnostics and logged
+at most every 5 s. The service uses hsa_common.qos.SERVICE (reliable, keep all), so no request of a burst is
+overwritten before it is served.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from hsa_common import qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
@@ -73,7 +76,7 @@ class PlannerNode(Node):
         self._period_failures = 0
         self._solve_times: list[float] = []
         self._max_solve_time = 0.0
-        self.create_service(PlanSetpoint, "plan_setpoint", self._serve)
+        self.create_service(PlanSetpoint, "plan_setpoint", self._serve, qos_profile=qos.SERVICE)
         diagnostics = Diagnostics(self)
         diagnostics.add("planning", self._report)
         self.get_logger().info(f"planners {kinds} compiled for material '{params.material}'; default '{kinds[0]}'")
@@ -100,6 +103,9 @@ class PlannerNode(Node):
             self._failures[result.status.name] += 1
             self._period_failures += 1
             self._last_failure = result.message
+            self.get_logger().warning(
+                f"plan for ({request.x:.6g}, {request.y:.6g}) refused: {result.status.name}: {result.message} "
+                f"({sum(self._failures.values())} refused so far, on /diagnostics)", throttle_duration_sec=5.0)
         return response
 
     def _plan(self, request: PlanSetpoint.Request) -> PlanResult:

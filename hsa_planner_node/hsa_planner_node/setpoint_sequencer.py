@@ -2,8 +2,8 @@
 
 Schedule: point j is requested at t0 + j/rate, where t0 (t = 0) is when the answer for point 0 arrived, i.e. when the
 first setpoint was published. Calls are asynchronous (a done-callback handles the answer, nothing spins inside a
-callback). A failed or timed-out plan is logged, counted and reported on `sequencer_status`; the previous setpoint
-stays active. After the last point's slot the last setpoint is held and `finished` is reported; with
+callback), with the service QoS hsa_common.qos.SERVICE. A failed or timed-out plan is counted, reported on
+`sequencer_status` and logged (at most every 5 s); the previous setpoint stays active. After the last point's slot the last setpoint is held and `finished` is reported; with
 `exit_on_finish` the process exits `finish_hold` seconds later so a launch file can end the graph.
 """
 
@@ -126,7 +126,7 @@ class SetpointSequencer(Node):
         self._n = len(self._ref)
         self._period = self._ref.duration / self._n
         self._warm_start = self._p["trajectory"] != "steps"  # continuous references warm-start (§2.1)
-        self._client = self.create_client(PlanSetpoint, "plan_setpoint")
+        self._client = self.create_client(PlanSetpoint, "plan_setpoint", qos_profile=qos.SERVICE)
         self._setpoint_pub = self.create_publisher(Setpoint, "setpoint", qos.LATCHED,
                                                    qos_overriding_options=qos.overridable())
         self._status_pub = self.create_publisher(String, "sequencer_status", qos.LATCHED,
@@ -238,7 +238,8 @@ class SetpointSequencer(Node):
         self._failures += 1
         self._last_failure = {"index": j, "x": x, "y": y, "status": status, "message": message}
         held = f"setpoint {self._setpoint_index} stays active" if self._setpoint_index >= 0 else "no setpoint yet"
-        self.get_logger().warning(f"point {j} ({x:.6g}, {y:.6g}) not planned: {status}: {message}; {held}")
+        self.get_logger().warning(f"point {j} ({x:.6g}, {y:.6g}) not planned: {status}: {message}; {held} "
+                                  f"({self._failures} failed so far, on /diagnostics)", throttle_duration_sec=5.0)
 
     def _set_state(self, state: str) -> None:
         """Change the sequencer state and publish it."""

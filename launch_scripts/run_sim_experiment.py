@@ -9,26 +9,25 @@ stops the graph, then reads the recorded bag and prints the metrics table and wr
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
 from hsa_bag.analysis import analyze
 from hsa_common.launcher import Launcher, LaunchFile
-from hsa_core import rosenv
+from hsa_core import cli, rosenv
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the graph, then analyse its bag; exit code 0 only if both succeeded."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli.ArgumentParser(prog="run_sim_experiment.py", description=__doc__.splitlines()[0])
     parser.add_argument("--material", choices=["fpu", "epu"], default="fpu")
     parser.add_argument("--controller", choices=["psatid", "psatid_gc", "pid"], default="psatid")
     parser.add_argument("--ee-integral", action="store_true", help="add the EE-position integral extension")
     parser.add_argument("--disturbance", choices=["none", "default"], default="default")
-    parser.add_argument("--setpoint-rate", type=float, default=0.0,
+    parser.add_argument("--setpoint-rate", type=cli.non_negative, default=0.0,
                         help="[Hz] setpoints per second; 0 = the paper's (one step every 10 s, 110 s in all)")
     parser.add_argument("--out", type=Path, default=Path("out") / time.strftime("run_%Y%m%d-%H%M%S"))
     args = parser.parse_args(argv)

@@ -24,7 +24,6 @@ naming what is missing. Long bags show a progress bar (tqdm, on a terminal).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hsa_bag.bagio import Bag, BagError
+from hsa_core import cli
 from hsa_core.metrics import RunMetrics, evaluate_run, format_steps, format_summary
 from hsa_core.plotting import all_figures
 from hsa_core.runlog import RunLog
@@ -153,18 +153,20 @@ def analyze(
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``hsa_analyze``."""
-    parser = argparse.ArgumentParser(prog="hsa_analyze", description=__doc__.split("\n\n")[0])
+    parser = cli.ArgumentParser(prog="hsa_analyze", description=__doc__.split("\n\n")[0])
     parser.add_argument("bag", type=Path, help="rosbag2 directory or .mcap file")
     parser.add_argument("--out", type=Path, help="output directory (default out/analysis/<bag name>)")
-    parser.add_argument("--duration", type=float, help="keep 0 <= t < S [s]; default 110 for step runs, all for "
-                        "contours; 0 = all")
+    parser.add_argument("--duration", type=cli.non_negative,
+                        help="keep 0 <= t < S [s]; default 110 for step runs, all for contours; 0 = all")
     parser.add_argument("--csv", action="store_true", help="also write run.csv (one row per tick)")
     parser.add_argument("--npz", action="store_true", help="also write run.npz (one array per field)")
     parser.add_argument("--topic", default=TOPIC, help=f"ControllerInfo topic (default {TOPIC})")
     parser.add_argument("--contour", action="store_true", default=None, help="draw the Cartesian path figure")
-    parser.add_argument("--phi-max", type=float, help="[rad] actuation limit drawn in the actuation figure")
+    parser.add_argument("--phi-max", type=cli.positive, help="[rad] actuation limit drawn in the actuation figure")
     parser.add_argument("--name", help="run name in the tables (default the bag name)")
     args = parser.parse_args(argv)
+    if not args.bag.exists():
+        parser.error(f"bag {args.bag} does not exist")
     name = args.name or args.bag.stem
     out = args.out or Path("out", "analysis", name)
     try:

@@ -44,7 +44,7 @@ from rosgraph_msgs.msg import Clock
 from hsa_bag.bagio import Bag, BagError
 from hsa_bag.msgtypes import message_class
 from hsa_bag.qos import publisher_profile
-from hsa_core import rosenv
+from hsa_core import cli, rosenv
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ACK_TIMEOUT = Duration(seconds=5.0)
@@ -217,7 +217,7 @@ def _non_negative(text: str) -> float:
 
 def parse_args(argv: list[str]) -> tuple[Path, Options]:
     """Bag path and options from the command line (without ROS arguments)."""
-    parser = argparse.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
+    parser = cli.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
     parser.add_argument("bag", type=Path, help="rosbag2 directory or .mcap file")
     parser.add_argument("--topics", nargs="+", default=[], metavar="TOPIC",
                         help="recorded topics to play (default all)")
@@ -262,7 +262,6 @@ def main(argv: list[str] | None = None) -> int:
     """Console script ``bag_player``."""
     ours, ros_args = split_ros_args(sys.argv[1:] if argv is None else argv)
     path, options = parse_args(ours)
-    rosenv.ensure_for_node()
     try:
         bag = Bag(path)
     except BagError as exc:
@@ -274,6 +273,7 @@ def main(argv: list[str] | None = None) -> int:
         bag.close()
         print(f"bag_player: {exc}", file=sys.stderr)
         return 2
+    rosenv.ensure_for_node()  # after the argument and bag checks: a refusal stays one line
     stop = threading.Event()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):

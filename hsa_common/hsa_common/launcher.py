@@ -63,7 +63,8 @@ _REQUIRED = {"arg": {"name"}, "let": {"name", "value"}, "executable": {"cmd"}, "
 _IMPLEMENTED = {
     "arg": SCHEMA["arg"], "let": SCHEMA["let"],
     "executable": _CONDITION | {"cmd", "name", "on_exit", "output"},
-    "node": _CONDITION | {"pkg", "exec", "name", "namespace", "param", "remap", "args", "ros_args", "on_exit", "output"},
+    "node": _CONDITION | {"pkg", "exec", "name", "namespace", "param", "remap", "args", "ros_args", "on_exit",
+                          "output"},
 }
 _WHY_NOT = {"respawn": "a process that exits stops the graph (fail fast); restart the graph instead"}
 

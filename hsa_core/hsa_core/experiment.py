@@ -25,7 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from hsa_core import kinematics, metrics, plotting, simulation
+from hsa_core import cli, kinematics, metrics, plotting, simulation
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
@@ -214,17 +214,53 @@ def _reference(args: argparse.Namespace) -> TimedReference | None:
     return contour_reference(args.trajectory, k=args.contour_k)
 
 
+LAWS = ("psatid", "psatid_gc", "pid", "psatid+eei", "psatid_gc+eei")
+"""Laws the CLI runs (``+eei``: with the EE-position integral extension); ``all`` = every one but psatid_gc+eei."""
+
+
+def _laws(text: str) -> list[str]:
+    """argparse type of --controller: 'all' or a comma-separated list of LAWS, checked before anything runs."""
+    if text == "all":
+        return ["psatid", "psatid_gc", "pid", "psatid+eei"]
+    laws = text.split(",")
+    bad = [law for law in laws if law not in LAWS]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown law(s) {bad}; choose from {list(LAWS)} or 'all'")
+    return laws
+
+
+def _rate(text: str) -> float:
+    """argparse type of --rate: a control rate [Hz] whose period is a whole number of the 1 ms grid steps."""
+    rate = float(text)
+    ticks = 1000.0 / rate if rate > 0 and math.isfinite(rate) else 0.0
+    if ticks < 1 or abs(ticks - round(ticks)) > 1e-9:
+        raise argparse.ArgumentTypeError(f"must divide 1000 Hz (the 1 ms simulation grid), e.g. 40, 100, 200; "
+                                         f"got {text}")
+    return rate
+
+
+def _trajectory(text: str) -> str:
+    """argparse type of --trajectory: steps, star, circle or an existing image file."""
+    if text in ("steps", "star", "circle") or Path(text).is_file():
+        return text
+    raise argparse.ArgumentTypeError(f"must be steps, star, circle or an image file; {text!r} is none of them")
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI: run the selected experiments, print the metrics table, write figures, logs (NPZ, CSV) and a summary."""
-    parser = argparse.ArgumentParser(description="Closed-loop HSA experiments in simulation, without ROS.")
+    parser = cli.ArgumentParser(prog="hsa_experiment",
+                                description="Closed-loop HSA experiments in simulation, without ROS.")
     parser.add_argument("--material", choices=["fpu", "epu", "both"], default="fpu")
-    parser.add_argument("--controller", default="all",
+    parser.add_argument("--controller", type=_laws, default="all",
                         help="psatid, psatid_gc, pid, psatid+eei, psatid_gc+eei, or 'all' (comma-separated list ok)")
-    parser.add_argument("--trajectory", default="steps", help="steps, star, circle, or the path of an image file")
-    parser.add_argument("--contour-k", type=int, default=5, help="keep every k-th contour point (image references)")
-    parser.add_argument("--rate", type=float, default=40.0, help="control rate [Hz], must divide 1000")
-    parser.add_argument("--duration", type=float, default=None, help="truncate the reference to this many seconds")
-    parser.add_argument("--kd", type=float, default=None,
+    parser.add_argument("--trajectory", type=_trajectory, default="steps",
+                        help="steps, star, circle, or the path of an image file")
+    parser.add_argument("--contour-k", type=cli.positive_int, default=5,
+                        help="keep every k-th contour point (image references)")
+    parser.add_argument("--rate", type=_rate, default=40.0, help="control rate [Hz], must divide 1000")
+    parser.add_argument("--duration", type=cli.positive, default=None,
+                        help="truncate the reference to this many seconds")
+    parser.add_argument("--kd", type=cli.positive, default=None,
                         help="override K_d of the collocated laws (the paper used 0.02, and 0.01 from 2023-10-19)")
     parser.add_argument("--disturbance", choices=["default", "none", "shear"], default="default",
                         help="declared disturbance model (hsa_core.disturbance); 'shear' adds a shear-stiffness mismatch")
@@ -235,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     materials = ["fpu", "epu"] if args.material == "both" else [args.material]
-    laws = ["psatid", "psatid_gc", "pid", "psatid+eei"] if args.controller == "all" else args.controller.split(",")
+    laws = args.controller
     dist = {"default": DisturbanceModel(seed=args.seed), "none": DisturbanceModel.none(),
             "shear": DisturbanceModel.shear_mismatch(args.seed)}[args.disturbance]
     results = []

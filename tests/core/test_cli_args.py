@@ -1,0 +1,28 @@
+"""hsa_experiment refuses bad arguments before running anything: one line on stderr, exit status 2."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--controller", "pdi"], "unknown law(s) ['pdi']"),
+    (["--controller", "psatid,pdi"], "unknown law(s) ['pdi']"),  # it ran psatid in full, then crashed
+    (["--rate", "33"], "must divide 1000 Hz"),
+    (["--rate", "0"], "must divide 1000 Hz"),
+    (["--trajectory", "no_such_image.png"], "must be steps, star, circle or an image file"),
+    (["--contour-k", "0"], "must be an integer >= 1"),
+    (["--duration", "-5"], "must be a finite number > 0"),
+])
+def test_bad_arguments_are_refused_up_front_in_one_line(tmp_path, args: list[str], message: str) -> None:
+    """No traceback, no run: the refusal names the argument, and nothing is written."""
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "hsa_core.experiment", *args, "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert done.stdout == "" and done.stderr.count("\n") == 1, done.stderr[-2000:]
+    assert done.stderr.startswith("hsa_experiment: error: argument") and message in done.stderr, done.stderr
+    assert not out.exists()

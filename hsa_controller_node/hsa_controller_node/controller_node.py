@@ -271,13 +271,16 @@ class ControllerNode(Node):
         self._count_tick(now)
         decision = self._supervisor.tick(now.nanoseconds)
         self._decision_age, self._driver_silence = decision.age_s, decision.driver_silence_s
-        if decision.action is Action.STEP and self._step(now, self._state):
-            self._set_mode(decision.mode, now)
+        if decision.action is Action.STEP:
+            if self._step(now, self._state):
+                self._set_mode(decision.mode, now)
+            else:  # refused by the core (counted): nothing is sent this tick
+                self._publish_info(now, ControllerInfo.STATE_WAITING_FOR_STATE, commanded=False)
         elif decision.action is Action.HOLD and self._last_cmd is not None:
             self._set_mode(decision.mode, now)
             self._hold(now)
         else:
-            mode = decision.mode if decision.action is Action.NONE else Mode.STALE
+            mode = Mode.STALE if decision.action is Action.HOLD else decision.mode  # nothing to hold
             self._set_mode(mode, now)
             self._publish_info(now, INFO_STATE[mode], commanded=False)
 

@@ -42,9 +42,10 @@ def test_marker_node_starts_with_its_graphs_parameters(graph: str, args: dict[st
     start_ready(graph_process(graph, "marker_node", **args))
 
 
-def test_sequencer_starts_on_circle_with_an_integer_setpoint_rate() -> None:
-    """trajectory:=circle had no config file; setpoint_rate:=2 (an integer) killed it with "expecting type DOUBLE"."""
-    proc = graph_process("sim.launch.yaml", "setpoint_sequencer", trajectory="circle", setpoint_rate="2")
+@pytest.mark.parametrize("trajectory", ["steps", "circle"])
+def test_sequencer_starts_with_an_integer_setpoint_rate(trajectory: str) -> None:
+    """setpoint_rate:=2 (an integer) killed it with "expecting type 'DOUBLE'"; trajectory:=circle had no config file."""
+    proc = graph_process("sim.launch.yaml", "setpoint_sequencer", trajectory=trajectory, setpoint_rate="2")
     assert "rate:=2" in proc.cmd
     start_ready(proc)
 

@@ -4,6 +4,7 @@ A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` decla
 shows units, ranges and whether they are read-only), validates the start values and raises
 :class:`ParameterValidationError` naming the first bad parameter; a value given for a parameter the node does not
 have (a typo in a parameter file or on the command line, which rclpy would silently ignore) is refused the same way.
+An integer given for a floating-point parameter (``rate:=2``) is taken as the float it spells.
 :func:`guard_updates` installs the on-set callback that refuses out-of-range or read-only updates at run time with a
 reason naming the parameter; the node keeps running with the old value. The callback has no side effects: accepted
 values are applied by the post-set callback the node passes in.

@@ -342,12 +342,18 @@ def _exit_status(code: int) -> int:
 
 
 def _pump(proc: Process) -> None:
-    """Copy the process's stderr to ours line by line, keeping the last lines for the failure message."""
+    """Copy the process's stderr to ours line by line, keeping the last lines for the failure message.
+
+    It drains the pipe to the end even if our stderr is gone: a full pipe would block the child's logging.
+    """
     assert proc.popen is not None and proc.popen.stderr is not None
     out = sys.stderr.buffer
     for raw in iter(proc.popen.stderr.readline, b""):
-        out.write(raw)
-        out.flush()
+        try:
+            out.write(raw)
+            out.flush()
+        except (OSError, ValueError):
+            pass  # our stderr was closed: keep draining
         proc.errors.append(_ANSI.sub("", raw.decode(errors="replace")))
     proc.popen.stderr.close()
 

@@ -69,7 +69,8 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
               linger: float = 0.0) -> float:
     """Start a graph from the install space; wait until each process logged its ready text; Ctrl-C; seconds to ready.
 
-    A graph may end by itself once ready (the replay graph ends when its player is done); it must end with 0.
+    A graph may end by itself once ready (the replay graph ends when its player is done), within ``linger`` [s];
+    otherwise it is stopped with Ctrl-C then. Either way it must end with 0.
     """
     path = REPO / "launch_scripts" / graph
     names = [p.name for p in LaunchFile(path, args).processes()]
@@ -92,7 +93,7 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
         took = time.monotonic() - started
         starts = [line for line in lines if line.startswith("[launch] starting ")]
         assert len(starts) == len(names) and all(f" {install}/" in line for line in starts), starts
-        time.sleep(linger)
+        wait_until(lambda: launcher.poll() is not None, timeout=linger)  # a graph that ends by itself may do so
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGINT)
         assert launcher.wait(timeout=120.0) == 0, "".join(lines)[-4000:]
@@ -122,4 +123,5 @@ def test_identify_graph_from_the_install_space_brings_every_node_to_ready(instal
 
 def test_replay_graph_from_the_install_space_plays_a_bag(install: Path, sim_bag: Path, tmp_path: Path) -> None:
     """Replay graph with its defaults: the nodes ready, bag_player (a node entry now) plays and ends the graph."""
-    run_graph(install, "replay.launch.yaml", {"bag": str(sim_bag)}, tmp_path, {"bag_player": "playing "})
+    run_graph(install, "replay.launch.yaml", {"bag": str(sim_bag)}, tmp_path, {"bag_player": "playing "},
+              linger=120.0)

@@ -31,7 +31,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics
-from hsa_core.params import HsaParams
+from hsa_core.params import HsaParams, phi_bounds
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
 from hsa_core.validation import configuration_problem, q_bounds
 
@@ -330,8 +330,7 @@ class Controller:
         self.ee_integral = ee_integral
         self.dt = float(dt)
         self.reset_integral_on_setpoint_change = bool(reset_integral_on_setpoint_change)
-        phi_max = np.asarray(params.phi_max) * np.asarray(params.h)
-        self._phi_lo, self._phi_hi = np.minimum(0.0, phi_max), np.maximum(0.0, phi_max)
+        self._phi_lo, self._phi_hi = phi_bounds(params)
         self._q_bounds = q_bounds(params)
         self._state = np.zeros(4)
         self._setpoint: Setpoint | None = None

@@ -176,6 +176,12 @@ class HsaParams:
 jax.tree_util.register_dataclass(HsaParams, data_fields=list(_SPECS), meta_fields=list(_META_KEYS))
 
 
+def phi_bounds(params: HsaParams) -> tuple[np.ndarray, np.ndarray]:
+    """The box of admissible twists [rad], per rod: between 0 and h * phi_max (either sign of handedness)."""
+    phi_max = np.asarray(params.phi_max) * np.asarray(params.h)
+    return np.minimum(0.0, phi_max), np.maximum(0.0, phi_max)
+
+
 def _as_array(key: str, value: Any, spec: _Spec, source: str) -> np.ndarray:
     """Convert one raw value to a float64 array and check type, shape, finiteness and its physical constraint."""
     where = f"{source}: key '{key}'"

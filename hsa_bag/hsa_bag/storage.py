@@ -13,7 +13,9 @@ the open split holds every flushed chunk but no summary or footer; :mod:`hsa_bag
 hands the bytes to the kernel, which survives a killed process; it does not fsync against power loss.)
 
 Two McapWriter internals of rosbags 0.11.9 are used, in :class:`SplitFile` only: the pending ``chunk`` buffer with
-``close_chunk()`` (rosbags itself closes chunks at 1 MiB only) and the file object ``bio`` to flush.
+``close_chunk()`` (rosbags itself closes chunks at 1 MiB only) and the file object ``bio`` to flush; and its
+``close(version, metadata)`` is wrapped to record ``ros_distro: jazzy`` (rosbags writes its own name there) in the
+metadata embedded in the MCAP, as in ``metadata.yaml``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from rosbags.typesys.store import Typestore
 from ruamel.yaml import YAML
 
 VERSION = 9  # rosbag2 metadata version written by Jazzy
+ROS_DISTRO = "jazzy"  # the distribution whose bag layout and message definitions we write (rosbags writes "rosbags")
 METADATA = "metadata.yaml"
 MAX_CHUNK_SIZE = 2**20  # rosbags closes chunks at 1 MiB by itself; smaller limits are ours
 Info = dict[str, Any]  # the content of ``rosbag2_bagfile_information``
@@ -151,11 +154,25 @@ class SplitFile:
 
     def close(self) -> Info:
         """Write the summary and footer; return the file's bag information (relative to the bag directory)."""
+        storage = self._writer.storage
+        assert storage is not None
+        close_storage = storage.close
+
+        def close_as_jazzy(version: int, metadata: str) -> None:
+            """Embed the file's metadata with our ``ros_distro`` instead of rosbags' own name."""
+            info = _yaml().load(metadata)
+            info["ros_distro"] = ROS_DISTRO
+            text = io.StringIO()
+            _yaml().dump(info, text)
+            close_storage(version, text.getvalue().strip())
+
+        storage.close = close_as_jazzy  # type: ignore[method-assign]
         self._writer.close()
         metapath = self._writer.metapath
         with open(metapath, encoding="utf8") as handle:
             info: Info = _yaml().load(handle)["rosbag2_bagfile_information"]
         metapath.unlink()
+        info["ros_distro"] = ROS_DISTRO
         return info
 
 

@@ -352,3 +352,21 @@ def test_messages_come_in_timestamp_order_across_files(tmp_path: Path) -> None:
         assert [t for _, t, _ in got] == [i * 10**6 for i in range(200)]
         assert [d for _, _, d in got] == [string(i) for i in range(200)]
         assert [t for _, t, _ in opened.messages(start=150 * 10**6)][0] == 150 * 10**6
+
+
+def test_written_bags_name_jazzy_as_their_distribution(tmp_path: Path) -> None:
+    path = tmp_path / "distro"
+    bag = SplitBagWriter(path, STORE, max_duration=10**9)
+    bag.open()
+    text = bag.add_topic("/text", STRING, [])
+    for i in range(25):  # 2.5 s at 10 Hz: three splits
+        bag.write(text, i * 10**8, string(i))
+    bag.close()
+    info = read_metadata(path)
+    assert info["ros_distro"] == "jazzy" and len(info["files"]) == 3
+    with Reader(path) as reader:
+        assert reader.ros_distro == "jazzy"
+    for name in info["relative_file_paths"]:  # the copy of the metadata embedded in every MCAP file
+        with open(path / name, "rb") as handle:
+            embedded = [m.metadata["serialized_metadata"] for m in make_reader(handle).iter_metadata()]
+        assert len(embedded) == 1 and "ros_distro: jazzy" in embedded[0] and "rosbags" not in embedded[0]

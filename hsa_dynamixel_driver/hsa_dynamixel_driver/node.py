@@ -37,7 +37,6 @@ from hsa_core.actuation import (
     MotorMap,
     RejectionLog,
     accept_read_neutral,
-    limit_goal_rate,
     neutral_check,
     ticks_to_angles,
 )
@@ -53,6 +52,7 @@ from hsa_dynamixel_driver.bus import (
     ServoStatusError,
     describe_hardware_error,
 )
+from hsa_dynamixel_driver.supervision import GoalRateLimiter, reboot_refusal
 from hsa_msgs.msg import PlanarActuation
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -174,8 +174,7 @@ class DynamixelDriver(LifecycleNode):
         self._pending = False
         self._target: np.ndarray | None = None
         self._target_source = None
-        self._last_goal: np.ndarray | None = None
-        self._last_write = time.monotonic()
+        self._limiter = GoalRateLimiter()  # the goal in force and the rate limit, on the node clock
         self._watchdog = "waiting for the first command"
         self._relaxed = False  # torque off by the watchdog (watchdog_action 'relax') until the next phi_cmd
         self._estop: str | None = None  # why the E-stop is engaged, None while released
@@ -187,7 +186,7 @@ class DynamixelDriver(LifecycleNode):
             ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
              "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops", "rate_limited"),
             0)
-        self._rate_base = (time.monotonic(), dict(self._counts))
+        self._rate_base = (self._now(), dict(self._counts))
         self._fault_file = os.environ.get(FAULT_FILE_ENV) or None
         if self._fault_file:
             self.get_logger().warning(f"test hook armed: the control cycle raises while {self._fault_file} exists")
@@ -215,6 +214,10 @@ class DynamixelDriver(LifecycleNode):
         diagnostics.add("estop", self._estop_report)
         if self._p["autostart"]:  # from the executor, so torque is never on outside the runner's shutdown guard
             self._autostart_timer: Timer | None = self.create_timer(0.0, self._autostart)
+
+    def _now(self) -> float:
+        """Node-clock time [s]: every timing decision uses it, so with use_sim_time it is simulated time."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _autostart(self) -> None:
         """One-shot: configure and activate without a lifecycle manager."""
@@ -303,7 +306,6 @@ class DynamixelDriver(LifecycleNode):
         self._clear_command()
         if self._link_up and self._estop is None:
             self._enable_torque()
-        self._last_write = time.monotonic()
         self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
         return SUCCESS
 
@@ -374,7 +376,7 @@ class DynamixelDriver(LifecycleNode):
         self._consecutive_failures = 0
         if self._lost_at is not None:
             self._counts["reconnects"] += 1
-            self._last_outage = f"{time.monotonic() - self._lost_at:.3f} s"
+            self._last_outage = f"{self._now() - self._lost_at:.3f} s"
             self._lost_at = None
             self.get_logger().info(f"bus reconnected after {self._last_outage}")
         latency = self._bus.latency_timer()
@@ -454,7 +456,7 @@ class DynamixelDriver(LifecycleNode):
             return problem
         self._torque_on = True
         self._torque_note = "on"
-        self._last_goal = ticks
+        self._limiter.reset(ticks)
         self._clear_command()
         self.get_logger().info("torque on, holding the present positions")
         return None
@@ -490,7 +492,7 @@ class DynamixelDriver(LifecycleNode):
         self._disable_torque("bus lost")
         self._bus.close()
         self._link_up = False
-        self._lost_at = time.monotonic()
+        self._lost_at = self._now()
         self._counts["bus_losses"] += 1
 
     def _count_error(self, exc: BusError) -> None:
@@ -512,7 +514,7 @@ class DynamixelDriver(LifecycleNode):
         self._counts["commands"] += 1
         if self._relaxed and self._torque_wanted and self._active and self._link_up:
             self._wake_from_relax()
-        self._command, self._command_time, self._pending = msg, time.monotonic(), True
+        self._command, self._command_time, self._pending = msg, self._now(), True
         if self._p["write_on_command"] and self._active and self._link_up:
             try:  # the goal leaves now instead of waiting up to one read period (compute-path latency)
                 self._write_goal()
@@ -521,7 +523,7 @@ class DynamixelDriver(LifecycleNode):
 
     def _log_rejection(self, kind: str, detail: str) -> None:
         """WARN about a rejected or clipped command, throttled by RejectionLog (the counters count every one)."""
-        line = self._rejections.record(kind, detail, time.monotonic())
+        line = self._rejections.record(kind, detail, self._now())
         if line is not None:
             self.get_logger().warning(line)
 
@@ -568,7 +570,7 @@ class DynamixelDriver(LifecycleNode):
         else:
             outcome = "torque off confirmed"
         if self._estop is None:
-            self._estop, self._estop_since = reason, time.monotonic()
+            self._estop, self._estop_since = reason, self._now()
             self._counts["estops"] += 1
             self._pub_estop.publish(Bool(data=True))
             self.get_logger().error(f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until clear_estop")
@@ -608,7 +610,7 @@ class DynamixelDriver(LifecycleNode):
     # ------------------------------------------------------------------ control cycle
     def _cycle(self) -> None:
         """One control cycle: at most one sync write of the newest command, then one sync read."""
-        now = time.monotonic()
+        now = self._now()
         self._counts["cycles"] += 1
         if self._fault_file and os.path.exists(self._fault_file):
             raise InjectedFault(f"injected by {FAULT_FILE_ENV}={self._fault_file}")
@@ -667,17 +669,14 @@ class DynamixelDriver(LifecycleNode):
             self._target_source, self._pending = self._command.source_stamp, False
         if self._target is None:
             return
-        goal = self._target
-        now = time.monotonic()
-        if self._p["max_goal_rate"] > 0.0:  # per write: max_goal_rate x the time since the last one, at most a period
-            dt = min(now - self._last_write, 1.0 / self._p["rate"])
-            limited = self._limits.clamp(limit_goal_rate(self._last_goal, goal, dt, self._p["max_goal_rate"]))[0]
-            self._counts["rate_limited"] += fresh and not np.array_equal(limited, goal)
-            goal = limited
-        if not fresh and np.array_equal(goal, self._last_goal):
+        now = self._now()  # max_goal_rate x the time since the goal of the last earlier instant, at most a period
+        goal = self._limiter.limited(self._target, now, self._p["max_goal_rate"], 1.0 / self._p["rate"],
+                                     lambda g: self._limits.clamp(g)[0])
+        self._counts["rate_limited"] += fresh and not np.array_equal(goal, self._target)
+        if not fresh and np.array_equal(goal, self._limiter.goal):
             return
         self._bus.write_goals({i: int(t) for i, t in zip(self._ids, goal)})
-        self._last_goal, self._last_write = goal, now
+        self._limiter.written(goal, now)
         self._counts["writes"] += 1
         msg = PlanarActuation(phi=self._map.present_twists(goal), source_stamp=self._target_source)
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -744,7 +743,7 @@ class DynamixelDriver(LifecycleNode):
         return Report(OK, f"torque {'on' if self._torque_on else 'off'}", values)
 
     def _control_report(self) -> Report:
-        now = time.monotonic()
+        now = self._now()
         since, base = self._rate_base
         elapsed = max(now - since, 1e-9)
         rates = {f"{k}_per_s": round((self._counts[k] - base[k]) / elapsed, 1) for k in ("cycles", "writes", "reads")}
@@ -761,7 +760,7 @@ class DynamixelDriver(LifecycleNode):
 
     def _estop_report(self) -> Report:
         values = {"engaged": self._estop is not None, "reason": self._estop or "",
-                  "engaged_for": f"{time.monotonic() - self._estop_since:.1f} s" if self._estop else "",
+                  "engaged_for": f"{self._now() - self._estop_since:.1f} s" if self._estop else "",
                   "estops": self._counts["estops"], "ignored_commands": self._counts["ignored"]}
         if self._estop is not None:
             return Report(ERROR, f"E-stop engaged ({self._estop}): call clear_estop", values)

@@ -1,0 +1,128 @@
+"""Tests of hsa_dynamixel_driver.supervision: the instant-wise goal-rate limiter and the reboot admission (issues 11, 12).
+
+Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by the code under
+test: max_rate · dt · 2048/π ticks, rounded down.
+"""
+
+import itertools
+import math
+import random
+
+import numpy as np
+import pytest
+
+from hsa_dynamixel_driver.supervision import GoalRateLimiter, reboot_refusal
+
+TICKS_PER_RAD = 2048 / math.pi
+RATE = 10.0  # rad/s
+PERIOD = 0.01  # s (100 Hz cycle)
+STEP = 65  # ⌊10 rad/s · 0.01 s · 2048/π⌋ = ⌊65.19⌋ ticks per period
+HELD = np.array([1000, 3000, -500, 5000])
+
+
+def limiter_at(goal: np.ndarray, t: float) -> GoalRateLimiter:
+    """A limiter whose goal ``goal`` was written at instant ``t`` (after a torque-on hold)."""
+    limiter = GoalRateLimiter()
+    limiter.reset(HELD)
+    limiter.written(goal, t)
+    return limiter
+
+
+def write(limiter: GoalRateLimiter, target: np.ndarray, t: float) -> np.ndarray:
+    """One write as the driver does it: the limited goal is written and recorded."""
+    goal = limiter.limited(target, t, RATE, PERIOD)
+    limiter.written(goal, t)
+    return goal
+
+
+def test_step_constant_is_the_rate_times_the_period() -> None:
+    assert STEP == math.floor(RATE * PERIOD * TICKS_PER_RAD)
+
+
+@pytest.mark.parametrize("order", list(itertools.permutations(range(3))))
+def test_writes_at_one_instant_end_at_the_same_goal_in_any_order(order: tuple[int, ...]) -> None:
+    # At t = 1.01 the cycle (old target A), a phi_cmd (target B) and the cycle again (target B) write in some order;
+    # the last write decides, and it is measured from the goal of instant 1.00 whatever came before it.
+    targets = [HELD + 500, HELD - 500, HELD + 20]
+    limiter = limiter_at(HELD, 1.00)
+    for k in order:
+        final = write(limiter, targets[k], 1.01)
+    expected = HELD + np.clip(targets[order[-1]] - HELD, -STEP, STEP)
+    np.testing.assert_array_equal(final, expected)
+
+
+def test_cycle_then_command_equals_command_then_cycle() -> None:
+    # The driver's two paths at one simulated instant: the cycle rewrites the old target A, the phi_cmd writes B;
+    # with the command first, the cycle then writes B again (its newest target). Both end at B limited from 1.00.
+    a, b = HELD + 300, HELD - 300
+    first = limiter_at(HELD, 1.00)
+    write(first, a, 1.01)
+    write(first, b, 1.01)
+    second = limiter_at(HELD, 1.00)
+    write(second, b, 1.01)
+    write(second, b, 1.01)
+    np.testing.assert_array_equal(first.goal, second.goal)
+    np.testing.assert_array_equal(first.goal, HELD - STEP)
+
+
+def test_next_instant_is_measured_from_the_final_goal_of_the_previous_one() -> None:
+    limiter = limiter_at(HELD, 1.00)
+    write(limiter, HELD + 500, 1.01)
+    write(limiter, HELD - 500, 1.01)  # final goal of 1.01: HELD - STEP
+    np.testing.assert_array_equal(write(limiter, HELD - 500, 1.02), HELD - 2 * STEP)
+
+
+def test_dt_is_capped_at_one_period_and_a_held_goal_moves_one_period_at_once() -> None:
+    limiter = limiter_at(HELD, 1.00)
+    np.testing.assert_array_equal(write(limiter, HELD + 5000, 3.00), HELD + STEP)  # 2 s later: still one period
+    fresh = GoalRateLimiter()
+    fresh.reset(HELD)  # torque came on holding HELD: the first write may move a full period's step
+    np.testing.assert_array_equal(write(fresh, HELD + 5000, 7.0), HELD + STEP)
+    np.testing.assert_array_equal(write(fresh, HELD - 5000, 7.0), HELD - STEP)  # same instant: from HELD again
+
+
+def test_clock_jumping_back_allows_no_motion() -> None:
+    limiter = limiter_at(HELD + 7, 5.0)
+    np.testing.assert_array_equal(write(limiter, HELD + 5000, 4.0), HELD + 7)
+
+
+def test_rate_zero_is_no_limit_and_clamp_is_applied() -> None:
+    limiter = limiter_at(HELD, 1.0)
+    np.testing.assert_array_equal(limiter.limited(HELD + 5000, 1.01, 0.0, PERIOD), HELD + 5000)
+    clamped = limiter.limited(HELD + 5000, 1.01, RATE, PERIOD, clamp=lambda g: np.minimum(g, HELD + 10))
+    np.testing.assert_array_equal(clamped, HELD + 10)
+
+
+def test_limited_before_reset_is_an_error() -> None:
+    with pytest.raises(RuntimeError):
+        GoalRateLimiter().limited(HELD, 0.0, RATE, PERIOD)
+
+
+def test_flood_bound_holds_for_any_interleaving() -> None:
+    # A flood of full-range swings at random instants, several writes per instant: every write stays within
+    # RATE · min(t − t_prev, PERIOD) of the previous instant's final goal, and the final goals of any two instants
+    # differ by at most RATE · Δt (the bound tests/ros/test_goal_flood.py checks on the bus).
+    rng = random.Random(3)
+    limiter = GoalRateLimiter()
+    limiter.reset(HELD)
+    t, finals = 0.0, []
+    for _ in range(400):
+        t = round(t + rng.choice((0.0005, 0.001, 0.004, 0.01, 0.03)), 6)
+        before = finals[-1] if finals else (-math.inf, HELD)
+        for _ in range(rng.randint(1, 3)):
+            target = HELD + rng.choice((-2300, 0, 2300))
+            goal = write(limiter, target, t)
+            allowed = math.floor(RATE * min(t - before[0], PERIOD) * TICKS_PER_RAD)
+            assert np.all(np.abs(goal - before[1]) <= allowed)
+        finals.append((t, limiter.goal))
+    for (t_i, g_i), (t_j, g_j) in itertools.combinations(finals, 2):
+        assert np.all(np.abs(g_j - g_i) <= RATE * (t_j - t_i) * TICKS_PER_RAD + 1e-9)
+
+
+def test_reboot_refused_only_while_tracking_with_torque_on() -> None:
+    assert "tracking" in reboot_refusal(active=True, link_up=True, torque_on=True, tracking=True)
+    assert reboot_refusal(active=True, link_up=True, torque_on=True, tracking=False) is None  # holding
+    assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=True) is None  # torque off
+    assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=False) is None
+    assert reboot_refusal(active=False, link_up=True, torque_on=False, tracking=False) == "node is not active"
+    assert reboot_refusal(active=True, link_up=False, torque_on=False, tracking=False) == "bus not connected"

@@ -7,7 +7,7 @@ V="$ROOT/.venv"
 PY="${HSA_PYTHON:-python3}"
 STAMPS="$V/.hsa_stamps"
 PACKAGES=(hsa_core hsa_common hsa_mocap_bridge hsa_kinematics_node hsa_planner_node hsa_controller_node hsa_dynamixel_driver
-          hsa_sim_node hsa_bag hsa_identification)
+          hsa_sim_node hsa_bag hsa_identification hsa_live)
 
 # one bootstrap at a time per checkout (parallel test runs would otherwise install into the venv together)
 mkdir -p "$ROOT/build"

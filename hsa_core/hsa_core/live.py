@@ -63,30 +63,32 @@ def controller_state_name(code: int) -> str:
 
 
 class Throttle:
-    """Lets at most one event through per ``1/rate`` seconds of the times passed in; the others are dropped.
+    """Lets at most one event through per ``1/rate`` seconds of the times passed in [ns]; the others are dropped.
 
-    A time earlier than the last accepted one (a clock reset, e.g. a restarted simulation) is accepted and restarts
-    the count, so the view never freezes waiting for a time that will not come.
+    Times are integer nanoseconds (a ROS clock's), so a stream on an exact grid (200 Hz states, 25 Hz scene) passes
+    exactly every 8th event, with no rounding loss. A time earlier than the last accepted one (a clock reset, e.g. a
+    restarted simulation) is accepted and restarts the count, so the view never freezes waiting for a time that
+    will not come.
     """
 
     def __init__(self, rate: float) -> None:
         self.rate = rate
-        self._last: float | None = None
+        self._last: int | None = None
 
     @property
     def rate(self) -> float:
         """[Hz] largest rate of accepted events."""
-        return 1.0 / self._period
+        return 1e9 / self._period
 
     @rate.setter
     def rate(self, rate: float) -> None:
         if not rate > 0.0:
             raise ValueError(f"rate must be > 0 Hz, got {rate}")
-        self._period = 1.0 / rate
+        self._period = round(1e9 / rate)
 
-    def due(self, now: float) -> bool:
-        """Whether an event at time ``now`` [s] goes through (it then becomes the last accepted one)."""
-        if self._last is not None and 0.0 <= now - self._last < self._period:
+    def due(self, now: int) -> bool:
+        """Whether an event at time ``now`` [ns] goes through (it then becomes the last accepted one)."""
+        if self._last is not None and 0 <= now - self._last < self._period:
             return False
         self._last = now
         return True

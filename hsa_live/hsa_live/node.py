@@ -177,7 +177,7 @@ class LiveNode(Node):
     def _on_state(self, msg: PlanarState) -> None:
         """Draw the newest state unless the last scene went out less than 1/scene_rate ago or nobody watches."""
         self._counts["states"] += 1
-        if not self._scene.has_sinks() or not self._throttle.due(self._now()):
+        if not self._scene.has_sinks() or not self._throttle.due(self.get_clock().now().nanoseconds):
             return
         q = msg.q
         robot = self._robot_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])), msg.header.stamp)

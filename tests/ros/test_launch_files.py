@@ -17,11 +17,11 @@ from hsa_common.launcher import LaunchError, LaunchFile, Process, main
 
 GRAPHS = sorted((Path(__file__).parents[2] / "launch_scripts").glob("*.launch.yaml"))
 REQUIRED = {"replay.launch.yaml": {"bag": "/tmp/some_bag"}}
-OPTIONAL_ON = {"sim.launch.yaml": [{"markers": "true"}], "real.launch.yaml": [{}],
+OPTIONAL_ON = {"sim.launch.yaml": [{"markers": "true", "live": "true"}], "real.launch.yaml": [{"live": "true"}],
                "replay.launch.yaml": [{"record": "true"}], "identify.launch.yaml": [{"sim": "true"}, {"sim": "false"}]}
 """Launch arguments that switch every optional node of a graph on (or each branch of it)."""
 PACKAGES = ("hsa_core", "hsa_common", "hsa_mocap_bridge", "hsa_kinematics_node", "hsa_planner_node",
-            "hsa_controller_node", "hsa_dynamixel_driver", "hsa_sim_node", "hsa_bag", "hsa_identification")
+            "hsa_controller_node", "hsa_dynamixel_driver", "hsa_sim_node", "hsa_bag", "hsa_identification", "hsa_live")
 
 
 @pytest.mark.parametrize("graph", GRAPHS, ids=lambda p: p.name)

@@ -33,13 +33,15 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from hsa_common import qos
-from hsa_common.launcher import find_executable, package_share
+from hsa_common.launcher import LaunchFile, find_executable, package_share
 from hsa_core import kinematics as kin
 from hsa_core.params import load_params
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
 from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
+
+LAUNCH = Path(__file__).parents[2] / "launch_scripts"
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 """The subprotocol foxglove-sdk 0.30 servers accept (they answer HTTP 400 to a client offering only the older
@@ -368,3 +370,20 @@ def test_a_taken_port_is_refused_in_one_line(live_node) -> None:
     assert code == 2, output
     fatal = [line for line in output.splitlines() if "FATAL" in line]
     assert len(fatal) == 1 and f"127.0.0.1:{port}" in fatal[0] and "parameter 'port'" in fatal[0], output
+
+
+@pytest.mark.parametrize("graph", ["sim.launch.yaml", "real.launch.yaml"])
+def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
+    """live:=true adds live_node to the sim and real graphs; it starts on their command line and serves on loopback."""
+    assert "live_node" not in [p.name for p in LaunchFile(LAUNCH / graph, {}).processes()]  # off by default
+    proc = next(p for p in LaunchFile(LAUNCH / graph, {"live": "true", "live_port": "0"}).processes()
+                if p.name == "live_node")
+    assert "port:=0" in proc.cmd
+    started = start_process(proc.cmd)
+    try:
+        port = served_port(wait_for_line(started, "ready", timeout=180.0))
+        listening = [c.laddr for c in psutil.Process(started.pid).net_connections(kind="inet")
+                     if c.status == psutil.CONN_LISTEN]
+        assert [(a.ip, a.port) for a in listening] == [("127.0.0.1", port)]
+    finally:
+        assert stop_process(started) == 0

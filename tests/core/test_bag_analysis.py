@@ -56,7 +56,7 @@ def stamp(ns: int):
 
 
 def info_msg(t_ns: int, state: int, p: tuple[float, float], p_des: tuple[float, float], k: int,
-             trajectory_length: int = len(TARGETS)) -> bytes:
+             trajectory_length: int = len(TARGETS), controller: str = "psatid", z_ee: float = 0.0) -> bytes:
     """Serialized ControllerInfo of one tick with measured p, setpoint p_des and recognisable other fields."""
     pose, cfg, setpoint = T["hsa_msgs/msg/PlanarPose"], T["hsa_msgs/msg/CsConfiguration"], T["hsa_msgs/msg/Setpoint"]
     sp = setpoint(
@@ -66,10 +66,10 @@ def info_msg(t_ns: int, state: int, p: tuple[float, float], p_des: tuple[float, 
     )  # fmt: skip
     msg = T[INFO](
         header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id="hsa_base"), state_stamp=stamp(t_ns),
-        controller="psatid", state=state, setpoint=sp, chiee=pose(p[0], p[1], 0.01 * k),
+        controller=controller, state=state, setpoint=sp, chiee=pose(p[0], p[1], 0.01 * k),
         chiee_des=pose(p_des[0], p_des[1], -0.02), q=cfg(float(k), 0.1, 0.2), q_des=cfg(1.0, 0.0, 0.0),
         q_dot=cfg(0.0, 0.0, 0.0), varphi=np.array([k, 2.0, 3.0]), varphi_des=np.array([1.0, 2.0, 3.0]),
-        e_int=np.array([0.5 * k, 0.0]), z_ee=np.zeros(2), phi_ss=np.array([1.0, 2.0]),
+        e_int=np.array([0.5 * k, 0.0]), z_ee=np.array([z_ee, 0.0]), phi_ss=np.array([1.0, 2.0]),
         phi_des_unsat=np.array([k, -1.0]), phi_des_sat=np.array([k, 0.0]), motor_goal_angles=np.zeros(4),
         saturated=(k % SATURATED_EVERY == 0), state_age=0.0, compute_time=0.0,
     )  # fmt: skip
@@ -143,6 +143,8 @@ def test_runlog_from_bag_keeps_tracking_ticks_with_header_time(info_bag: Path) -
     np.testing.assert_allclose(log.e_int[:, 0], 0.5 * k)
     np.testing.assert_array_equal(log.saturated, k % SATURATED_EVERY == 0)
     assert log.meta["controller"] == "psatid" and log.meta["trajectory_length"] == str(len(TARGETS))
+    assert log.meta["ee_integral"] == "false" and "material" not in log.meta and "setup" not in log.meta
+    assert log.phi_meas is None  # no /hsa/phi_present in this bag
     assert not analysis.is_contour(log)
 
 
@@ -174,13 +176,14 @@ def test_cli_writes_tables_figures_and_exports(info_bag: Path, tmp_path: Path, c
     printed = capsys.readouterr().out
     assert "RMSE [mm]" in printed and "step" in printed
     assert f"{expected([N] * 4)['rmse'] * 1e3:.2f}" in printed
-    names = {p.name for p in out.iterdir()}
-    assert {"metrics.txt", "end_effector.png", "configuration.png", "collocated.png", "actuation.png",
-            "run.csv", "run.npz"} <= names and "path.png" not in names  # fmt: skip
+    assert {p.name for p in out.iterdir()} == {"metrics.txt", "run.csv", "run.npz", "figures"}  # README layout
+    figures = ("end_effector", "steps", "path", "actuation", "configuration", "collocated")
+    assert {p.name for p in (out / "figures").iterdir()} == {f"{f}.{x}" for f in figures for x in ("pdf", "png")}
+    assert "RMSE [mm]" in (out / "metrics.txt").read_text()
     saved = RunLog.load_npz(out / "run.npz")
     np.testing.assert_allclose(saved.chiee, analysis.runlog_from_bag(info_bag).chiee)
     header = (out / "run.csv").read_text().splitlines()[0].split(",")
-    assert header[:4] == ["t", "chiee_x", "chiee_y", "chiee_theta"] and "phi_sat_2" in header
+    assert header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]", "chiee_theta [rad]"] and "phi_sat_2 [rad]" in header
     assert len((out / "run.csv").read_text().splitlines()) == 1 + len(TARGETS) * N
 
 
@@ -190,8 +193,135 @@ def test_contour_run_draws_the_path_and_is_not_trimmed(tmp_path: Path) -> None:
              for k in range(40)]  # fmt: skip
     bag = write_info_bag(tmp_path / "contour", ticks, trajectory_length=40)
     result = analysis.analyze(bag, tmp_path / "out", duration=None)
-    assert (tmp_path / "out" / "path.png") in result.files
+    assert (tmp_path / "out" / "figures" / "path.png") in result.files
+    assert not any(p.stem == "steps" for p in result.files)  # no step figure for a contour
     assert result.metrics.rmse == pytest.approx(0.001)
+
+
+# --- measured φ, material and setup from the bag; overlays; NPZ runs ------------------------------------------------
+
+PHI = "hsa_msgs/msg/PlanarActuation"
+DIAG = "diagnostic_msgs/msg/DiagnosticArray"
+PHI_PERIOD = 7_000_000  # ns: the driver's reads, not aligned with the 30 ms ticks
+
+
+def phi_msg(t_ns: int, phi: tuple[float, float]) -> bytes:
+    """Serialized PlanarActuation (measured twist) stamped t_ns."""
+    msg = T[PHI](header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""), source_stamp=stamp(0),
+                 phi=np.array(phi))
+    return STORE.serialize_cdr(msg, PHI)
+
+
+def diag_msg(t_ns: int, statuses: list[tuple[str, dict[str, str]]]) -> bytes:
+    """Serialized DiagnosticArray with the given (name, values) statuses."""
+    status, kv = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
+    msg = T[DIAG](header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""), status=[
+        status(level=0, name=name, message="", hardware_id="", values=[kv(key=k, value=v) for k, v in values.items()])
+        for name, values in statuses])  # fmt: skip
+    return STORE.serialize_cdr(msg, DIAG)
+
+
+def write_full_bag(path: Path, controller: str = "psatid", nodes: tuple[str, ...] = ("sim_node",),
+                   material: str = "epu", custom: dict[str, str] | None = None, z_ee: float = 0.0) -> Path:
+    """The step run with /hsa/phi_present (φ = (j·1e-3, 2) at stamp t0 + j·PHI_PERIOD) and /diagnostics."""
+    ticks = step_response()
+    t0, t_end = ticks[0][0], ticks[-1][0]
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        for key, value in (custom or {}).items():
+            writer.set_custom_data(key, value)
+        info = writer.add_connection(analysis.TOPIC, INFO, typestore=STORE)
+        phi = writer.add_connection("/hsa/phi_present", PHI, typestore=STORE)
+        diag = writer.add_connection("/diagnostics", DIAG, typestore=STORE)
+        statuses = [("kinematics_node: estimator", {"received": "5", "material": material})]
+        statuses += [(f"{node}: status", {"x": "1"}) for node in nodes]
+        writer.write(diag, t0, diag_msg(t0, statuses))
+        for t_ns, state, p, p_des, k in ticks:
+            writer.write(info, t_ns, info_msg(t_ns, state, p, p_des, k, controller=controller, z_ee=z_ee))
+        for j in range((t_end - t0) // PHI_PERIOD):
+            writer.write(phi, t0 + j * PHI_PERIOD + 1, phi_msg(t0 + j * PHI_PERIOD, (j * 1e-3, 2.0)))
+    return path
+
+
+def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> None:
+    log = analysis.runlog_from_bag(write_full_bag(tmp_path / "sim_run"))
+    first_tracking = step_response()[10][0]  # 10 waiting ticks come first
+    t0 = step_response()[0][0]
+    for k in (0, 1, 17, len(log) - 1):  # the newest measurement at or before the tick
+        tick = first_tracking + round(log.t[k] * 1e9)
+        j = max(i for i in range(10**6) if t0 + i * PHI_PERIOD <= tick)
+        np.testing.assert_allclose(log.phi_meas[k], [j * 1e-3, 2.0], atol=1e-12)
+    assert log.meta["material"] == "epu" and log.meta["setup"] == "sim" and log.meta["ee_integral"] == "false"
+    assert float(log.meta["phi_max"]) == pytest.approx(4.7123890, abs=1e-6)  # EPU's φ_max (epu.yaml, 270°)
+
+    robot = analysis.runlog_from_bag(write_full_bag(tmp_path / "robot_run", nodes=("dynamixel_driver",)))
+    assert robot.meta["setup"] == "robot" and robot.meta["material"] == "epu"
+    told = analysis.runlog_from_bag(write_full_bag(tmp_path / "told", custom={"setup": "robot", "material": "fpu"}))
+    assert told.meta["setup"] == "robot" and told.meta["material"] == "fpu"  # custom_data wins
+    eei = analysis.runlog_from_bag(write_full_bag(tmp_path / "eei", z_ee=0.01))
+    assert eei.meta["ee_integral"] == "true"
+
+
+def test_figures_of_a_bag_name_the_run_and_draw_measured_phi(tmp_path: Path) -> None:
+    from hsa_core import plotting
+
+    bag = write_full_bag(tmp_path / "pid_run", controller="pid")
+    result = analysis.analyze(bag, tmp_path / "out")
+    label = plotting.RunLabel.of(result.log, result.metrics.rmse)
+    assert label.short == f"PID, EPU, sim: RMSE {expected([N] * 4)['rmse'] * 1e3:.2f} mm"
+    fig = plotting.actuation_figure(result.log, label)
+    for ax in fig.axes:
+        assert [line.get_gid() for line in ax.get_lines()].count("measured") == 1
+        assert "reference" not in [line.get_gid() for line in ax.get_lines()]  # a PID run has no φ^ss
+        assert sorted(line.get_ydata()[0] for line in ax.get_lines() if line.get_gid() == "limit") == [
+            0.0, pytest.approx(4.7123890, abs=1e-6)]
+    assert (tmp_path / "out" / "figures" / "actuation.pdf").is_file()
+
+
+def test_several_runs_are_analysed_and_overlaid(tmp_path: Path, capsys) -> None:
+    a = write_full_bag(tmp_path / "a" / "bag", controller="psatid")  # named after its parent: a
+    b = write_full_bag(tmp_path / "pid_run", controller="pid")
+    npz_run = tmp_path / "exp" / "epu_psatid"
+    npz_run.mkdir(parents=True)
+    analysis.runlog_from_bag(a).save_npz(npz_run / "log.npz")  # an offline experiment's log
+    out = tmp_path / "cmp"
+    assert analysis.main([str(a), str(b), str(npz_run / "log.npz"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert {p.name for p in out.iterdir()} == {"a", "pid_run", "epu_psatid", "figures", "metrics.txt"}
+    for name in ("a", "pid_run", "epu_psatid"):
+        assert (out / name / "metrics.txt").is_file() and (out / name / "figures" / "end_effector.pdf").is_file()
+    overlays = {p.name for p in (out / "figures").iterdir()}
+    assert overlays == {f"overlay_{f}.{x}" for f in ("end_effector", "steps", "path", "actuation")
+                        for x in ("pdf", "png")}  # fmt: skip
+    table = (out / "metrics.txt").read_text()
+    rmse = f"{expected([N] * 4)['rmse'] * 1e3:.2f}"
+    assert all(name in table for name in ("a", "pid_run", "epu_psatid")) and table.count(rmse) == 3
+    assert printed.count(rmse) >= 3
+
+
+def test_two_runs_of_the_same_name_are_kept_apart(tmp_path: Path) -> None:
+    a = write_full_bag(tmp_path / "x" / "run1")
+    b = write_full_bag(tmp_path / "y" / "run1")
+    assert analysis.main([str(a), str(b), "--out", str(tmp_path / "o")]) == 0
+    assert {"run1", "run1_2"} <= {p.name for p in (tmp_path / "o").iterdir()}
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["{bag}", "{bag}", "--name", "x"], "--name names one run"),
+    (["{bag}", "/nonexistent/bag"], "/nonexistent/bag does not exist"),
+    ([], "the following arguments are required: RUN"),
+])
+def test_bad_arguments_are_one_line_with_exit_2(info_bag: Path, tmp_path: Path, capsys, args, message) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        analysis.main([a.format(bag=info_bag) for a in args] + ["--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_npz_that_is_not_a_runlog_is_refused(tmp_path: Path, capsys) -> None:
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    code, err = run_cli([str(tmp_path / "other.npz"), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "not a RunLog NPZ file" in err
 
 
 # --- bad bags ------------------------------------------------------------------------------------------------------

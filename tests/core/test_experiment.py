@@ -42,8 +42,9 @@ def test_runlog_npz_and_csv_round_trip(tmp_path) -> None:
     assert back.meta == log.meta
     rows = np.loadtxt(log.save_csv(tmp_path / "log.csv"), delimiter=",", skiprows=1)
     header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
-    assert len(header) == 1 + 3 * 6 + 2 * 4 + 1 and header[:4] == ["t", "chiee_x", "chiee_y", "chiee_theta"]
-    np.testing.assert_array_equal(rows[:, header.index("chiee_des_y")], np.arange(50) + 1)
+    assert len(header) == 1 + 3 * 6 + 2 * 4 + 1 and header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]",
+                                                                    "chiee_theta [rad]"]
+    np.testing.assert_array_equal(rows[:, header.index("chiee_des_y [m]")], np.arange(50) + 1)
     assert rows.shape == (50, len(header))
 
 
@@ -54,9 +55,9 @@ def test_trimmed_keeps_the_window() -> None:
 
 def test_figures_are_written(tmp_path) -> None:
     paths = plotting.all_figures(make_log(), tmp_path, prefix="x_", phi_max=3.49, contour=True)
-    assert [p.name for p in paths] == ["x_end_effector.png", "x_configuration.png", "x_collocated.png",
-                                       "x_actuation.png", "x_path.png"]
-    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths)
+    stems = ["x_end_effector", "x_path", "x_actuation", "x_configuration", "x_collocated"]  # contour: no steps
+    assert [p.name for p in paths] == [f"{s}.{fmt}" for s in stems for fmt in ("pdf", "png")]
+    assert all(p.read_bytes()[:4] == (b"%PDF" if p.suffix == ".pdf" else b"\x89PNG") for p in paths)
 
 
 def test_disturbance_none_is_the_model_and_default_is_the_declared_mismatch() -> None:

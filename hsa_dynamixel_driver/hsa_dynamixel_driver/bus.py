@@ -11,6 +11,7 @@ import os
 import select
 import termios
 import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -303,13 +304,29 @@ class DynamixelBus:
             self._lock.release()
 
     def reboot(self, dxl_id: int) -> None:
-        """REBOOT one servo (clears a latched hardware error); it restarts with torque off and RAM defaults.
+        """REBOOT one servo (Protocol 2.0 instruction 0x08; clears a latched hardware error); it restarts with torque
+        off and RAM defaults, and answers again once it has booted (see :meth:`wait_answering`).
 
         In extended position mode the present position comes back reduced to one turn (0..4095).
         """
         with self._lock:
             result, error = self._io("reboot", lambda: self._ph.reboot(self._port, dxl_id))
             self._check("reboot", dxl_id, result, error)
+
+    def wait_answering(self, ids: Sequence[int], timeout: float) -> None:
+        """Ping ``ids`` until each answers (a rebooting servo is silent while it boots), for at most ``timeout``
+        seconds of wall time (a bus-level wait, like the SDK's packet timeout); raises the last ping's error."""
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            for dxl_id in ids:
+                while True:
+                    model, result, error = self._io("ping", lambda i=dxl_id: self._ph.ping(self._port, i))
+                    if result == COMM_SUCCESS or time.monotonic() >= deadline:
+                        break
+                    time.sleep(0.005)
+                self._check("ping", dxl_id, result, error)
+                if model != self._model_number:
+                    raise BusError("ping", dxl_id, f"model number {model}, expected {self._model_number}")
 
     # ---------------------------------------------------------------- cyclic I/O
     def read_positions(self) -> PositionReading:

@@ -27,7 +27,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from hsa_common import qos
+from hsa_common import lockstep, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
@@ -57,6 +57,7 @@ from hsa_msgs.msg import PlanarActuation
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAULT_FILE_ENV = "HSA_DRIVER_FAULT_FILE"  # test hook: the control cycle raises while this file exists
+REBOOT_WAIT_S = 2.0  # wall-clock wait for rebooted servos to answer a ping again (bus-level, like the SDK timeouts)
 
 
 class InjectedFault(RuntimeError):
@@ -179,12 +180,14 @@ class DynamixelDriver(LifecycleNode):
         self._relaxed = False  # torque off by the watchdog (watchdog_action 'relax') until the next phi_cmd
         self._estop: str | None = None  # why the E-stop is engaged, None while released
         self._estop_since = 0.0
+        self._last_reboot = "none"
         self._lost_at: float | None = None
         self._last_outage = "none"
         self._consecutive_failures = 0
         self._counts = dict.fromkeys(
             ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
-             "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops", "rate_limited"),
+             "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops", "rate_limited",
+             "reboots"),
             0)
         self._rate_base = (self._now(), dict(self._counts))
         self._fault_file = os.environ.get(FAULT_FILE_ENV) or None
@@ -201,6 +204,9 @@ class DynamixelDriver(LifecycleNode):
         self.create_subscription(PlanarActuation, "phi_cmd", self._on_command, qos.COMMAND,
                                  qos_overriding_options=options)
         self.create_service(SetBool, "set_torque", self._on_set_torque)
+        self.create_service(Trigger, "reboot", lambda req, res: self._on_reboot(self._ids, res))
+        for dxl_id in self._ids:
+            self.create_service(Trigger, f"reboot_{dxl_id}", lambda req, res, i=dxl_id: self._on_reboot([i], res))
         self._pub_estop = self.create_publisher(Bool, "estop", qos.LATCHED)
         self._pub_estop.publish(Bool(data=False))
         self.create_service(Trigger, "estop", self._on_estop)
@@ -218,6 +224,10 @@ class DynamixelDriver(LifecycleNode):
     def _now(self) -> float:
         """Node-clock time [s]: every timing decision uses it, so with use_sim_time it is simulated time."""
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def lockstep_ready(self) -> bool:
+        """Lockstep: simulated time may start once the bus is connected and the driver active (torque handled)."""
+        return self._active and self._link_up
 
     def _autostart(self) -> None:
         """One-shot: configure and activate without a lifecycle manager."""
@@ -294,7 +304,8 @@ class DynamixelDriver(LifecycleNode):
         self._held = False
         self._uncalibrated = None
         self._torque_note = "inactive"
-        self._reconnect_timer = self.create_timer(self._p["reconnect_period"], self._reconnect)
+        # the bus is hardware: reconnection runs on the steady clock, also while simulated time stands still
+        self._reconnect_timer = lockstep.wall_timer(self, self._p["reconnect_period"], self._reconnect)
         self._connect()
         return SUCCESS
 
@@ -482,7 +493,7 @@ class DynamixelDriver(LifecycleNode):
         if not self._hw_errors:
             return None
         described = {i: describe_hardware_error(b) for i, b in self._hw_errors.items()}
-        return f"hardware error {described}: reboot or power-cycle the servo"
+        return f"hardware error {described}: call reboot (or reboot_<id>), or power-cycle the servo"
 
     def _lose_link(self, exc: BusError) -> None:
         """The bus stopped answering: torque off where still possible, close, let the reconnect timer retry."""
@@ -557,6 +568,54 @@ class DynamixelDriver(LifecycleNode):
             self._torque_wanted = problem is None
             self._relaxed = False
             response.success, response.message = problem is None, problem or "torque on"
+        return response
+
+    def _on_reboot(self, ids: list[int], response: Trigger.Response) -> Trigger.Response:
+        """Services ``reboot`` (all servos) and ``reboot_<id>``: Protocol 2.0 REBOOT to clear a latched hardware error.
+
+        Refused while torque is on and fresh commands are being tracked. Otherwise torque goes off for every servo,
+        the servos are rebooted, waited for, configured again (torque off, Return Delay Time, Operating Mode) and
+        their hardware errors and present positions re-read and re-checked against the configured limits; torque
+        stays off until ``set_torque(true)``, which checks them again.
+        """
+        problem = reboot_refusal(self._active, self._link_up, self._torque_on, self._watchdog == "fresh")
+        if problem is not None:
+            response.success, response.message = False, f"reboot refused: {problem}"
+            return response
+        assert self._bus is not None
+        self._torque_wanted, self._relaxed = False, False
+        self._disable_torque(f"reboot of IDs {ids}")
+        self._clear_command()
+        began = time.monotonic()
+        try:
+            for dxl_id in ids:
+                self._bus.reboot(dxl_id)
+            self._bus.wait_answering(ids, REBOOT_WAIT_S)
+            self._bus.configure(return_delay=self._p["return_delay"])  # RAM defaults: torque off; EEPROM checked
+            reading = self._bus.read_positions()
+            errors = {i: b for i, b in self._bus.read_hardware_errors().items() if b}
+        except BusError as exc:
+            self._count_error(exc)
+            self._torque_note = f"off (reboot of IDs {ids} failed: {exc})"
+            self.get_logger().error(self._torque_note)
+            response.success, response.message = False, f"reboot of IDs {ids} failed: {exc}"
+            return response
+        took = time.monotonic() - began
+        self._counts["reboots"] += 1
+        self._hw_errors, self._alerts = errors, reading.alerts
+        problem = self._hardware_problem() or self._position_problem(self._present_ticks(reading.ticks))
+        if problem is not None and not errors:
+            problem = f"{problem}; a reboot resets the multi-turn count (present position within one turn)"
+        self._last_reboot = f"IDs {ids} in {took * 1e3:.1f} ms: " + (problem or "ready for set_torque(true)")
+        self._torque_note = f"off (rebooted IDs {ids}{': ' + problem if problem else ''})"
+        if problem is not None:
+            self.get_logger().error(f"rebooted IDs {ids}; torque stays off: {problem}")
+        else:
+            self.get_logger().warning(f"rebooted IDs {ids} in {took * 1e3:.1f} ms: hardware errors cleared, present "
+                                      "positions within the limits; torque off until set_torque(true)")
+        response.success = problem is None
+        response.message = (f"rebooted IDs {ids}; " + (f"torque stays off: {problem}" if problem else
+                            "hardware errors cleared, positions within the limits: call set_torque(true)"))
         return response
 
     # ------------------------------------------------------------------ emergency stop
@@ -731,7 +790,8 @@ class DynamixelDriver(LifecycleNode):
         values = {"torque": self._torque_note, "neutral_ticks": list(self._map.neutral_ticks) if self._map else [],
                   "neutral_source": self._p["neutral_source"],
                   "goal_limits": [[int(lo), int(hi)] for lo, hi in zip(self._limits.lower, self._limits.upper)]
-                  if self._limits else [], "held_at_start": self._held,
+                  if self._limits else [], "held_at_start": self._held, "reboots": self._counts["reboots"],
+                  "last_reboot": self._last_reboot,
                   **{f"hardware_error_{i}": describe_hardware_error(self._hw_errors.get(i, 0)) for i in self._ids}}
         if self._hw_errors:
             return Report(ERROR, self._hardware_problem() or "", values)

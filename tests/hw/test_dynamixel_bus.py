@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 
 import pytest
@@ -148,6 +149,20 @@ def test_hardware_error_is_reported_and_cleared_by_reboot(bus, emulator) -> None
     assert bus.read_hardware_errors()[22] == 0 and bus.read_positions().alerts == frozenset()
     bus.enable_torque()
     assert all(emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids)
+
+
+def test_wait_answering_waits_for_a_booting_servo_and_gives_up_at_the_timeout(bus, emulator) -> None:
+    emulator.set_responsive(23, False)  # a servo still booting after a reboot does not answer
+    began = time.monotonic()
+    with pytest.raises(CommError, match="ping on ID 23") as caught:
+        bus.wait_answering((22, 23), timeout=0.3)
+    assert caught.value.comm_result == COMM_RX_TIMEOUT and 0.3 <= time.monotonic() - began < 1.0
+    wake = threading.Timer(0.2, emulator.set_responsive, (23, True))
+    wake.start()
+    began = time.monotonic()
+    bus.wait_answering((22, 23), timeout=3.0)
+    assert 0.2 <= time.monotonic() - began < 1.0
+    wake.join()
 
 
 def test_unplug_gives_port_errors_until_replug_and_reconnect(bus, emulator, wait_for) -> None:

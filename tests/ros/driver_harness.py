@@ -121,12 +121,15 @@ def command(phi1: float, phi2: float) -> PlanarActuation:
 
 
 class DriverServices:
-    """Clients of the driver's set_torque, estop and clear_estop services, created once and matched before use (the
-    first request of a client that was just discovered can wait for DDS matching, which is not the driver's latency)."""
+    """Clients of the driver's set_torque, estop and clear_estop (and optionally reboot) services, created once and
+    matched before use (the first request of a client that was just discovered can wait for DDS matching, which is not
+    the driver's latency)."""
 
-    def __init__(self, node: Node) -> None:
-        self._clients = {name: node.create_client(srv, name) for name, srv in
-                         (("set_torque", SetBool), ("estop", Trigger), ("clear_estop", Trigger))}
+    def __init__(self, node: Node, reboot: bool = False) -> None:
+        names = [("set_torque", SetBool), ("estop", Trigger), ("clear_estop", Trigger)]
+        if reboot:  # the reboot service for all servos and one per ID
+            names += [("reboot", Trigger)] + [(f"reboot_{i}", Trigger) for i in IDS]
+        self._clients = {name: node.create_client(srv, name) for name, srv in names}
         for name, client in self._clients.items():
             assert client.wait_for_service(timeout_sec=20.0), f"service {name} not available"
         time.sleep(0.5)  # let the response readers match too
@@ -142,3 +145,9 @@ class DriverServices:
     def set_torque(self, on: bool) -> SetBool.Response:
         """The driver's set_torque service."""
         return self.call("set_torque", SetBool.Request(data=on))[0]
+
+    def reboot(self, dxl_id: int | None = None) -> tuple[Trigger.Response, float, float]:
+        """The driver's reboot service (all servos) or reboot_<dxl_id>: the response, when the request left and when
+        the response came back (monotonic)."""
+        response, sent = self.call("reboot" if dxl_id is None else f"reboot_{dxl_id}")
+        return response, sent, time.monotonic()

@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import math
 import random
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import matplotlib
+import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 
@@ -38,10 +41,14 @@ from tests.ros.driver_harness import (
 )
 from tests.ros.faults import DiagnosticsLog, fault
 
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
+
 pytestmark = pytest.mark.ros
 __all__ = ["drivers"]  # fixture used by the tests below
 
 BUS, SERVOS, CONTROL = "dynamixel_driver: bus", "dynamixel_driver: servos", "dynamixel_driver: control"
+FIGURES = Path(__file__).resolve().parents[2] / "out" / "faults"
 
 
 @pytest.fixture
@@ -277,4 +284,148 @@ def test_no_goal_outside_the_clamp_range_whatever_arrives_and_the_rate_limit(emu
     assert worst > 0.8 * rate, f"the ramp hardly moved (max {worst:.2f} rad/s)"
     fault("square-wave phi_cmd 0 <-> phi_max with max_goal_rate 2 rad/s",
           f"goal speed at most {worst:.2f} rad/s over >= 0.2 s windows, never above the limit", "none needed")
+    assert driver.proc.poll() is None
+
+
+class BusTrace:
+    """Samples the emulated servos every 2 ms in a thread: present ticks, torque and hardware error per ID."""
+
+    def __init__(self, emulator: MX28Emulator) -> None:
+        self.samples: list[tuple[float, dict[int, int], dict[int, bool], dict[int, int]]] = []
+        self._emulator = emulator
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        emu = self._emulator
+        while not self._stop.wait(0.002):
+            self.samples.append((time.monotonic(), emu.present_ticks(), {i: emu.torque_enabled(i) for i in IDS},
+                                 emu.hardware_errors()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+class CommandStream:
+    """Publishes φ = (phi, phi) at 50 Hz in a thread: a controller that keeps tracking through the fault."""
+
+    def __init__(self, pub, phi: float) -> None:
+        self._pub, self._phi = pub, phi
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(0.02):
+            self._pub.publish(command(self._phi, self._phi))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def plot_reboot_recovery(trace: BusTrace, goals: list, events: dict[str, float], zero: float, path: Path) -> None:
+    """Twist of motor 22 (present and goal) and every servo's torque over the overload → reboot → torque-on sequence,
+    with the events (times from the emulator's write log and the service calls) as marked lines."""
+    t = np.array([s[0] for s in trace.samples]) - zero
+    psi = np.array([(s[1][22] - NEUTRAL[22]) / TICKS_PER_RAD for s in trace.samples])
+    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 4.8), height_ratios=(1.4, 1.6))
+    top.plot(t, psi, color="C0", marker=".", ms=3, label=r"present $\psi_{22}$ (sampled every 2 ms)")
+    top.step([w.time - zero for w in goals], [(w.value - NEUTRAL[22]) / TICKS_PER_RAD for w in goals], where="post",
+             color="C1", ls="--", label=r"goal $\psi_{22}$ written")
+    top.set_ylabel(r"$\psi_{22}$ [rad]")
+    top.legend(loc="lower right", fontsize=7)
+    for k, dxl_id in enumerate(IDS):
+        bottom.step(t, [k * 1.5 + s[2][dxl_id] for s in trace.samples], where="post", color="k", lw=1.2)
+    error = np.array([s[3][22] != 0 for s in trace.samples])
+    bottom.fill_between(t, -0.3, 6.0, where=error, step="post", color="red", alpha=0.15,
+                        label="overload latched in ID 22")
+    bottom.set_yticks([k * 1.5 + 0.5 for k in range(len(IDS))], [f"ID {i}" for i in IDS])
+    bottom.set_ylabel("torque (low = off)")
+    bottom.set_xlabel("time since the overload was injected [s]")
+    styles = ["-", "--", "-.", ":"]
+    for k, (name, at) in enumerate(events.items()):
+        for ax in (top, bottom):
+            ax.axvline(at - zero, color=f"C{k + 2}", lw=1.0, ls=styles[k % 4],
+                       label=f"{name}: {(at - zero) * 1e3:.1f} ms" if ax is bottom else None)
+    bottom.legend(loc="center left", bbox_to_anchor=(1.01, 0.8), fontsize=7, frameon=False)
+    bottom.set_xlim(-0.02, max(events.values()) - zero + 0.04)
+    top.set_title("MX-28 overload on ID 22 → reboot_22 → set_torque(true) (emulated bus, real dynamixel_sdk)",
+                  fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for suffix in (".png", ".pdf"):
+        fig.savefig(path.with_suffix(suffix), dpi=150, bbox_inches="tight")
+    plt.close(fig)
+
+
+def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> None:
+    driver = start(emulator, drivers)
+    services = DriverServices(ros_node, reboot=True)
+    diagnostics = DiagnosticsLog(ros_node)
+    pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
+    assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
+    phi = 0.3
+    target = NEUTRAL[22] - math.trunc(phi * TICKS_PER_RAD)  # spec §7: motor 22 turns by −φ₂
+    trace = BusTrace(emulator)
+    stream = CommandStream(pub, phi)
+    try:
+        assert wait_until(lambda: abs(emulator.present_ticks()[22] - target) <= 3, 5.0), driver.output()
+        # Tracking with torque on: a reboot would drop the servo mid-motion, so it is refused and nothing changes.
+        answer, _, _ = services.reboot(22)
+        assert not answer.success and "tracking" in answer.message and torque(emulator) == {True}, answer.message
+
+        injected = time.monotonic()
+        emulator.set_hardware_error(22, HW_OVERLOAD)
+        assert wait_until(lambda: torque_off_time(emulator, injected) is not None, 2.0), driver.output()
+        events = {"overload": injected, "torque off (all)": torque_off_time(emulator, injected)}
+        answer = services.set_torque(True)
+        assert not answer.success and "overload" in answer.message and "reboot" in answer.message, answer.message
+
+        # Torque is off (the controller still sends): reboot_22 clears the error, torque stays off until asked.
+        answer, sent, answered = services.reboot(22)
+        events["reboot_22 request"], events["reboot_22 answer"] = sent, answered
+        assert answer.success and "set_torque(true)" in answer.message, answer.message
+        assert emulator.hardware_errors()[22] == 0 and torque(emulator) == {False}
+        asked = time.monotonic()
+        answer = services.set_torque(True)
+        assert answer.success and torque(emulator) == {True}, answer.message
+        assert torque_on_time(emulator, injected) >= asked, "torque came back before set_torque(true)"
+        on = torque_on_time(emulator, asked)
+        events["set_torque(true)"], events["torque on (all)"] = asked, on
+        assert wait_until(lambda: goal_writes(emulator, on + 1e-6), 2.0), "tracking did not resume"
+        resumed = goal_writes(emulator, on + 1e-6)[0].time
+        events["tracking again (first goal)"] = resumed
+        assert wait_until(lambda: abs(emulator.present_ticks()[22] - target) <= 3, 5.0)
+        time.sleep(0.2)
+    finally:
+        stream.stop()
+        trace.stop()
+    _, values = diagnostics.wait(SERVOS, lambda s, v: v["reboots"] == "1", after_ns=now_ns(ros_node))
+    assert values["hardware_error_22"] == "none" and "IDs [22]" in values["last_reboot"]
+    plot_reboot_recovery(trace, [w for w in goal_writes(emulator, injected - 0.3) if w.dxl_id == 22], events,
+                         injected, FIGURES / "driver_reboot_recovery")
+    reboot_s, recovery = answered - sent, on - sent
+    assert recovery < 2.0, f"reboot -> torque on took {recovery:.3f} s"
+    fault("hardware error (overload, ID 22) cleared by reboot_22", f"torque off on all servos "
+          f"{(events['torque off (all)'] - injected) * 1e3:.1f} ms after the alert; reboot_22 refused while tracking "
+          f"with torque on, accepted with torque off: {reboot_s * 1e3:.1f} ms (error cleared, torque off, positions "
+          f"re-checked); set_torque(true) -> torque on {(on - asked) * 1e3:.1f} ms, tracking "
+          f"{(resumed - on) * 1e3:.1f} ms later", recovery)
+
+    # Holding (commands stopped, watchdog expired): `reboot` of all servos is allowed and switches torque off first;
+    # servos 23 and 24 sit outside one turn (neutral −500 and 5000), the reboot reduces them to one turn, and the
+    # re-check refuses torque for them until someone re-homes.
+    assert wait_until(lambda: bool(driver.log("holding the last goal")), 2.0), driver.output()
+    answer, sent, answered = services.reboot()
+    assert not answer.success and "IDs [23, 24]" in answer.message and "multi-turn" in answer.message, answer.message
+    wrapped = (NEUTRAL[24] - math.trunc(phi * TICKS_PER_RAD)) % 4096  # spec §7: motor 24 turns by −φ₁
+    assert torque(emulator) == {False} and abs(emulator.present_ticks()[24] - wrapped) <= 3
+    answer = services.set_torque(True)
+    assert not answer.success and "IDs [23, 24]" in answer.message and torque(emulator) == {False}
+    fault("reboot of all servos while holding, two of them beyond one turn", "torque off first, every servo "
+          f"rebooted in {(answered - sent) * 1e3:.1f} ms; positions re-checked: torque refused for IDs 23, 24 (multi-turn "
+          "count lost)", "manual (re-home)")
     assert driver.proc.poll() is None

@@ -1,0 +1,169 @@
+"""A node's side of the lockstep barrier: count what it publishes and takes, and report when it runs out of work.
+
+``Participant(node)`` wraps the node's publishers, subscriptions, service servers and clients to count messages per
+topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events and the barrier's own topic are not counted),
+and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
+(:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.lockstep`; the contract is in
+docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder:
+every selected topic subscribed).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.timer import Timer
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from hsa_core.lockstep import Report
+from hsa_msgs.msg import LockstepAck
+
+ACK_TOPIC = "/_lockstep/ack"
+"""Hidden topic of the participants' reports (not recorded)."""
+ACK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Reports: only a participant's latest matters (they are cumulative); transient local, so a simulator that starts
+after a participant still gets its report."""
+ACK_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""The simulator's subscription: deep enough for a burst of reports from every participant."""
+UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC})
+UNMATCHED = 2**32 - 1  # LockstepAck.matched of a service client (its readiness is service_is_ready)
+_WALL_TIMERS: set[int] = set()
+
+
+def wall_timer(node: Node, period: float, callback: Any) -> Timer:
+    """A timer on the steady clock, outside the barrier (graph discovery, wall-clock supervision)."""
+    timer = node.create_timer(period, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
+    _WALL_TIMERS.add(id(timer))
+    return timer
+
+
+def enabled(node: Node) -> bool:
+    """Whether the node runs in lockstep: parameter ``lockstep`` (declared here if the node did not) is true."""
+    if not node.has_parameter("lockstep"):
+        node.declare_parameter("lockstep", False)
+    return bool(node.get_parameter("lockstep").value)
+
+
+class Participant:
+    """Counts a node's traffic and reports to the lockstep simulator; see the module docstring."""
+
+    def __init__(self, node: Node, publish_acks: bool = True) -> None:
+        self.node = node
+        self.published: Counter[str] = Counter()
+        self.taken: Counter[str] = Counter()
+        self.pending = 0
+        self._wrapped: set[int] = set()
+        self._pubs: dict[str, list[Any]] = {}
+        self._last: tuple | None = None
+        self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, ACK_QOS) if publish_acks else None
+        self.instrument()
+
+    def instrument(self) -> None:
+        """Wrap every publisher, subscription, service and client not wrapped yet (nodes may create them later)."""
+        for pub in self.node.publishers:
+            topic = pub.topic_name
+            if id(pub) in self._wrapped or topic in UNCOUNTED:
+                continue
+            self._wrapped.add(id(pub))
+            self._pubs.setdefault(topic, []).append(pub)
+            self.published.setdefault(topic, 0)
+            pub.publish = self._counting(pub.publish, self.published, topic)
+        for sub in self.node.subscriptions:
+            if id(sub) in self._wrapped or sub.topic_name in UNCOUNTED:
+                continue
+            self._wrapped.add(id(sub))
+            self.taken.setdefault(sub.topic_name, 0)
+            sub.callback = self._counting(sub.callback, self.taken, sub.topic_name)
+        for srv in self.node.services:
+            if id(srv) in self._wrapped:
+                continue
+            self._wrapped.add(id(srv))
+            name = f"srv:{self.node.resolve_service_name(srv.srv_name)}"
+            self.taken.setdefault(name, 0)
+            srv.callback = self._counting(srv.callback, self.taken, name)
+        for client in self.node.clients:
+            if id(client) in self._wrapped:
+                continue
+            self._wrapped.add(id(client))
+            name = f"srv:{self.node.resolve_service_name(client.srv_name)}"
+            self.published.setdefault(name, 0)
+            client.call_async = self._calling(client.call_async, name)
+
+    @staticmethod
+    def _counting(fn: Any, counter: Counter[str], topic: str) -> Any:
+        def counted(*args: Any, **kwargs: Any) -> Any:
+            counter[topic] += 1
+            return fn(*args, **kwargs)
+
+        return counted
+
+    def _calling(self, call_async: Any, topic: str) -> Any:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            self.published[topic] += 1
+            self.pending += 1
+            future = call_async(*args, **kwargs)
+            future.add_done_callback(self._answered)
+            return future
+
+        return call
+
+    def _answered(self, _future: Any) -> None:
+        self.pending -= 1
+
+    def report(self, leaving: bool = False) -> Report:
+        """The node's state now, as the barrier sees it."""
+        self.instrument()
+        clock = self.node.get_clock()
+        now = clock.now().nanoseconds
+        dues = []
+        for timer in self.node.timers:
+            if id(timer) in _WALL_TIMERS or timer.is_canceled():
+                continue
+            remaining = timer.time_until_next_call()
+            if remaining is not None:
+                dues.append(now + remaining)
+        ready = all(c.service_is_ready() for c in self.node.clients)
+        hook = getattr(self.node, "lockstep_ready", None)
+        ready = ready and (hook is None or bool(hook()))
+        matched = {t: min(p.get_subscription_count() for p in pubs) for t, pubs in self._pubs.items()}
+        return Report(self.node.get_fully_qualified_name(), now, ready, leaving, min(dues) if dues else None,
+                      self.pending, dict(self.published), matched, dict(self.taken))
+
+    def idle(self, leaving: bool = False) -> None:
+        """The runner found nothing to run: publish the report if it changed."""
+        if self._ack_pub is None:
+            return
+        r = self.report(leaving)
+        key = (r.clock_ns, r.ready, r.leaving, r.next_due_ns, r.pending, tuple(sorted(r.published.items())),
+               tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())))
+        if key == self._last:
+            return
+        self._last = key
+        self._ack_pub.publish(to_msg(r))
+
+
+def to_msg(r: Report) -> LockstepAck:
+    """Report → LockstepAck."""
+    msg = LockstepAck(node=r.node, ready=r.ready, leaving=r.leaving,
+                      next_due=-1 if r.next_due_ns is None else r.next_due_ns, pending=r.pending)
+    msg.clock.sec, msg.clock.nanosec = divmod(r.clock_ns, 1_000_000_000)
+    msg.pub_topics = list(r.published.keys() | r.matched.keys())
+    msg.published = [r.published.get(t, 0) for t in msg.pub_topics]
+    msg.matched = [r.matched.get(t, UNMATCHED) for t in msg.pub_topics]
+    msg.sub_topics = list(r.taken)
+    msg.taken = [r.taken[t] for t in msg.sub_topics]
+    return msg
+
+
+def from_msg(msg: LockstepAck) -> Report:
+    """LockstepAck → Report."""
+    return Report(msg.node, msg.clock.sec * 1_000_000_000 + msg.clock.nanosec, msg.ready, msg.leaving,
+                  None if msg.next_due < 0 else msg.next_due, msg.pending,
+                  dict(zip(msg.pub_topics, msg.published)),
+                  {t: n for t, n in zip(msg.pub_topics, msg.matched) if n != UNMATCHED},
+                  dict(zip(msg.sub_topics, msg.taken)))

@@ -1,0 +1,119 @@
+"""The lockstep barrier's decisions (no ROS): when simulated time may start, and when an instant is finished.
+
+Participants are the nodes of a simulated graph. Each reports (``Report``) whenever it has run every ready callback:
+its ROS time, whether it is ready (publishers matched, service clients connected), its earliest timer, the service
+requests it awaits, and per topic how many messages it has published and taken since start. The simulator's own
+publications are counted in the same way. From the latest report of every participant the barrier decides:
+
+* ``start_problem()`` — simulated time may start (None) once every expected participant has reported, is ready,
+  and every publisher has matched at least as many subscriptions as participants take its topic;
+* ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes it has taken
+  every message published on it, and no service request is unanswered;
+* ``finish_problem(t)`` — instant t is finished (None): settled, every participant's clock has reached t, and no
+  participant has a timer due at or before t left to run.
+
+Message counting detects messages in flight between processes without any assumption on delivery order: a
+participant reports only after its callbacks ran, so every message it published is counted before the report that
+would hide it arrives. A participant that joins after the start is taken as settled at its first report (its
+subscriptions cannot have received what was published before they existed); one that leaves is dropped.
+Every ``*_problem`` method returns a one-line reason naming the participants and topics that hold the barrier.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Report:
+    """One participant's report; times in ns of ROS time (``next_due_ns`` None: no timer)."""
+
+    node: str
+    clock_ns: int
+    ready: bool = True
+    leaving: bool = False
+    next_due_ns: int | None = None
+    pending: int = 0
+    published: Mapping[str, int] = field(default_factory=dict)
+    matched: Mapping[str, int] = field(default_factory=dict)
+    taken: Mapping[str, int] = field(default_factory=dict)
+
+
+class Barrier:
+    """Latest report per participant and the simulator's own counts; see the module docstring."""
+
+    def __init__(self, expected: Iterable[str] = ()) -> None:
+        self.expected = tuple(expected)
+        self.reports: dict[str, Report] = {}
+        self.own: dict[str, int] = {}  # the simulator's publications per topic
+        self.started = False
+        self._baseline: dict[str, dict[str, int]] = {}  # late joiner: taken offset per topic at its first report
+
+    def report(self, report: Report) -> None:
+        """Take a participant's newest report (a leaving participant is dropped)."""
+        if report.leaving:
+            self.reports.pop(report.node, None)
+            return
+        if self.started and report.node not in self.reports and report.node not in self._baseline:
+            totals = self.published_totals()
+            self._baseline[report.node] = {t: totals.get(t, 0) - n for t, n in report.taken.items()}
+        self.reports[report.node] = report
+
+    def published_totals(self) -> dict[str, int]:
+        """Messages published per topic by every participant and the simulator."""
+        totals = dict(self.own)
+        for r in self.reports.values():
+            for topic, n in r.published.items():
+                totals[topic] = totals.get(topic, 0) + n
+        return totals
+
+    def start_problem(self) -> str | None:
+        """Why simulated time cannot start yet, or None."""
+        missing = [n for n in self.expected if n not in self.reports]
+        if missing:
+            return f"waiting for participants {missing}"
+        unready = sorted(n for n, r in self.reports.items() if not r.ready)
+        if unready:
+            return f"participants not ready (publishers unmatched or services missing): {unready}"
+        takers: dict[str, int] = {}
+        for r in self.reports.values():
+            for topic in r.taken:
+                takers[topic] = takers.get(topic, 0) + 1
+        for r in self.reports.values():
+            for topic, matched in r.matched.items():
+                if matched < takers.get(topic, 0):
+                    return f"{r.node}: '{topic}' matched {matched} of {takers[topic]} participant subscriptions"
+        return None
+
+    def start(self) -> None:
+        """Simulated time starts: later joiners are taken as settled at their first report."""
+        self.started = True
+
+    def settle_problem(self) -> str | None:
+        """What is still in flight, or None."""
+        totals = self.published_totals()
+        for r in self.reports.values():
+            if r.pending:
+                return f"{r.node} awaits {r.pending} service answer(s)"
+            base = self._baseline.get(r.node, {})
+            for topic, taken in r.taken.items():
+                published = totals.get(topic, 0)
+                if topic in totals and taken + base.get(topic, 0) < published:
+                    return f"{r.node} has taken {taken + base.get(topic, 0)} of {published} messages on '{topic}'"
+        return None
+
+    def finish_problem(self, t_ns: int) -> str | None:
+        """What keeps instant ``t_ns`` from being finished, or None."""
+        behind = sorted(n for n, r in self.reports.items() if r.clock_ns < t_ns)
+        if behind:
+            return f"clock {t_ns} ns not yet reached by {behind}"
+        due = sorted(n for n, r in self.reports.items() if r.next_due_ns is not None and r.next_due_ns <= t_ns)
+        if due:
+            return f"timers due at {t_ns} ns not yet run by {due}"
+        return self.settle_problem()
+
+    def next_due_ns(self) -> int | None:
+        """The earliest timer of any participant, or None."""
+        dues = [r.next_due_ns for r in self.reports.values() if r.next_due_ns is not None]
+        return min(dues) if dues else None

@@ -1,0 +1,182 @@
+"""The simulated world, defined once: plant with its declared mismatch, MX-28 servos, motion capture (no ROS).
+
+Both simulations take the hardware from here: the offline experiment (:mod:`hsa_core.experiment`) and the ROS
+simulator (``hsa_sim_node``, behind the emulated MX-28 bus). What it models, on a 1 ms grid (integer nanoseconds, so
+both paths hit the same instants exactly):
+
+* **Plant** — the JAX model with the plant/model mismatch of :class:`~hsa_core.disturbance.DisturbanceModel`,
+  integrated with RK4 (two 0.5 ms steps per grid interval), the rod twists held over each interval. It starts hanging
+  at rest with φ = 0.
+* **Servos** — one per motor, in ticks: a goal written at t takes effect at t + ``actuation_latency`` (bus transfer
+  and the servo's own cycle); the shaft then moves towards it at no more than the MX-28's no-load speed (55 rev/min
+  at 12 V, ROBOTIS e-Manual MX-28(2.0) specifications), and stops on it. Evidence for a pure speed cap, without an
+  extra first-order lag: the executed twists of the paper's GBN records are ramp-like at that speed
+  (spec identification.md §2.2); the MX-28's position loop (Position P gain 850, D and I 0 by default) is not
+  otherwise characterised in the records. The plant sees the continuous shaft angle; Present Position reports it
+  rounded to whole ticks. Torque off freezes the shaft where it is.
+* **Motion capture** — a sample every 5 ms (200 Hz), stamped with the instant the plant was at that pose, carrying
+  the declared white noise, available ``measurement_latency`` after its stamp. Noise comes from one seeded generator,
+  drawn sample by sample, so a seed fixes the whole run.
+
+Events are integer nanoseconds; a time that is not on the grid is rounded up to the next grid point.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from numpy.typing import ArrayLike
+
+from hsa_core import kinematics, simulation
+from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.params import HsaParams
+
+GRID_NS = 1_000_000
+"""[ns] the world's event grid: 1 ms."""
+MOCAP_PERIOD_NS = 5 * GRID_NS
+"""[ns] motion-capture period: 200 Hz."""
+PLANT_SUBSTEPS = 2
+"""RK4 steps per grid interval (0.5 ms each)."""
+
+
+def to_grid(t_ns: int) -> int:
+    """The first grid instant at or after ``t_ns``."""
+    return -(-int(t_ns) // GRID_NS) * GRID_NS
+
+
+def seconds_to_ns(t: float) -> int:
+    """Seconds → integer nanoseconds (rounded), the world's time unit."""
+    return int(round(t * 1e9))
+
+
+@dataclass(frozen=True)
+class MocapSample:
+    """One motion-capture sample: stamp [ns], the instant it becomes available [ns], noisy planar pose (x, y, θ)."""
+
+    stamp_ns: int
+    available_ns: int
+    chiee: np.ndarray
+
+
+class World:
+    """Plant + servos + motion capture on the 1 ms grid; state in, events in, samples out (see the module docstring).
+
+    ``advance_to(t)`` runs the grid up to t; ``write_goals`` / ``set_torque`` are what a bus client does at the current
+    instant; ``take_samples(t)`` hands over the mocap samples available by t, in stamp order.
+    """
+
+    def __init__(self, model: HsaParams, disturbance: DisturbanceModel, motor_map: MotorMap) -> None:
+        self.disturbance = disturbance
+        self.plant = disturbance.plant_params(model)
+        self.motor_map = motor_map
+        self._neutral = np.asarray(motor_map.neutral_ticks, dtype=np.float64)
+        speed = disturbance.servo_max_speed * TICKS_PER_RAD * GRID_NS * 1e-9  # ticks per grid interval
+        self._segment = _segment_fn(self.plant, motor_map, self._neutral, speed)
+        self._pose = _pose_fn(self.plant)
+        self._rng = disturbance.rng()
+        x = np.array(simulation.steady_state_rollout(self.plant, np.zeros(2)))
+        x[3:] = 0.0
+        self.x = jnp.asarray(x)
+        self.position = self._neutral.copy()  # shaft positions [ticks], continuous
+        self.velocity = np.zeros_like(self.position)  # [ticks/s], over the last grid interval
+        self.goal = self._neutral.copy()  # goal in force [ticks]
+        self.torque = np.ones(len(self._neutral), dtype=bool)
+        self.t_ns = 0
+        self._latency_ns = seconds_to_ns(disturbance.actuation_latency)
+        self._sample_latency_ns = seconds_to_ns(disturbance.measurement_latency)
+        self._goals: deque[tuple[int, np.ndarray]] = deque()  # (effective at [ns], goal ticks)
+        self._samples: deque[MocapSample] = deque()
+
+    # ---------------------------------------------------------------- inputs (what the bus client does)
+    def write_goals(self, ticks: ArrayLike, at_ns: int | None = None) -> None:
+        """Goal Position of every motor written at ``at_ns`` (default: now); it takes effect after the latency."""
+        at = self.t_ns if at_ns is None else int(at_ns)
+        goal = np.asarray(ticks, dtype=np.float64).copy()
+        self._goals.append((to_grid(at + self._latency_ns), goal))
+
+    def set_torque(self, on: ArrayLike) -> None:
+        """Torque Enable of every motor, from now on (off: the shaft stays where it is)."""
+        self.torque = np.asarray(on, dtype=bool).copy()
+
+    # ---------------------------------------------------------------- time
+    def advance_to(self, t_ns: int) -> None:
+        """Run the grid up to ``t_ns`` (rounded up to the grid); the state is then that of instant t.
+
+        Per grid interval: sample the pose (every 5 ms), apply the goals due, move the shafts, integrate the plant.
+        Intervals without an event in between run as one jitted segment."""
+        end = to_grid(t_ns)
+        while self.t_ns < end:
+            t = self.t_ns
+            if t % MOCAP_PERIOD_NS == 0:
+                chiee = self.disturbance.measure(self._rng, self.true_pose())
+                self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
+            while self._goals and self._goals[0][0] <= t:
+                self.goal = self._goals.popleft()[1]
+            stop = min(end, (t // MOCAP_PERIOD_NS + 1) * MOCAP_PERIOD_NS)
+            if self._goals:
+                stop = min(stop, max(self._goals[0][0], t + GRID_NS))
+            x, position, velocity = self._segment(self.x, self.position, self.goal, self.torque,
+                                                  (stop - t) // GRID_NS)
+            self.x = x
+            self.position, self.velocity = np.array(position), np.array(velocity) / (GRID_NS * 1e-9)
+            self.t_ns = stop
+
+    # ---------------------------------------------------------------- outputs
+    def twists(self) -> np.ndarray:
+        """Virtual-rod twists φ [rad] the shafts realise now (continuous angle, not the reported ticks)."""
+        return self.motor_map.rod_twists((self.position - self._neutral) * RAD_PER_TICK)
+
+    def present_ticks(self) -> np.ndarray:
+        """Present Position of every motor [ticks], as the servo reports it (rounded to whole ticks)."""
+        return np.rint(self.position).astype(np.int64)
+
+    def true_pose(self) -> np.ndarray:
+        """Noise-free planar end-effector pose (x, y, θ) of the plant now."""
+        return np.asarray(self._pose(self.x))
+
+    def next_sample_ns(self) -> int:
+        """When the next not yet handed-over mocap sample becomes available [ns]."""
+        if self._samples:
+            return self._samples[0].available_ns
+        next_stamp = -(-self.t_ns // MOCAP_PERIOD_NS) * MOCAP_PERIOD_NS
+        return next_stamp + self._sample_latency_ns
+
+    def take_samples(self, t_ns: int) -> list[MocapSample]:
+        """The samples available by ``t_ns`` (the world must have been advanced past their stamps), oldest first."""
+        out = []
+        while self._samples and self._samples[0].available_ns <= t_ns:
+            out.append(self._samples.popleft())
+        return out
+
+
+def _segment_fn(plant: HsaParams, motor_map: MotorMap, neutral: np.ndarray, speed: float):
+    """Jitted run of n grid intervals with the goal held: (x, shaft ticks, goal, torque, n) → (x, ticks, last step).
+
+    Per interval the shafts move towards the goal by at most ``speed`` ticks (torque on), then the plant is
+    integrated with the twists they realise held (zero-order hold)."""
+    dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
+    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(neutral)))) * RAD_PER_TICK  # (rods, motors)
+    neutral = jnp.asarray(neutral)
+
+    @jax.jit
+    def segment(x, position, goal, torque, n):
+        def interval(_, carry):
+            x, position, _step = carry
+            moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
+            phi = to_rods @ (moved - neutral)
+            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4_step(plant, xk, phi, dt), x)
+            return x, moved, moved - position
+
+        return jax.lax.fori_loop(0, n, interval, (x, position, jnp.zeros_like(position)))
+
+    return segment
+
+
+def _pose_fn(plant: HsaParams):
+    """Jitted end-effector pose of the plant for its state x = [q, q_dot]."""
+    return jax.jit(lambda x: kinematics.end_effector_pose(plant, x[:3]))

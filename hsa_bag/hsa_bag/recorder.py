@@ -4,7 +4,10 @@ Every selected topic is subscribed with ``raw=True`` as soon as it has a publish
 straight into the bag. The graph is searched again every ``discovery_period`` so late publishers are caught. The
 subscription QoS is adapted to the publishers' offers and the offers are stored in the bag (see
 :mod:`hsa_bag.qos`); a publisher that appears later with a weaker offer (best effort, volatile) gets the topic
-re-subscribed so it is not silently missed. Types come from the Jazzy typestore and from the ``.msg`` files that
+re-subscribed so it is not silently missed (discovery runs on the steady clock, also under simulated time). /clock
+is not recorded by default. In a lockstep graph the recorder is a barrier participant: with a ``topics`` list,
+simulated time does not start before every listed topic is subscribed, and the barrier then guarantees that every
+message published on them is in the bag. Types come from the Jazzy typestore and from the ``.msg`` files that
 interface packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
 
 **Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with ``use_sim_time``)
@@ -33,11 +36,11 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 from hsa_bag.msgtypes import TypeRegistry, UnknownTypeError, message_class
 from hsa_bag.qos import subscription_profile, to_bag
 from hsa_bag.storage import MAX_CHUNK_SIZE, SplitBagWriter
-from hsa_common import runner
+from hsa_common import lockstep, runner
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 
-EXCLUDED = frozenset({"/rosout", "/parameter_events"})
+EXCLUDED = frozenset({"/rosout", "/parameter_events", "/clock"})
 
 SPECS = (
     ParamSpec("topics", Parameter.Type.STRING_ARRAY,
@@ -109,11 +112,18 @@ class BagRecorder(Node):
             ) from exc
         self._recording: dict[str, Recording] = {}
         self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
-        self.create_timer(params["discovery_period"], self._discover)
+        lockstep.wall_timer(self, params["discovery_period"], self._discover)  # discovery is a wall-clock matter
         self.create_timer(params["flush_period"], self._bag.flush)
         Diagnostics(self).add("recording", self._report)
         self.get_logger().info(f"recording to {self._bag.path.resolve()}")
         self._discover()
+
+    def lockstep_ready(self) -> bool:
+        """Lockstep: simulated time may start once every listed topic is subscribed (nothing published is lost)."""
+        if self.get_clock().now().nanoseconds > 0:
+            return True  # time has started: readiness no longer matters
+        self._discover()
+        return self._wanted <= self._recording.keys()
 
     def _selected(self, topic: str) -> bool:
         """Whether ``topic`` is to be recorded."""

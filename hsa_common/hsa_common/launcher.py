@@ -181,7 +181,7 @@ class LaunchFile:
                 if choices and self.vars[spec["name"]] not in choices:
                     raise LaunchError(f"launch argument {spec['name']}:={self.vars[spec['name']]} is not one of "
                                       f"{choices}")
-            elif "let" in action:
+            elif "let" in action and self._enabled(action["let"]):
                 self.vars[action["let"]["name"]] = self.substitute(str(action["let"]["value"]))
         unknown = set(args) - declared
         if unknown:
@@ -252,6 +252,8 @@ class LaunchFile:
                 cmd += ["--params-file", str(file)]
             else:
                 value = param["value"]
+                if isinstance(value, list):  # substitutions inside a list's string elements, as launch_ros does
+                    value = [sub(v) if isinstance(v, str) else v for v in value]
                 value = sub(value) if isinstance(value, str) else json.dumps(value)
                 cmd += ["-p", f"{param['name']}:={value}"]
         for remap in spec.get("remap", []):

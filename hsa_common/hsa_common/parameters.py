@@ -121,10 +121,15 @@ def _accept_integer_spelling(node: Node, spec: ParamSpec) -> None:
             spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in given.value])
 
 
+RUNNER_PARAMS = frozenset({"lockstep"})
+"""Parameters every node accepts, declared by the runner (hsa_common.runner): ``lockstep``."""
+
+
 def unknown_overrides(node: Node) -> list[str]:
     """Names given to the node (parameter files, ``-p``) that it has not declared; QoS overrides are declared later."""
     given = node._parameter_overrides  # rclpy keeps the node's resolved overrides only here (no public accessor)
-    return sorted(name for name in given if not node.has_parameter(name) and not name.startswith(QOS_OVERRIDES))
+    return sorted(name for name in given
+                  if not node.has_parameter(name) and not name.startswith(QOS_OVERRIDES) and name not in RUNNER_PARAMS)
 
 
 def guard_updates(

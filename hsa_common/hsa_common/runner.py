@@ -11,6 +11,11 @@ SIGINT/SIGTERM only set a flag (rclpy's own handlers are off): a ``KeyboardInter
 interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
 Nodes without an ``on_shutdown`` hook tear down at the lowest CPU priority: when a whole graph stops at once on two
 cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind their teardown.
+
+Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's barrier
+(:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and, whenever none is ready, the
+node reports to the simulator. A node can end the process with a code of its own by setting ``exit_code`` before it
+shuts its context down (the simulator does, when a barrier times out).
 """
 
 from __future__ import annotations
@@ -21,11 +26,19 @@ from collections.abc import Callable
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import (
+    ConditionReachedException,
+    Executor,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+    TimeoutException,
+)
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from hsa_common import lockstep
 from hsa_common.parameters import ParameterValidationError
 from hsa_core import rosenv
 
@@ -51,10 +64,16 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         logger.fatal(f"refusing to start: {exc}")
         rclpy.try_shutdown()
         return 2
-    executor = make_executor()
+    in_lockstep = lockstep.enabled(node)
+    participant = None
+    if in_lockstep and not getattr(node, "lockstep_coordinator", False):
+        participant = lockstep.Participant(node)
+    executor = SingleThreadedExecutor() if in_lockstep else make_executor()
     executor.add_node(node)
     try:
         node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
+        if in_lockstep:
+            _spin_lockstep(executor, participant, stop)
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD)
     except ExternalShutdownException:
@@ -65,6 +84,8 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         # the context was shut down while a callback was publishing or a message was being taken (rclpy raises
         # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
+        if participant is not None and rclpy.ok():
+            participant.idle(leaving=True)
         hook = getattr(node, "on_shutdown", None)
         if hook is not None:
             hook()
@@ -73,7 +94,26 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return int(getattr(node, "exit_code", 0))
+
+
+def _spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:
+    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a participant)."""
+    idle = False
+    while not stop and rclpy.ok():
+        try:
+            handler, _entity, _node = executor.wait_for_ready_callbacks(timeout_sec=SPIN_PERIOD if idle else 0.0)
+        except TimeoutException:
+            if participant is not None:
+                participant.idle()
+            idle = True
+            continue
+        except (ShutdownException, ConditionReachedException):
+            return
+        idle = False
+        handler()
+        if handler.exception() is not None:
+            raise handler.exception()
 
 
 def make_executor() -> Executor:

@@ -152,6 +152,7 @@ class ControllerNode(Node):
         self._stats = {"ticks": 0, "deadline_misses": 0, "stale_events": 0, "held_ticks": 0, "stale_stops": 0,
                        "estop_events": 0, "driver_lost_events": 0, "refused_ticks": 0, "saturated": 0,
                        "setpoints": 0, "rejected_setpoints": 0}
+        self._incoming: list[Setpoint] = []  # received setpoints not yet active
         self._rejected_states: Counter[str] = Counter()
         self._rejected_setpoints: Counter[str] = Counter()
         self._rejections = {"state": "-", "setpoint": "-"}
@@ -226,6 +227,16 @@ class ControllerNode(Node):
                                       throttle_duration_sec=self._p["rejection_log_period"])
 
     def _on_setpoint(self, msg: Setpoint) -> None:
+        """Queue a setpoint; the first tick after its stamp activates it (``_activate``)."""
+        self._incoming.append(msg)
+
+    def _activate_setpoints(self, now_ns: int) -> None:
+        """Activate the queued setpoints stamped before this tick, in order: a tick at the very instant a setpoint
+        was stamped still uses the previous one, whichever arrived first (deterministic under simulated time)."""
+        while self._incoming and Time.from_msg(self._incoming[0].header.stamp).nanoseconds < now_ns:
+            self._activate(self._incoming.pop(0))
+
+    def _activate(self, msg: Setpoint) -> None:
         """Activate a setpoint after the physical checks; a refused one leaves the previous active."""
         setpoint = CoreSetpoint(
             np.array([msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta]),
@@ -269,6 +280,7 @@ class ControllerNode(Node):
         """One control period: the supervisor decides; step and publish, re-publish the held command, or send nothing."""
         now = self.get_clock().now()
         self._count_tick(now)
+        self._activate_setpoints(now.nanoseconds)
         decision = self._supervisor.tick(now.nanoseconds)
         self._decision_age, self._driver_silence = decision.age_s, decision.driver_silence_s
         if decision.action is Action.STEP:

@@ -57,6 +57,41 @@ def ticks_to_angles(ticks: ArrayLike, neutral_ticks: ArrayLike) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class ServoModel:
+    """How an MX-28 shaft follows its goal with torque on: at most ``max_speed_ticks_per_s``, then stop on the goal.
+
+    The speed cap is the no-load speed (``MX28_NO_LOAD_SPEED``); ``time_constant_s`` > 0 adds a first-order lag
+    below it (only tests use one, for a fast smooth servo). The world's servo has none (evidence: hsa_core.world).
+    """
+
+    max_speed_ticks_per_s: float = MX28_NO_LOAD_SPEED * TICKS_PER_RAD
+    time_constant_s: float = 0.0
+
+    def step(self, position: float, goal: float, dt: float) -> tuple[float, float]:
+        """Exact (step-size independent) position [ticks] and velocity [ticks/s] after ``dt`` seconds."""
+        error = goal - position
+        if error == 0.0 or dt <= 0.0:
+            return float(position), 0.0
+        if math.isinf(self.max_speed_ticks_per_s):  # an ideal servo
+            return float(goal), 0.0
+        sign = math.copysign(1.0, error)
+        remaining = abs(error)
+        knee = self.max_speed_ticks_per_s * self.time_constant_s  # below this error the lag is slower than the cap
+        if remaining > knee:
+            t_capped = (remaining - knee) / self.max_speed_ticks_per_s
+            if dt <= t_capped:
+                return position + sign * self.max_speed_ticks_per_s * dt, sign * self.max_speed_ticks_per_s
+            dt -= t_capped
+            remaining = knee
+        if self.time_constant_s <= 0.0:
+            return float(goal), 0.0
+        remaining *= math.exp(-dt / self.time_constant_s)
+        if remaining < 0.5:
+            return float(goal), 0.0
+        return goal - sign * remaining, sign * remaining / self.time_constant_s
+
+
+@dataclass(frozen=True)
 class MotorMap:
     """Wiring of the 4 motors to the 2 virtual rods, their handedness, neutral ticks and the twist limit."""
 

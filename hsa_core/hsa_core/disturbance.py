@@ -8,18 +8,21 @@ to make a figure pass. Defaults (``DisturbanceModel()``):
 * **Latency** — a mocap sample is available to the estimator 6 ms after its stamp (camera latency ≈ 4–6 ms at
   200 Hz plus rigid-body solve and transport, ecosystem.md §3.2); a command reaches the motors 2 ms after the tick
   (rclpy hop plus one sync write, ecosystem.md §3.1–3.3).
-* **Motor quantization** — the plant receives φ as the motors realise it: goal ticks truncated towards zero
-  (1 tick = π/2048 rad), per motor, then mapped back to the two virtual rods (planning_and_control.md §7).
+* **Motor quantization** — goals reach the motors as whole ticks (1 tick = π/2048 rad, truncated towards zero by
+  the driver, planning_and_control.md §7) and Present Position reports whole ticks (:mod:`hsa_core.world`).
 * **Plant/model mismatch** — the plant's nominal stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh) are 5 % higher, its
   elongation constant C_ε 3 % lower and its axial rest strains σ_a_eq 0.005 higher than the controller's model.
   These are of the size of the run-to-run σ_a_eq spread (0.97–1.03, planning_and_control.md §6.5) and of a modest
   identification error.
 * **Servo speed** — each motor moves towards its goal at no more than the MX-28's no-load speed, 55 rev/min at 12 V
-  = 5.76 rad/s (ROBOTIS e-Manual, MX-28(2.0) specifications); its position loop is otherwise taken as ideal. This
-  is a physical limit of the hardware, not a tuning knob: without it the simulated plant follows a 25 ms command
-  jump at once, which no servo does.
+  = 5.76 rad/s (ROBOTIS e-Manual, MX-28(2.0) specifications); its position loop is otherwise taken as ideal
+  (:mod:`hsa_core.world` gives the evidence). This is a physical limit of the hardware, not a tuning knob: without
+  it the simulated plant follows a 25 ms command jump at once, which no servo does.
 
-``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous sensing, ideal servos).
+``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous sensing, ideal servos;
+goals are still whole ticks, as on the bus).
+
+The declaration lives here; :class:`hsa_core.world.World` executes it, for the offline experiment and the simulator.
 ``DisturbanceModel.shear_mismatch()`` is the default plus a plant whose shear stiffness Ŝ_sh is half the model's: the
 paper reports that the constant-strain model captures the shear poorly (experiments.md §6); this is the scenario in
 which the collocated integral cannot remove the end-effector error and the §3.8 extension is meant to.
@@ -33,18 +36,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hsa_core.actuation import MotorMap
 from hsa_core.params import HsaParams
 
 
 @dataclass(frozen=True)
 class DisturbanceModel:
-    """Noise [m, m, rad], latencies [s], quantization switch and plant/model mismatch factors (see module doc)."""
+    """Noise [m, m, rad], latencies [s], servo speed and plant/model mismatch factors (see module doc)."""
 
     pose_noise_std: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
     measurement_latency: float = 0.006
     actuation_latency: float = 0.002
-    quantize_motors: bool = True
     stiffness_scale: float = 1.05
     elongation_scale: float = 0.97
     rest_strain_offset: float = 0.005
@@ -68,7 +69,7 @@ class DisturbanceModel:
     @classmethod
     def none(cls) -> DisturbanceModel:
         """No disturbance: the plant is the model, sensing is exact and instantaneous, the servos are ideal."""
-        return cls((0.0, 0.0, 0.0), 0.0, 0.0, False, 1.0, 1.0, 0.0, math.inf)
+        return cls((0.0, 0.0, 0.0), 0.0, 0.0, 1.0, 1.0, 0.0, math.inf)
 
     @classmethod
     def shear_mismatch(cls, seed: int = 0) -> DisturbanceModel:
@@ -94,14 +95,3 @@ class DisturbanceModel:
     def measure(self, rng: np.random.Generator, chiee: ArrayLike) -> np.ndarray:
         """A noisy mocap sample of the true planar pose."""
         return np.asarray(chiee, dtype=np.float64) + rng.normal(0.0, 1.0, 3) * np.asarray(self.pose_noise_std)
-
-    def realised_twist(self, motor_map: MotorMap, phi: ArrayLike) -> np.ndarray:
-        """The virtual-rod twists the motors realise for a command φ (tick truncation if enabled)."""
-        if not self.quantize_motors:
-            return np.asarray(phi, dtype=np.float64)
-        return motor_map.present_twists(motor_map.goal_ticks(phi))
-
-    def servo_step(self, phi: np.ndarray, goal: np.ndarray, dt: float) -> np.ndarray:
-        """Twist after dt of the servos moving towards the goal at no more than ``servo_max_speed``."""
-        step = self.servo_max_speed * dt
-        return phi + np.clip(goal - phi, -step, step)

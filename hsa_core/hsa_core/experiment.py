@@ -1,15 +1,21 @@
-"""Closed-loop experiments without ROS: the paper's pipeline in one process, on a simulated plant.
+"""Closed-loop experiments without ROS: the paper's pipeline in one process, on the world of :mod:`hsa_core.world`.
 
-Time runs on a 1 ms grid. On it: the plant (the JAX model with the declared plant/model mismatch of
-:mod:`hsa_core.disturbance`) is integrated with the input held; mocap samples the true end-effector pose every 5 ms
-(200 Hz) with noise, and each sample reaches the estimator (closed-form IK + causal Savitzky–Golay, exactly the
-kinematics node's code path) after the measurement latency; the controller ticks at ``rate`` Hz (40 Hz default,
-must divide 1000) on the newest ready state; its command reaches the plant, quantized to motor ticks, after the
-actuation latency. Setpoints come from the planner (the planner node's code path) when the reference changes; a
-failed plan keeps the previous setpoint and is reported.
+The timeline is the one the ROS graph runs in lockstep (docs/simulation.md), so that for the same configuration and
+seed both produce the same ticks to float round-off:
 
-The robot first hangs at φ = 0 for ``settle`` seconds while the estimator fills; the reference then starts together
-with the first controller output (t = 0 of the metrics, experiments.md §4).
+* the world (plant, servos, mocap) runs on its 1 ms grid from t = 0, the robot hanging at rest with φ = 0;
+* at every instant, first the mocap samples that became available are handed to the estimator (closed-form IK +
+  causal Savitzky–Golay: the kinematics node's code path), then the timers due at that instant run;
+* the setpoint sequencer plans point k at S_k = S_0 + t_k (t_k: the reference's point times); S_0 is its first
+  supervision tick after the start delay (:func:`first_point_ns`, the sequencer's rule); a failed plan keeps the
+  previous setpoint and is reported;
+* the controller ticks every 1/``rate`` s from t = 0; a tick uses the newest state and the newest setpoint planned
+  strictly before it, and sends nothing before it has both;
+* its command goes to the motors as the driver writes it (clipped to [0, φ_max], goal ticks truncated towards zero)
+  and takes effect after the world's actuation latency.
+
+t = 0 of the metrics is the first tick that sends a command (experiments.md §4); the run ends ``reference.duration``
+later.
 """
 
 from __future__ import annotations
@@ -22,10 +28,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import jax
 import numpy as np
 
-from hsa_core import cli, kinematics, metrics, plotting, simulation
+from hsa_core import cli, metrics, plotting
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
@@ -34,15 +39,27 @@ from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner, PlanResult, Setpoint
 from hsa_core.runlog import RunLog
 from hsa_core.trajectories import TimedReference, circle_reference, contour_reference, star_reference, step_reference
+from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
 
-GRID_DT = 1e-3  # s, event grid of the experiment
-MOCAP_PERIOD_STEPS = 5  # 200 Hz
-PLANT_SUBSTEPS = 2  # RK4 steps of GRID_DT / 2 per grid interval
+SUPERVISION_PERIOD_NS = 50_000_000
+"""[ns] the setpoint sequencer's supervision timer (service check, start delay)."""
+NEUTRAL_TICKS = (2048, 2048, 2048, 2048)
+"""Neutral ticks of the simulated motors: the emulator's power-on positions, the driver's default neutral."""
+ESTIMATOR_WINDOW, ESTIMATOR_ORDER, GAP_FACTOR = 20, 3, 5.0
+"""The kinematics node's estimator settings (hsa_kinematics_node/config/<material>.yaml)."""
+
+
+def first_point_ns(start_delay: float) -> int:
+    """When the sequencer requests point 0 [ns]: at its first supervision tick (50 ms) it finds the planner and waits
+    ``start_delay``; the request goes out at the first later supervision tick at or after that."""
+    start_at = SUPERVISION_PERIOD_NS + seconds_to_ns(start_delay)
+    ticks = max(2, -(-start_at // SUPERVISION_PERIOD_NS))
+    return ticks * SUPERVISION_PERIOD_NS
 
 
 @dataclass(frozen=True)
 class ExperimentConfig:
-    """What to run: material, law, options, reference, rate, disturbance and the hang-still time before start."""
+    """What to run: material, law, options, reference, rate, disturbance and the sequencer's start delay."""
 
     material: str = "fpu"
     controller: str = "psatid"
@@ -50,7 +67,7 @@ class ExperimentConfig:
     reference: TimedReference | None = None  # default: the material's 11-step list
     rate: float = 40.0
     disturbance: DisturbanceModel = field(default_factory=DisturbanceModel)
-    settle: float = 0.5
+    start_delay: float = 0.0
     planner: str | None = None  # default planner of the material
     gains: CollocatedGains | PidGains | None = None  # default: the paper's gains for the law and material
 
@@ -70,6 +87,7 @@ class ExperimentResult:
     true_chiee: np.ndarray  # plant EE pose at each tick (no noise, no latency)
     plan_failures: list[tuple[float, PlanResult]]
     wall_time: float
+    phi_goal: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # twists of the written goal ticks
 
     def true_steady_state_error(self) -> float:
         """Mean over steps after the first of ‖p^d − p_true‖ in each step's last 2 s [m] (noise-free e_ss)."""
@@ -81,91 +99,70 @@ class ExperimentResult:
         return float(np.mean(errors)) if errors else math.nan
 
 
-def _advance_fn(plant: HsaParams):
-    """Jitted plant advance over one grid interval with the input held (zero-order hold)."""
-    dt = GRID_DT / PLANT_SUBSTEPS
-
-    @jax.jit
-    def advance(x: jax.Array, phi: jax.Array) -> jax.Array:
-        return simulation.simulate(plant, x, phi[None, :], dt, PLANT_SUBSTEPS)[-1]
-
-    return advance
-
-
 def run_experiment(config: ExperimentConfig, progress: bool = False) -> ExperimentResult:
     """Run one closed-loop experiment (see the module docstring) and evaluate it."""
     wall0 = time.perf_counter()
     model = load_params(config.material)
-    dist = config.disturbance
-    plant = dist.plant_params(model)
     reference = config.reference or step_reference(config.material)
-    ticks_per_control = 1000.0 / config.rate
-    if abs(ticks_per_control - round(ticks_per_control)) > 1e-9 or ticks_per_control < 1:
-        raise ValueError(f"rate must divide 1000 Hz (the experiment's 1 ms grid), got {config.rate}")
-    control_every = int(round(ticks_per_control))
-
+    period_ns = seconds_to_ns(1.0 / config.rate)
+    if period_ns % GRID_NS or period_ns < GRID_NS:
+        raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
+    phi_max = float(np.min(np.asarray(model.phi_max)))
+    motor_map = MotorMap(NEUTRAL_TICKS, phi_max=phi_max)
+    world = World(model, config.disturbance, motor_map)
     planner = Planner(model, config.planner)
     controller = Controller(
         ControllerKind(config.controller), model, config.gains, dt=1.0 / config.rate,
         ee_integral=EeIntegralGains() if config.ee_integral else None,
     )
-    motor_map = MotorMap(phi_max=float(np.max(np.asarray(model.phi_max))))
-    advance = _advance_fn(plant)
-    ee_pose = jax.jit(kinematics.end_effector_pose)
-    rng = dist.rng()
-    estimator = SavitzkyGolayDifferentiator(window=20, order=3, dim=6, nominal_period=MOCAP_PERIOD_STEPS * GRID_DT)
-
-    # start hanging at rest with phi = 0: the plant's static equilibrium
-    x = np.array(simulation.steady_state_rollout(plant, np.zeros(2)))
-    x[3:] = 0.0
-    phi_goal = np.zeros(2)  # twist the motors are commanded to (after latency and quantization)
-    phi_applied = np.zeros(2)  # twist the motors have reached
-    settle_steps = int(round(config.settle / GRID_DT))
-    total_steps = settle_steps + int(math.ceil(reference.duration / GRID_DT))
-    measurements: list[tuple[float, float, np.ndarray]] = []  # (available at, stamp, noisy chiee)
-    commands: list[tuple[float, np.ndarray]] = []  # (applied at, realised phi)
-    state: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-    t0: float | None = None
-    setpoint: Setpoint | None = None
-    ref_index = -1
-    failures: list[tuple[float, PlanResult]] = []
+    estimator = SavitzkyGolayDifferentiator(window=ESTIMATOR_WINDOW, order=ESTIMATOR_ORDER, dim=6,
+                                            nominal_period=MOCAP_PERIOD_NS * 1e-9, gap_factor=GAP_FACTOR)
+    s0 = first_point_ns(config.start_delay)
+    points = [s0 + seconds_to_ns(float(t)) for t in reference.t]
+    warm = len(reference) > 20
+    planned: list[tuple[int, Setpoint]] = []  # (planned at [ns], setpoint) not yet active
+    failures: list[tuple[int, PlanResult]] = []
+    state = None
+    origin: int | None = None
+    t0: int | None = None
+    end: int | None = None
     rows: list[tuple] = []
     truth: list[np.ndarray] = []
-
-    bar = _progress(total_steps, config.name) if progress else None
-    for n in range(total_steps):
-        t = n * GRID_DT
-        true_pose = np.asarray(ee_pose(plant, x[:3]))
-        if n % MOCAP_PERIOD_STEPS == 0:
-            measurements.append((t + dist.measurement_latency, t, dist.measure(rng, true_pose)))
-        while measurements and measurements[0][0] <= t + 1e-12:
-            _, stamp, chiee = measurements.pop(0)
-            q = configuration_from_pose(model, chiee)
-            est = estimator.update(stamp, np.concatenate([q, chiee]))
+    goals: list[np.ndarray] = []
+    k = 0
+    tick = period_ns
+    bar = _progress(reference.duration, config.name) if progress else None
+    while end is None or tick < end:
+        instant = min(tick, world.next_sample_ns(), points[k] if k < len(points) else tick)
+        world.advance_to(instant)
+        for sample in world.take_samples(instant):
+            origin = sample.stamp_ns if origin is None else origin
+            q = configuration_from_pose(model, sample.chiee)
+            est = estimator.update((sample.stamp_ns - origin) * 1e-9, np.concatenate([q, sample.chiee]))
             if est.ready:
-                state = (q, est.derivative[:3], chiee, est.derivative[3:])
-        if n >= settle_steps and n % control_every == 0 and state is not None:
-            if t0 is None:
-                t0 = t
-            idx = reference.index(t - t0)
-            if idx != ref_index:
-                ref_index = idx
-                result = planner.plan(reference.p_des[idx], warm_start=len(reference) > 20)
-                if result.success:
-                    setpoint = result.setpoint
-                else:
-                    failures.append((t - t0, result))
-            if setpoint is not None:
-                phi_cmd, info = controller.step(*state, setpoint=setpoint)
-                commands.append((t + dist.actuation_latency, dist.realised_twist(motor_map, phi_cmd)))
-                rows.append((t - t0, info))
-                truth.append(true_pose)
-        while commands and commands[0][0] <= t + 1e-12:
-            phi_goal = commands.pop(0)[1]
-        phi_applied = dist.servo_step(phi_applied, phi_goal, GRID_DT)
-        x = np.asarray(advance(x, phi_applied))
-        if bar is not None and n % 1000 == 0:
-            bar.update(min(1000, total_steps - n))
+                state = (q, est.derivative[:3], sample.chiee, est.derivative[3:])
+        if k < len(points) and points[k] == instant:
+            result = planner.plan(reference.p_des[k], warm_start=warm)
+            if result.success:
+                planned.append((instant, result.setpoint))
+            else:
+                failures.append((instant, result))
+            k += 1
+        if tick == instant:
+            while planned and planned[0][0] < instant:
+                controller.set_setpoint(planned.pop(0)[1])
+            if state is not None and controller.setpoint is not None:
+                if t0 is None:
+                    t0, end = instant, instant + seconds_to_ns(reference.duration)
+                phi, info = controller.step(*state)
+                ticks = motor_map.goal_ticks(np.clip(np.asarray(phi), 0.0, phi_max))
+                world.write_goals(ticks, instant)
+                rows.append(((instant - t0) * 1e-9, info))
+                truth.append(world.true_pose())
+                goals.append(motor_map.present_twists(ticks))
+                if bar is not None and len(rows) % round(config.rate) == 0:
+                    bar.update(1.0)
+            tick += period_ns
     if bar is not None:
         bar.close()
     if not rows:
@@ -175,7 +172,9 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     run_metrics = metrics.evaluate_run(
         log.t, log.chiee_des[:, :2], log.chiee[:, :2], log.saturated, duration=reference.duration, name=config.name
     )
-    return ExperimentResult(config, log, run_metrics, np.asarray(truth), failures, time.perf_counter() - wall0)
+    fails = [((t - (t0 or s0)) * 1e-9, r) for t, r in failures]
+    return ExperimentResult(config, log, run_metrics, np.asarray(truth), fails, time.perf_counter() - wall0,
+                            np.asarray(goals))
 
 
 def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams) -> RunLog:
@@ -196,11 +195,11 @@ def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams) ->
     )
 
 
-def _progress(total: int, label: str):
-    """A tqdm bar over grid steps (stderr), advanced in 1 s chunks of simulated time."""
+def _progress(total: float, label: str):
+    """A tqdm bar over the run's simulated seconds (stderr)."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=label, unit="ms sim", unit_scale=True, file=sys.stderr, leave=False)
+    return tqdm(total=total, desc=label, unit="s sim", file=sys.stderr, leave=False)
 
 
 def _reference(args: argparse.Namespace) -> TimedReference | None:

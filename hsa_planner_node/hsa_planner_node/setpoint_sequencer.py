@@ -197,6 +197,7 @@ class SetpointSequencer(Node):
         if response.success:
             msg = response.setpoint
             msg.trajectory_index, msg.trajectory_length = j, self._n
+            msg.header.stamp = now.to_msg()  # when it becomes the active point: a tick at this instant still uses the last
             self._setpoint_pub.publish(msg)
             self._setpoint_index = j
             self._published += 1

@@ -22,6 +22,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import NamedTuple
 
+from hsa_core.actuation import ServoModel
+
 # Protocol 2.0 framing and instruction set.
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -278,35 +280,6 @@ _COMPUTED = (ADDR_REALTIME_TICK, ADDR_MOVING, ADDR_PRESENT_VELOCITY, ADDR_PRESEN
 _VELOCITY_UNIT_RPM = 0.229
 
 
-@dataclass(frozen=True)
-class ServoModel:
-    """How an emulated servo tracks its goal with torque on: a first-order lag whose speed is capped."""
-
-    time_constant_s: float = 0.03
-    max_speed_ticks_per_s: float = 55.0 / 60.0 * TICKS_PER_REV  # MX-28 no-load speed, 55 rpm at 12 V
-
-    def step(self, position: float, goal: float, dt: float) -> tuple[float, float]:
-        """Exact (step-size independent) position and velocity after ``dt`` seconds."""
-        error = goal - position
-        if abs(error) < 0.5:
-            return float(goal), 0.0
-        sign = math.copysign(1.0, error)
-        remaining = abs(error)
-        knee = self.max_speed_ticks_per_s * self.time_constant_s  # below this error the lag is slower than the cap
-        if remaining > knee:
-            t_capped = (remaining - knee) / self.max_speed_ticks_per_s
-            if dt <= t_capped:
-                return position + sign * self.max_speed_ticks_per_s * dt, sign * self.max_speed_ticks_per_s
-            dt -= t_capped
-            remaining = knee
-        if self.time_constant_s <= 0.0:
-            return float(goal), 0.0
-        remaining *= math.exp(-dt / self.time_constant_s)
-        if remaining < 0.5:
-            return float(goal), 0.0
-        return goal - sign * remaining, sign * remaining / self.time_constant_s
-
-
 class RegisterWrite(NamedTuple):
     """One control-table item changed by a WRITE or SYNC_WRITE, stamped when the emulator executed the packet."""
 
@@ -326,6 +299,18 @@ class EmulatorStats:
     sync_reads: int = 0
     statuses_sent: int = 0
     baud_mismatches: int = 0
+
+
+class _Journal(deque):
+    """The emulator's write log: a bounded deque that also counts every entry ever appended."""
+
+    def __init__(self, maxlen: int) -> None:
+        super().__init__(maxlen=maxlen)
+        self.appended = 0
+
+    def append(self, write: RegisterWrite) -> None:
+        super().append(write)
+        self.appended += 1
 
 
 class _Servo:
@@ -507,7 +492,8 @@ class MX28Emulator:
         now = time.monotonic()
         ticks = dict(initial_ticks or {})
         self._servos = [_Servo(i, BAUD_RATE_CODES[baudrate], ticks.get(i, 2048), model, now) for i in ids]
-        self._journal: deque[RegisterWrite] = deque(maxlen=write_log_size)
+        self._journal = _Journal(write_log_size)
+        self._drained = 0
         for servo in self._servos:
             servo.journal = self._journal
         self._check_baud = check_baud
@@ -658,6 +644,14 @@ class MX28Emulator:
         """
         with self._lock:
             return [w for w in self._journal if w.time >= since and (address is None or w.address == address)]
+
+    def drain_writes(self, address: int) -> list[RegisterWrite]:
+        """Writes of the item at ``address`` logged since the previous call, oldest first (the simulator's feed)."""
+        with self._lock:
+            new = min(self._journal.appended - self._drained, len(self._journal))
+            self._drained = self._journal.appended
+            fresh = [self._journal[i] for i in range(len(self._journal) - new, len(self._journal))]
+        return [w for w in fresh if w.address == address]
 
     def unresponsive(self) -> tuple[int, ...]:
         """IDs of the servos made silent by :meth:`set_responsive`."""

@@ -1,55 +1,51 @@
-"""sim_node: replaces the hardware — an emulated MX-28 bus for the driver and mocap poses from the JAX plant.
+"""sim_node: replaces the hardware — an emulated MX-28 bus for the driver and mocap poses of the simulated world.
 
-Mocap samples lie on a regular grid of stamps (period 1/rate of the node clock), as a camera system's do. For every
-sample due by now a timer callback publishes the platform pose (world frame) of the plant state at that stamp, then
-reads the emulated servos' present ticks, converts them to φ and advances the plant by one period with φ held — the
-integration happens after the publication, off the latency path. A callback
-that comes late catches up (up to MAX_CATCH_UP samples); a longer stall skips samples, counted in diagnostics.
+The world (plant, servos, motion capture) is :class:`hsa_core.world.World`, the same as the offline experiment's. The
+emulated servos' shafts are the world's: goals the driver writes reach the world (with their write time), Present
+Position reads report the world's shafts. Two clocks (docs/simulation.md):
+
+* ``lockstep`` (parameter ``lockstep: true``): the node owns /clock. Simulated time starts when every expected
+  participant is ready, and moves from instant to instant only when the barrier (:mod:`hsa_core.lockstep`) says the
+  graph has finished with the current one; mocap samples are published at the instants they become available. A
+  barrier that does not finish within ``barrier_timeout`` seconds of wall time is an ERROR, and the node exits 1.
+* ``wall``: the world follows the node clock; a timer at the mocap rate publishes every sample that became available.
 See docs/nodes/hsa_sim_node.md.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
-from collections.abc import Callable
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from jax import Array
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
 
-from hsa_common import qos
+from hsa_common import lockstep, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
 from hsa_core.actuation import MotorMap
 from hsa_core.disturbance import DisturbanceModel
-from hsa_core.kinematics import end_effector_pose
+from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
-from hsa_core.params import HsaParams
-from hsa_core.simulation import simulate, steady_state_rollout
-from hsa_sim_node.mx28_emulator import ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
+from hsa_core.world import MOCAP_PERIOD_NS, World
+from hsa_msgs.msg import LockstepAck
+from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
 
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
-MAX_CATCH_UP = 4  # most mocap samples produced in one timer callback; a longer stall skips samples (counted)
+CLOCK_RESEND = 0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
+SYNC_NS = 20_000_000  # lockstep: wait for the graph to take every sample at least every 20 ms of simulated time
+MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
 
 def _signs(value: list[int]) -> str | None:
     return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
-
-
-def _strains(value: list[float] | None) -> str | None:
-    if not value:
-        return None
-    return None if len(value) == 2 and all(math.isfinite(v) and v > 0.0 for v in value) else \
-        "must be unset, empty or 2 finite strains > 0"
 
 
 SPECS = (
@@ -68,10 +64,6 @@ SPECS = (
     ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
               validator=_signs),
     *MODEL_SPECS,
-    ParamSpec("rate", 200.0, "mocap rate: plant ticks and published poses [Hz]", low=10.0, high=1000.0,
-              read_only=True),
-    ParamSpec("substeps", 4, "RK4 steps per mocap period", low=1, high=100,
-              read_only=True),
     ParamSpec("base_position", [0.0, 0.0, 0.0], "world position of the base rigid body [m]", length=3,
               read_only=True),
     ParamSpec("platform_topic", "/mocap/platform/pose", "PoseStamped topic of the platform body", read_only=True),
@@ -81,139 +73,217 @@ SPECS = (
     ParamSpec("disturbance", "none", "none: plant = model, exact poses; default: hsa_core DisturbanceModel()",
               choices=("none", "default"), read_only=True),
     ParamSpec("seed", 0, "seed of the pose noise (disturbance 'default')", low=0, high=2**31 - 1, read_only=True),
+    ParamSpec("participants", [""], "lockstep: fully qualified names of the nodes simulated time waits for before "
+              "it starts (others join when they first report)", read_only=True),
+    ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails",
+              low=0.1, high=3600.0, read_only=True),
 )
 
 
-def plant_step(params: HsaParams, substeps: int) -> Callable[[Array, Array, float], tuple[Array, Array]]:
-    """Jitted (x, φ, dt) → (state after ``substeps`` RK4 steps of dt with φ held, its end-effector pose)."""
-
-    @jax.jit
-    def step(x: Array, phi: Array, dt: float) -> tuple[Array, Array]:
-        x_next = simulate(params, x, phi[None], dt, substeps)[-1]
-        return x_next, end_effector_pose(params, x_next[:3])
-
-    return step
-
-
 class SimNode(Node):
-    """Emulated servos plus the simulated robot seen through the motion-capture system."""
+    """Emulated servos plus the simulated world seen through the motion-capture system."""
+
+    lockstep_coordinator = True  # the runner must not make this node a participant of its own barrier
 
     def __init__(self) -> None:
         super().__init__("sim_node")
         self._p: dict[str, Any] = declare(self, SPECS)
-        self._period = 1.0 / self._p["rate"]
         ids, ticks = self._p["motor_ids"], self._p["initial_ticks"]
         model = load_model(self._p)
-        self._disturbance = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
+        disturbance = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
             else DisturbanceModel.none()
-        plant = self._disturbance.plant_params(model)
-        self._rng = self._disturbance.rng()
         self._map = MotorMap(tuple(ticks), tuple(ids), rho=tuple(self._p["rho"]), h=tuple(self._p["h"]))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"
         os.makedirs(os.path.dirname(port), exist_ok=True)
         self._emulator = MX28Emulator(ids, baudrate=self._p["baudrate"], initial_ticks=dict(zip(ids, ticks)),
-                                      link_path=port).start()
-        self.get_logger().info(f"emulated MX-28 bus of IDs {ids} at {port}; compiling the plant")
-
-        self._step = plant_step(plant, self._p["substeps"])
-        self._x = steady_state_rollout(plant, jnp.zeros(2))
-        _, chiee = self._step(self._x, jnp.zeros(2), self._period / self._p["substeps"])
-        self._chiee = np.asarray(chiee)
-        self._phi = np.zeros(2)
+                                      model=None, link_path=port).start()
+        self.get_logger().info(f"emulated MX-28 bus of IDs {ids} at {port}; compiling the world")
+        self._world = World(model, disturbance, self._map)
+        self._world.set_torque([False] * len(ids))
+        self._world.advance_to(0)
+        self._sync_shafts()
 
         options = qos.overridable()
         self._pub_platform = self.create_publisher(PoseStamped, self._p["platform_topic"], qos.SENSOR,
                                                    qos_overriding_options=options)
         self._pub_base = (self.create_publisher(PoseStamped, self._p["base_topic"], qos.SENSOR,
                                                 qos_overriding_options=options) if self._p["base_topic"] else None)
-        self._stats = {"ticks": 0, "sim_time": 0.0, "overruns": 0, "skipped": 0, "compute_max": 0.0,
-                       "compute_sum": 0.0}
+        self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time": 0.0, "barrier_wait": 0.0}
         self._report_base = (time.monotonic(), dict(self._stats))
         self._emulator_base = (time.monotonic(), self._emulator.stats())
-        self._diverged = False
-        self._period_ns = round(self._period * 1e9)
-        self._next_ns: int | None = None  # stamp of the next mocap sample [ns, node clock]
-        self._timer = self.create_timer(self._period, self._tick)
+        self._lockstep = lockstep.enabled(self)
+        self._failure = ""
         diagnostics = Diagnostics(self, hardware_id=port)
-        diagnostics.add("plant", self._plant_report)
+        diagnostics.add("world", self._world_report)
         diagnostics.add("emulator", self._emulator_report)
+        if self._lockstep:
+            self._own = lockstep.Participant(self, publish_acks=False)
+            self._barrier = Barrier(n for n in self._p["participants"] if n)
+            self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.RELIABLE))
+            self.create_subscription(LockstepAck, lockstep.ACK_TOPIC, self._on_ack, lockstep.ACK_READER_QOS)
+            self._instant = 0  # [ns] the instant the graph is working on (a timer instant)
+            self._phase = "start"
+            self._waiting_since = time.monotonic()
+            self._clock_sent = 0.0
+            self._synced = 0
+            lockstep.wall_timer(self, 0.01, self._pump)
+            self.get_logger().info(f"lockstep: waiting for {list(self._barrier.expected)}")
+        else:
+            self._origin: Time | None = None  # node clock at world time 0
+            self.create_timer(MOCAP_PERIOD_NS * 1e-9, self._follow_clock)
 
-    def _tick(self) -> None:
-        """Produce every mocap sample due by now, on a regular grid of stamps like a camera system's."""
-        started = time.perf_counter()
-        now = self.get_clock().now().nanoseconds
-        if self._next_ns is None:  # the grid starts at this call's scheduled time: stamps age by the timer jitter only
-            self._next_ns = now - max(self._period_ns - (self._timer.time_until_next_call() or 0), 0)
-        due = (now - self._next_ns) // self._period_ns + 1
-        if due <= 0:
+    # ---------------------------------------------------------------- the world behind the bus
+    def _sync_shafts(self) -> None:
+        """Present Position (and velocity) of the emulated servos := the world's shafts."""
+        for dxl_id, ticks, velocity in zip(self._map.ids, self._world.position, self._world.velocity):
+            self._emulator.set_present_ticks(dxl_id, ticks, velocity)
+
+    def _collect_bus(self, at_ns: int) -> None:
+        """Goal writes since the last call (in order) and the torque state reach the world as of ``at_ns``."""
+        goal = np.asarray(self._world.goal, dtype=np.float64).copy()
+        writes = self._emulator.drain_writes(ADDR_GOAL_POSITION)
+        index = {dxl_id: m for m, dxl_id in enumerate(self._map.ids)}
+        for write in writes:
+            if write.dxl_id in index:
+                goal[index[write.dxl_id]] = write.value
+        if writes:
+            self._world.write_goals(goal, at_ns)
+        self._world.set_torque([self._emulator.torque_enabled(i) for i in self._map.ids])
+
+    def _publish_samples(self, until_ns: int, origin_ns: int = 0) -> None:
+        """Publish every mocap sample available by ``until_ns`` (stamps: world time + ``origin_ns``)."""
+        for sample in self._world.take_samples(until_ns):
+            position, quaternion = planar_to_world(sample.chiee, self._base)
+            msg = PoseStamped()
+            msg.header.stamp = Time(nanoseconds=sample.stamp_ns + origin_ns).to_msg()
+            msg.header.frame_id = self._p["frame_id"]
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = position.tolist()
+            (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+             msg.pose.orientation.w) = quaternion.tolist()
+            self._pub_platform.publish(msg)
+            if self._pub_base is not None:
+                base = PoseStamped()
+                base.header = msg.header
+                base.pose.position.x, base.pose.position.y, base.pose.position.z = self._base.tolist()
+                base.pose.orientation.w = 1.0  # the base body is created aligned with the world
+                self._pub_base.publish(base)
+            self._stats["samples"] += 1
+        self._stats["sim_time"] = self._world.t_ns * 1e-9
+
+    # ---------------------------------------------------------------- wall clock
+    def _follow_clock(self) -> None:
+        """Wall clock: run the world up to the node clock and publish the samples that became available."""
+        now = self.get_clock().now()
+        if self._origin is None:
+            self._origin = now
+        t_ns = (now - self._origin).nanoseconds
+        self._collect_bus(self._world.t_ns)
+        self._world.advance_to(t_ns - t_ns % 1_000_000)
+        self._sync_shafts()
+        self._publish_samples(self._world.t_ns, self._origin.nanoseconds)
+
+    # ---------------------------------------------------------------- lockstep
+    def _on_ack(self, msg: LockstepAck) -> None:
+        """A participant's report: maybe the instant is finished."""
+        self._barrier.report(lockstep.from_msg(msg))
+        self._pump()
+
+    def _pump(self) -> None:
+        """Move simulated time as far as the barrier allows (see the module docstring and docs/simulation.md)."""
+        if self._failure:
             return
-        if due > MAX_CATCH_UP:  # stalled for longer than the catch-up budget: skip, as a dropped mocap frame would
-            skipped = due - MAX_CATCH_UP
-            self._stats["skipped"] += skipped
-            self._next_ns += skipped * self._period_ns
-            due = MAX_CATCH_UP
-        self._stats["overruns"] += due > 1
-        for k in range(due):
-            self._publish(Time(nanoseconds=self._next_ns))  # the plant state at this stamp, computed beforehand
-            self._next_ns += self._period_ns
-            self._stats["ticks"] += 1
-            if k == 0:  # the present twists now drive the plant over the next period (zero-order hold)
-                self._phi = self._map.present_twists([self._emulator.present_ticks()[i] for i in self._map.ids])
-            self._advance()
-        compute = time.perf_counter() - started
-        self._stats["compute_sum"] += compute
-        self._stats["compute_max"] = max(self._stats["compute_max"], compute)
+        self._barrier.own = dict(self._own.published)
+        for _ in range(MAX_INSTANTS_PER_PUMP):
+            if self._phase == "start":
+                problem = self._barrier.start_problem()
+                if problem is not None:
+                    return self._still_waiting(problem, send_clock=True)
+                self._barrier.start()
+                self.get_logger().info(f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)")
+                self._phase = "advance"
+            elif self._phase == "settle":  # every sample taken before the clock moves on
+                problem = self._barrier.settle_problem()
+                if problem is not None:
+                    return self._still_waiting(problem)
+                if self._world.t_ns == self._instant and self._instant == self._barrier.next_due_ns():
+                    self._send_clock()
+                    self._phase = "finish"
+                else:
+                    self._phase = "advance"
+                self._waiting_since = time.monotonic()
+            elif self._phase == "finish":
+                problem = self._barrier.finish_problem(self._instant)
+                if problem is not None:
+                    return self._still_waiting(problem, send_clock=True)
+                self._collect_bus(self._instant)
+                self._stats["instants"] += 1
+                self._publish_samples(self._instant)
+                self._phase = "advance"
+            else:
+                self._advance()
 
     def _advance(self) -> None:
-        """Advance the plant by one mocap period with φ held; a non-finite result freezes it at the last finite pose."""
-        if self._diverged:
+        """Run the world to the next event: samples become available (published at once), or a timer instant
+        (the graph must settle first, then gets the clock)."""
+        due = self._barrier.next_due_ns()
+        event = self._world.next_sample_ns() if due is None else min(due, self._world.next_sample_ns())
+        if event - self._synced >= SYNC_NS or (due is not None and event == due):
+            self._synced = event
+            self._instant = event
+            self._world.advance_to(event)
+            self._sync_shafts()
+            self._phase = "settle"
+            self._waiting_since = time.monotonic()
             return
-        x, chiee = self._step(self._x, self._phi, self._period / self._p["substeps"])
-        chiee = np.asarray(chiee)
-        if np.all(np.isfinite(chiee)):
-            self._x, self._chiee = x, chiee
-            self._stats["sim_time"] += self._period
-        else:
-            self._diverged = True
-            self.get_logger().error(f"plant diverged at φ = {self._phi.tolist()}; holding the last finite pose")
+        self._world.advance_to(event)
+        self._sync_shafts()
+        self._publish_samples(event)
+        self._phase = "advance_more"
 
-    def _publish(self, now: Time) -> None:
-        """Platform (and base) body poses as a mocap system would report them."""
-        measured = self._disturbance.measure(self._rng, self._chiee)
-        position, quaternion = planar_to_world(measured, self._base)
-        msg = PoseStamped()
-        msg.header.stamp = now.to_msg()
-        msg.header.frame_id = self._p["frame_id"]
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = position.tolist()
-        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
-         msg.pose.orientation.w) = quaternion.tolist()
-        self._pub_platform.publish(msg)
-        if self._pub_base is not None:
-            base = PoseStamped()
-            base.header = msg.header
-            base.pose.position.x, base.pose.position.y, base.pose.position.z = self._base.tolist()
-            base.pose.orientation.w = 1.0  # the base body is created aligned with the world
-            self._pub_base.publish(base)
+    def _send_clock(self) -> None:
+        """Publish /clock at the current instant."""
+        msg = Clock()
+        msg.clock = Time(nanoseconds=self._instant).to_msg()
+        self._clock_pub.publish(msg)
+        self._clock_sent = time.monotonic()
 
-    def _plant_report(self) -> Report:
+    def _still_waiting(self, problem: str, send_clock: bool = False) -> None:
+        """Resend /clock if it may have been lost; fail loudly once the barrier has waited too long."""
+        now = time.monotonic()
+        if send_clock and now - self._clock_sent > CLOCK_RESEND:
+            self._send_clock()
+            self._stats["resends"] += 1
+        waited = now - self._waiting_since
+        if self._phase == "start":
+            self.get_logger().info(f"lockstep: simulated time has not started: {problem}", throttle_duration_sec=5.0)
+        if self._phase != "start" and waited > self._p["barrier_timeout"] or waited > 10 * self._p["barrier_timeout"]:
+            self._failure = (f"lockstep barrier at t = {self._instant * 1e-9:.3f} s not finished after "
+                             f"{waited:.1f} s of wall time: {problem}")
+            self.get_logger().error(self._failure)
+            self.exit_code = 1
+            self.context.try_shutdown()
+
+    # ---------------------------------------------------------------- diagnostics
+    def _world_report(self) -> Report:
         now = time.monotonic()
         since, base = self._report_base
         self._report_base = (now, dict(self._stats))
-        self._stats["compute_max"] = 0.0
-        ticks = self._stats["ticks"] - base["ticks"]
         wall = max(now - since, 1e-9)
         rtf = (self._stats["sim_time"] - base["sim_time"]) / wall
-        values = {"rate_hz": round(ticks / wall, 1), "real_time_factor": round(rtf, 3),
-                  "late_callbacks": self._stats["overruns"], "skipped_samples": self._stats["skipped"],
-                  "compute_mean_ms": round(1e3 * (self._stats["compute_sum"] - base["compute_sum"]) / max(ticks, 1), 3),
-                  "compute_max_ms": round(1e3 * base["compute_max"], 3), "phi": np.round(self._phi, 4).tolist(),
-                  "chiee": np.round(self._chiee, 5).tolist(), "disturbance": self._p["disturbance"]}
-        if self._diverged:
+        values = {"clock": "lockstep" if self._lockstep else "wall", "real_time_factor": round(rtf, 3),
+                  "samples": self._stats["samples"], "instants": self._stats["instants"],
+                  "clock_resends": self._stats["resends"], "sim_time": round(self._stats["sim_time"], 3),
+                  "phi": np.round(self._world.twists(), 4).tolist(),
+                  "chiee": np.round(self._world.true_pose(), 5).tolist(), "disturbance": self._p["disturbance"]}
+        if self._failure:
+            return Report(ERROR, self._failure, values)
+        if not np.all(np.isfinite(self._world.x)):
             return Report(ERROR, "plant diverged", values)
-        if rtf < 0.95:
+        if not self._lockstep and rtf < 0.95:
             return Report(WARN, f"slower than real time (factor {rtf:.2f})", values)
-        return Report(OK, "running in real time", values)
+        return Report(OK, "running", values)
 
     def _emulator_report(self) -> Report:
         stats = self._emulator.stats()

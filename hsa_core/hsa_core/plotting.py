@@ -176,7 +176,8 @@ def _panel_grid(n: int, height: float = 1.9) -> tuple[plt.Figure, list[plt.Axes]
     """A grid of n panels, STEP_COLUMNS wide, spare panels removed."""
     cols = min(n, STEP_COLUMNS)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.6), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.8), squeeze=False, sharex=True,
+                             layout="constrained")
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.remove()
@@ -212,8 +213,10 @@ def steps_figure(log: RunLog, label: RunLabel) -> plt.Figure | None:
         for k, color in enumerate(("C0", "C1")):
             ax.plot(tau[window], (log.chiee[window, k] - target[k]) * MM, color=color, label=AXES_XY[k], gid="run:0")
         for k in range(2):  # the reference steps from −Δ to 0 in each axis
-            ax.plot(tau[window], (log.chiee_des[window, k] - target[k]) * MM,
-                    label=r"$p^d_\mathrm{ee}$" if k == 0 else None, **SETPOINT)
+            ref = (log.chiee_des[window, k] - target[k]) * MM
+            # drawn from the right (steps-pre backwards = steps-post) so the x and y dashes coincide on the 0 line
+            ax.plot(tau[window][::-1], ref[::-1], label=r"$p^d_\mathrm{ee}$" if k == 0 else None,
+                    **{**SETPOINT, "drawstyle": "steps-pre"})
         ax.set_title(f"step {i + 1} at {log.t[start]:.1f} s", fontsize=8)
         ax.set_xlim(*STEP_WINDOW)
     for ax in axes[-STEP_COLUMNS:]:
@@ -221,9 +224,8 @@ def steps_figure(log: RunLog, label: RunLabel) -> plt.Figure | None:
         ax.tick_params(labelbottom=True)
     for ax in axes[::STEP_COLUMNS]:
         ax.set_ylabel(r"$p_\mathrm{ee} - p^d_{\mathrm{ee},k}$ [mm]")
-    axes[0].legend(loc="lower right", fontsize=7)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=3)
     fig.suptitle(label.title("Step responses (first 2 s of each step)"))
-    fig.tight_layout()
     return fig
 
 
@@ -256,7 +258,7 @@ def _path_axes(ax: plt.Axes) -> None:
     ax.set_xlabel(f"{AXES_XY[0]} [mm]")
     ax.set_ylabel(f"{AXES_XY[1]} [mm]")
     ax.invert_yaxis()
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.legend(loc="best")
 
 
@@ -373,9 +375,8 @@ def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> 
     for ax in axes[::STEP_COLUMNS]:
         ax.set_ylabel(r"$\Vert p_\mathrm{ee} - p^d_{\mathrm{ee},k} \Vert$ [mm]")
     handles, texts = axes[0].get_legend_handles_labels()
-    fig.legend(handles, texts, loc="lower center", ncols=min(3, len(texts)), fontsize=7, bbox_to_anchor=(0.5, 0.0))
+    fig.legend(handles, texts, loc="outside lower center", ncols=min(2, len(texts)))
     fig.suptitle(f"Step responses (distance to the step's target), {len(logs)} runs")
-    fig.tight_layout(rect=(0, 0.04 + 0.025 * math.ceil(len(texts) / 3), 1, 1))
     return fig
 
 

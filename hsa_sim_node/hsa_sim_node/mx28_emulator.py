@@ -493,6 +493,7 @@ class MX28Emulator:
         ticks = dict(initial_ticks or {})
         self._servos = [_Servo(i, BAUD_RATE_CODES[baudrate], ticks.get(i, 2048), model, now) for i in ids]
         self._journal = _Journal(write_log_size)
+        self._busy = False  # the serving thread is between reading bytes and finishing their packets
         self._drained = 0
         for servo in self._servos:
             servo.journal = self._journal
@@ -645,6 +646,14 @@ class MX28Emulator:
         with self._lock:
             return [w for w in self._journal if w.time >= since and (address is None or w.address == address)]
 
+    def idle(self) -> bool:
+        """No byte the client wrote is left unexecuted (the simulator's check that a write has landed): nothing
+        unread on the line and the serving thread not between a read and the end of its packets."""
+        if self._busy or self._master is None:
+            return not self._busy
+        readable, _, _ = select.select([self._master], [], [], 0.0)
+        return not readable and not self._busy
+
     def drain_writes(self, address: int) -> list[RegisterWrite]:
         """Writes of the item at ``address`` logged since the previous call, oldest first (the simulator's feed)."""
         with self._lock:
@@ -686,9 +695,11 @@ class MX28Emulator:
                 if len(reader) and time.monotonic() - last_byte > _STALE_INPUT_S:
                     reader.clear()
                 continue
+            self._busy = True  # before the read: see idle()
             try:
                 reader.feed(os.read(master, 4096))
             except BlockingIOError:
+                self._busy = False
                 continue
             last_byte = time.monotonic()
             while (packet := reader.next_packet()) is not None:
@@ -699,6 +710,7 @@ class MX28Emulator:
                         os.write(master, status)
                     except BlockingIOError:
                         pass  # nobody reads the port and its buffer is full: the bytes are lost, as on a wire
+            self._busy = False
 
     def _handle(self, packet: Packet, master: int) -> list[tuple[float, bytes]]:
         """Execute one instruction packet; returns (return delay, status packet) pairs to send in order."""

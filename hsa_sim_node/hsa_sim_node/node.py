@@ -120,6 +120,7 @@ class SimNode(Node):
         if self._lockstep:
             self._own = lockstep.Participant(self, publish_acks=False)
             self._barrier = Barrier(n for n in self._p["participants"] if n)
+            self._barrier.own = self._own.published  # live: the samples it publishes count at once
             self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.RELIABLE))
             self.create_subscription(LockstepAck, lockstep.ACK_TOPIC, self._on_ack, lockstep.ACK_READER_QOS)
@@ -194,7 +195,6 @@ class SimNode(Node):
         """Move simulated time as far as the barrier allows (see the module docstring and docs/simulation.md)."""
         if self._failure:
             return
-        self._barrier.own = dict(self._own.published)
         for _ in range(MAX_INSTANTS_PER_PUMP):
             if self._phase == "start":
                 problem = self._barrier.start_problem()
@@ -215,6 +215,8 @@ class SimNode(Node):
                 self._waiting_since = time.monotonic()
             elif self._phase == "finish":
                 problem = self._barrier.finish_problem(self._instant)
+                if problem is None and not self._emulator.idle():
+                    problem = "the emulated bus has not executed every packet it received"
                 if problem is not None:
                     return self._still_waiting(problem, send_clock=True)
                 self._collect_bus(self._instant)

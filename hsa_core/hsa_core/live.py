@@ -65,8 +65,8 @@ def controller_state_name(code: int) -> str:
 class Throttle:
     """Lets at most one event through per ``1/rate`` seconds of the times passed in [ns]; the others are dropped.
 
-    Times are integer nanoseconds (a ROS clock's), so a stream on an exact grid (200 Hz states, 25 Hz scene) passes
-    exactly every 8th event, with no rounding loss. A time earlier than the last accepted one (a clock reset, e.g. a
+    Times are integer nanoseconds (``time.monotonic_ns()``, a ROS clock's), so a stream on an exact grid (200 Hz
+    states, 25 Hz scene) passes exactly every 8th event, with no rounding loss. A time earlier than the last accepted one (a clock reset, e.g. a
     restarted simulation) is accepted and restarts the count, so the view never freezes waiting for a time that
     will not come.
     """

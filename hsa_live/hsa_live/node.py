@@ -4,14 +4,16 @@ Subscribes ``state``, ``setpoint``, ``controller_info``, ``phi_present``, ``sequ
 logs them on Foxglove channels (docs/nodes/hsa_live.md):
 
 * ``/live/scene`` (foxglove.SceneUpdate): entity ``robot`` (backbone and rod LINE strips, the platform as a cube) of
-  the newest state, at most ``scene_rate`` per second of the node clock; entity ``goal`` (setpoint sphere and a
+  the newest state, at most ``scene_rate`` per second of the steady (wall) clock, whatever the simulation speed;
+  entity ``goal`` (setpoint sphere and a
   translucent ghost of q^d) once a setpoint is known, redrawn at once on a new setpoint. Geometry from hsa_core.visual.
 * ``/live/tracking``, ``/live/actuation``, ``/live/configuration`` (JSON, one message per controller tick): p_ee and
   p^d with e and ‖e‖; φ commanded, before saturation, φ^ss and the admissible box; q and q^d. ``/live/phi_present``
   (JSON): the measured φ at the driver rate. The log time of each message is the stamp of the ROS message it
   comes from, so the plots run on the graph's clock.
-* ``/live/diagnostics`` and ``/live/progress`` (JSON, every ``progress_period`` and on a sequencer change): the newest
-  status of every diagnostic name (STALE when silent for ``diagnostics_stale``), and "step k/n · mode · ‖e‖".
+* ``/live/diagnostics`` and ``/live/progress`` (JSON, every ``progress_period`` of the steady clock and on a sequencer
+  change): the newest status of every diagnostic name (STALE when silent for ``diagnostics_stale`` s of wall time, so
+  a stalled simulation shows), and "step k/n · mode · ‖e‖".
 
 Nothing is computed for a channel no viewer subscribes to. The server binds 127.0.0.1 only; the port is a parameter.
 """
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from typing import Any
 
 import foxglove
@@ -41,6 +44,7 @@ from foxglove.messages import (
     Vector3,
 )
 from foxglove.websocket import ChannelView, Client
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -61,7 +65,7 @@ SPECS = (
     *MODEL_SPECS,
     ParamSpec("port", 8765, "[-] TCP port of the Foxglove WebSocket server on 127.0.0.1 (0 = any free port, logged)",
               low=0, high=65535, read_only=True),
-    ParamSpec("scene_rate", 25.0, "[Hz] most SceneUpdates per second (node clock); states in between are not drawn",
+    ParamSpec("scene_rate", 25.0, "[Hz] most SceneUpdates per second of wall time; states in between are not drawn",
               low=1.0, high=60.0),
     ParamSpec("frame_id", "hsa_base", "frame of the scene entities (the planar base frame {0})", read_only=True),
     ParamSpec("n_points", DEFAULT_POINTS, "[-] samples of the active length per backbone or rod polyline",
@@ -69,9 +73,11 @@ SPECS = (
     ParamSpec("backbone_width", 0.002, "[m] line width of the backbone", low=0.0001, high=0.1),
     ParamSpec("ghost_alpha", 0.3, "[-] opacity of the ghost of the desired configuration", low=0.0, high=1.0),
     ParamSpec("setpoint_diameter", 0.008, "[m] diameter of the setpoint sphere", low=0.0001, high=0.1),
-    ParamSpec("progress_period", 1.0, "[s] period of /live/progress and /live/diagnostics (late viewers get them)",
+    ParamSpec("progress_period", 1.0, "[s] wall-time period of /live/progress and /live/diagnostics (late viewers "
+              "get them)",
               low=0.1, high=60.0, read_only=True),
-    ParamSpec("diagnostics_stale", 5.0, "[s] a diagnostic status not refreshed for this long is shown STALE",
+    ParamSpec("diagnostics_stale", 5.0, "[s] a diagnostic status not refreshed for this long (wall time) is shown "
+              "STALE",
               low=0.5, high=600.0),
     ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
               read_only=True),
@@ -112,7 +118,7 @@ class _Subscribers:
 
 
 class LiveNode(Node):
-    """Forwards the graph to Foxglove channels; the scene is throttled, the plots go out per controller tick."""
+    """Forwards the graph to Foxglove channels; the scene is throttled (wall time), the plots go per controller tick."""
 
     def __init__(self) -> None:
         super().__init__("live_node")
@@ -154,7 +160,8 @@ class LiveNode(Node):
         self.create_subscription(String, "sequencer_status", self._on_sequencer, qos.LATCHED,
                                  qos_overriding_options=qos.overridable())
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
-        self.create_timer(self._p["progress_period"], self._publish_status)
+        self.create_timer(self._p["progress_period"], self._publish_status,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))  # runs on while simulated time stands
         self._diagnostics = Diagnostics(self, self._p["diagnostics_period"])
         self._diagnostics.add("live view", self._report)
 
@@ -163,10 +170,6 @@ class LiveNode(Node):
         self._p.update(changes)
         self._throttle.rate = self._p["scene_rate"]
         self._table.stale_after = self._p["diagnostics_stale"]
-
-    def _now(self) -> float:
-        """Node clock [s] (simulated time under use_sim_time)."""
-        return self.get_clock().now().nanoseconds * 1e-9
 
     def _compute(self, q: np.ndarray) -> RobotGeometry:
         """Geometry of configuration q as NumPy arrays."""
@@ -177,7 +180,7 @@ class LiveNode(Node):
     def _on_state(self, msg: PlanarState) -> None:
         """Draw the newest state unless the last scene went out less than 1/scene_rate ago or nobody watches."""
         self._counts["states"] += 1
-        if not self._scene.has_sinks() or not self._throttle.due(self.get_clock().now().nanoseconds):
+        if not self._scene.has_sinks() or not self._throttle.due(time.monotonic_ns()):
             return
         q = msg.q
         robot = self._robot_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])), msg.header.stamp)
@@ -256,7 +259,7 @@ class LiveNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         """Keep the newest status of every name."""
         self._counts["diagnostics"] += 1
-        now = self._now()
+        now = time.monotonic()
         for status in msg.status:
             self._table.update(status.name, _level(status.level), status.message, now)
 
@@ -271,7 +274,7 @@ class LiveNode(Node):
         now = self.get_clock().now().nanoseconds
         self._log("/live/progress", lambda: live.progress(self._sequencer, self._controller_state, self._e_norm),
                   now)
-        self._log("/live/diagnostics", lambda: self._table.snapshot(now * 1e-9), now)
+        self._log("/live/diagnostics", lambda: self._table.snapshot(time.monotonic()), now)
 
     def _report(self) -> Report:
         """Port, viewer subscriptions and what was forwarded; WARN while no viewer is subscribed."""

@@ -31,6 +31,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
 from hsa_common import qos
@@ -432,3 +433,47 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
     assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (len(scenes), span)  # wall rate ≤ 25 Hz (+ setpoints)
     print(f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, {len(tracking)} ticks, "
           f"final ‖e‖ {final[-1] * 1e3:.2f} mm")
+
+
+def test_under_simulated_time_the_view_runs_on_the_wall_clock(ros_node: Node) -> None:
+    """use_sim_time with /clock running 4x faster than the wall, then standing still (a stalled lockstep barrier): the
+    scene stays ≤ 25 per wall second, progress and diagnostics keep coming, and the silent status turns STALE."""
+    proc = start_process([find_executable("hsa_live", "live_node"), "--ros-args", "-r", "__ns:=/hsa",
+                          "-p", "port:=0", "-p", "use_sim_time:=true", "-p", "diagnostics_stale:=1.0"])
+    try:
+        port = served_port(wait_for_line(proc, "ready", timeout=120.0))
+        clock = ros_node.create_publisher(Clock, "/clock", 10)
+        graph = Graph(ros_node)
+        graph.wait_subscribed()
+        session, subscribed, done = Session(), threading.Event(), threading.Event()
+        client = threading.Thread(target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True)
+        client.start()
+        assert subscribed.wait(30.0)
+        time.sleep(0.5)
+        graph.diagnostics.publish(DiagnosticArray(status=[DiagnosticStatus(level=DiagnosticStatus.OK,
+                                                                           name="sim_node: world", message="ok")]))
+        start, n = time.monotonic(), 800  # 4 s of wall time, 16 s of simulated time
+        for i in range(n):
+            time.sleep(max(0.0, start + i * PERIOD_NS * 1e-9 - time.monotonic()))
+            ns = T0_NS + 4 * i * PERIOD_NS
+            clock.publish(Clock(clock=stamp(ns)))
+            q = configuration(i)
+            state = PlanarState(chiee=chiee(q), q=cs(q), velocity_valid=True)
+            state.header.stamp = stamp(ns)
+            graph.states.publish(state)
+        fast = time.monotonic() - start
+        scenes_while_fast = len(session.received["/live/scene"])
+        stood = time.monotonic()
+        time.sleep(3.0)  # simulated time stands still
+        standing = [json.loads(p) for arrival, _, p in session.received["/live/diagnostics"] if arrival > stood]
+        progress_standing = [a for a, _, _ in session.received["/live/progress"] if a > stood]
+        done.set()
+        client.join(timeout=10.0)
+    finally:
+        assert stop_process(proc) == 0
+    assert 5.0 * fast <= scenes_while_fast <= 25.0 * fast + 2, (scenes_while_fast, fast)  # not 25 per simulated s
+    assert len(progress_standing) >= 2 and len(standing) >= 2, (len(progress_standing), len(standing))
+    rows = {r["name"]: r for r in standing[-1]["statuses"]}
+    assert rows["sim_node: world"]["level_name"] == "STALE" and standing[-1]["worst_name"] == "STALE"
+    print(f"sim time 4x: {scenes_while_fast / fast:.1f} scenes per wall second; while /clock stood: "
+          f"{len(progress_standing)} progress and {len(standing)} diagnostics messages in 3 s")

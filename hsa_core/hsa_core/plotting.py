@@ -53,7 +53,6 @@ LIMIT = {"color": "0.35", "ls": "-.", "lw": 0.9, "zorder": 1}
 LAW_NAMES = {"psatid": "P-satI-D", "psatid_gc": "P-satI-D + GC", "pid": "PID"}
 EE_INTEGRAL = "EE integral"
 AXES_XY = (r"$x_\mathrm{ee}$", r"$y_\mathrm{ee}$")
-AXES_XY_DES = (r"$x^d_\mathrm{ee}$", r"$y^d_\mathrm{ee}$")
 
 
 def law_name(controller: str, ee_integral: bool = False) -> str:

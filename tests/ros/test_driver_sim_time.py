@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from builtin_interfaces.msg import Time
@@ -31,19 +29,11 @@ STEP_NS = 10_000_000  # one 10 ms instant = one cycle at the default 100 Hz
 START_NS = 100_000_000_000  # simulated time starts at 100 s
 
 
-@pytest.fixture
-def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    emu = make_emulator(tmp_path)
-    yield emu
-    emu.stop()
-
-
 class SimClock:
-    """Publishes the simulated time on /clock every 10 ms of wall time (re-publishing a held value keeps it still)."""
+    """Publishes the simulated time ``ns`` on /clock every 10 ms of wall time (re-publishing keeps it still)."""
 
     def __init__(self, node) -> None:
-        self.ns = START_NS
-        self.running = True  # advance one step per publication (real time) until ``hold``
+        self.ns = START_NS  # held: the test moves it
         self._pub = node.create_publisher(Clock, "/clock", 10)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
@@ -51,15 +41,11 @@ class SimClock:
 
     def _loop(self) -> None:
         while not self._stop.wait(0.01):
-            if self.running:
-                self.ns += STEP_NS
             self._pub.publish(Clock(clock=Time(sec=self.ns // 10**9, nanosec=self.ns % 10**9)))
 
-    def hold(self) -> int:
-        """Stop advancing; the held time [ns]."""
-        self.running = False
-        time.sleep(0.05)  # let a publication in progress finish
-        return self.ns
+    def subscribers(self) -> int:
+        """Number of matched /clock subscriptions (the driver's time source)."""
+        return self._pub.get_subscription_count()
 
     def close(self) -> None:
         self._stop.set()
@@ -81,20 +67,27 @@ class StateStamps:
         return wait_until(lambda: ns in self.stamps, timeout=timeout)
 
 
-def test_watchdog_runs_on_simulated_time(emulator, drivers, ros_node) -> None:
+def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
     clock = SimClock(ros_node)
+    emulator: MX28Emulator | None = None
     try:
         states = StateStamps(ros_node)
-        drivers.append(driver := DriverProcess(emulator.port, ("use_sim_time:=true", "watchdog_action:=relax",
-                                                                f"command_timeout:={TIMEOUT_S}"),
-                                               env={"HSA_EXECUTOR": "single"}).wait_ready())
+        # The driver starts before its bus exists, with simulated time standing still (a lockstep simulator waits
+        # for its participants before it moves /clock): the reconnect timer runs on the wall clock, so it connects.
+        drivers.append(driver := DriverProcess(str(tmp_path / "ttyDXL"), (
+            "use_sim_time:=true", "watchdog_action:=relax", f"command_timeout:={TIMEOUT_S}"),
+            env={"HSA_EXECUTOR": "single"}).wait_ready())
+        assert wait_until(lambda: bool(driver.log("bus not ready")), timeout=30.0), driver.output()
+        assert wait_until(lambda: clock.subscribers() >= 1, timeout=30.0), "the driver does not subscribe to /clock"
+        time.sleep(1.0)  # the bus appears well after the driver got simulated time (reconnect_period is 0.2 s)
+        emulator = make_emulator(tmp_path)
         assert wait_until(lambda: torque(emulator) == {True}, timeout=30.0), driver.output()
-        assert wait_until(lambda: len(states.stamps) > 5, timeout=30.0), driver.output()
+        assert clock.ns == START_NS
         pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
         assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
 
         # Simulated time stands still at T: a phi_cmd arrives at T, then 2 s of wall time pass without /clock moving.
-        held = clock.hold()
+        held = clock.ns = START_NS + STEP_NS
         assert states.wait_cycle(held), f"no read cycle at the held instant {held}\n{driver.output()}"
         began = time.monotonic()
         pub.publish(command(0.3, 0.3))
@@ -120,3 +113,5 @@ def test_watchdog_runs_on_simulated_time(emulator, drivers, ros_node) -> None:
               "wall time), never while /clock stood still", "next phi_cmd")
     finally:
         clock.close()
+        if emulator is not None:
+            emulator.stop()

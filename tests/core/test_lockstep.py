@@ -1,0 +1,82 @@
+"""The lockstep barrier's decisions (hsa_core.lockstep): start, settle, finish, late joiners, leavers."""
+
+from __future__ import annotations
+
+from hsa_core.lockstep import Barrier, Report
+
+MS = 1_000_000
+
+
+def graph(**changes: Report) -> Barrier:
+    """A three-node pipeline at rest: bridge → kinematics → controller, the simulator publishing poses."""
+    reports = {
+        "/bridge": Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, taken={"/pose": 0}),
+        "/kin": Report("/kin", 0, published={"/state": 0}, matched={"/state": 1}, taken={"/ee": 0}),
+        "/ctrl": Report("/ctrl", 0, next_due_ns=25 * MS, taken={"/state": 0}),
+    }
+    reports.update(changes)
+    barrier = Barrier(["/bridge", "/kin", "/ctrl"])
+    barrier.own = {"/pose": 0}
+    for r in reports.values():
+        barrier.report(r)
+    return barrier
+
+
+def test_time_starts_only_when_every_expected_participant_is_ready_and_matched() -> None:
+    barrier = Barrier(["/bridge", "/kin"])
+    barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 0}))
+    assert "waiting for participants ['/kin']" in barrier.start_problem()
+    barrier.report(Report("/kin", 0, ready=False, taken={"/ee": 0}))
+    assert "not ready" in barrier.start_problem()
+    barrier.report(Report("/kin", 0, taken={"/ee": 0}))
+    assert "'/ee' matched 0 of 1" in barrier.start_problem()
+    barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}))
+    assert barrier.start_problem() is None
+
+
+def test_a_message_in_flight_holds_the_barrier_until_its_taker_reports() -> None:
+    barrier = graph()
+    assert barrier.settle_problem() is None
+    barrier.own["/pose"] = 1  # the simulator published a pose
+    assert "/bridge has taken 0 of 1 messages on '/pose'" == barrier.settle_problem()
+    barrier.report(Report("/bridge", 0, published={"/ee": 1}, taken={"/pose": 1}))
+    assert "/kin has taken 0 of 1" in barrier.settle_problem()  # the bridge passed it on
+    barrier.report(Report("/kin", 0, published={"/state": 1}, taken={"/ee": 1}))
+    assert "/ctrl has taken 0 of 1" in barrier.settle_problem()
+    barrier.report(Report("/ctrl", 0, next_due_ns=25 * MS, taken={"/state": 1}))
+    assert barrier.settle_problem() is None
+
+
+def test_an_unanswered_service_request_holds_the_barrier() -> None:
+    barrier = graph(**{"/ctrl": Report("/ctrl", 0, pending=1, taken={"/state": 0})})
+    assert barrier.settle_problem() == "/ctrl awaits 1 service answer(s)"
+
+
+def test_an_instant_is_finished_when_every_clock_reached_it_and_no_timer_is_left() -> None:
+    barrier = graph()
+    assert barrier.next_due_ns() == 25 * MS
+    assert "not yet reached by ['/bridge', '/ctrl', '/kin']" in barrier.finish_problem(25 * MS)
+    for node in ("/bridge", "/kin"):
+        barrier.report(Report(node, 25 * MS, **{k: getattr(barrier.reports[node], k)
+                                                for k in ("published", "matched", "taken")}))
+    barrier.report(Report("/ctrl", 25 * MS, next_due_ns=25 * MS, taken={"/state": 0}))
+    assert barrier.finish_problem(25 * MS) == "timers due at 25000000 ns not yet run by ['/ctrl']"
+    barrier.report(Report("/ctrl", 25 * MS, next_due_ns=50 * MS, taken={"/state": 0}))
+    assert barrier.finish_problem(25 * MS) is None
+    assert barrier.next_due_ns() == 50 * MS
+
+
+def test_a_late_joiner_is_settled_at_its_first_report_and_a_leaver_is_dropped() -> None:
+    barrier = graph()
+    barrier.start()
+    barrier.own["/pose"] = 5
+    barrier.report(Report("/bridge", 0, published={"/ee": 5}, taken={"/pose": 5}))
+    barrier.report(Report("/kin", 0, published={"/state": 5}, taken={"/ee": 5}))
+    barrier.report(Report("/ctrl", 0, taken={"/state": 5}))
+    barrier.report(Report("/viewer", 0, taken={"/state": 0}))  # joins after 5 states went out
+    assert barrier.settle_problem() is None
+    barrier.report(Report("/kin", 0, published={"/state": 6}, taken={"/ee": 5}))
+    barrier.report(Report("/ctrl", 0, taken={"/state": 6}))
+    assert "/viewer has taken 5 of 6" in barrier.settle_problem()
+    barrier.report(Report("/viewer", 0, leaving=True))
+    assert barrier.settle_problem() is None

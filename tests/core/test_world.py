@@ -1,0 +1,112 @@
+"""The simulated world (hsa_core.world): servo speed and latency, mocap timing and noise, torque, and that the state
+does not depend on how a caller chops time into calls (the offline experiment and the simulator chop it differently)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hsa_core.actuation import TICKS_PER_RAD, MotorMap, ServoModel
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.params import load_params
+from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, to_grid
+
+MS = 1_000_000
+NEUTRAL = (2048, 2048, 2048, 2048)
+SPEED = 55.0 / 60.0 * 4096  # MX-28 no-load speed [ticks/s], 55 rev/min at 12 V (e-Manual)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_params("fpu")
+
+
+def world(model, disturbance: DisturbanceModel | None = None) -> World:
+    return World(model, disturbance or DisturbanceModel(), MotorMap(NEUTRAL, phi_max=3.4))
+
+
+def test_servo_moves_at_the_no_load_speed_and_stops_on_the_goal() -> None:
+    servo = ServoModel()
+    assert servo.max_speed_ticks_per_s == pytest.approx(SPEED)
+    position, velocity = servo.step(0.0, 1000.0, 0.1)
+    assert position == pytest.approx(0.1 * SPEED) and velocity == pytest.approx(SPEED)
+    assert servo.step(0.0, 100.0, 0.1) == (100.0, 0.0)  # reaches it within dt: stops there
+    assert servo.step(0.0, -1000.0, 0.1)[0] == pytest.approx(-0.1 * SPEED)
+    assert ServoModel(max_speed_ticks_per_s=math.inf).step(0.0, 1e6, 1e-3) == (1e6, 0.0)
+
+
+def test_a_goal_takes_effect_after_the_actuation_latency_then_moves_at_the_speed_cap(model) -> None:
+    w = world(model)
+    w.advance_to(10 * MS)
+    w.write_goals(w.motor_map.goal_ticks([1.0, 1.0]))  # at 10 ms; the declared latency is 2 ms
+    w.advance_to(12 * MS)
+    np.testing.assert_array_equal(w.position, NEUTRAL)  # not yet
+    w.advance_to(22 * MS)
+    np.testing.assert_allclose(np.abs(w.position - NEUTRAL), 10e-3 * SPEED, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(w.velocity), SPEED, rtol=1e-9)
+    np.testing.assert_allclose(w.twists(), 10e-3 * SPEED / TICKS_PER_RAD, rtol=1e-12)  # both rods twist forward
+    np.testing.assert_array_equal(w.present_ticks(), np.rint(w.position))
+
+
+def test_torque_off_freezes_the_shafts(model) -> None:
+    w = world(model)
+    w.write_goals(np.asarray(NEUTRAL) + 1000)
+    w.advance_to(7 * MS)
+    w.set_torque([False, True, False, True])
+    before = w.position.copy()
+    w.advance_to(17 * MS)
+    np.testing.assert_array_equal(w.position[[0, 2]], before[[0, 2]])
+    assert np.all(w.position[[1, 3]] > before[[1, 3]])
+
+
+def test_mocap_samples_every_5_ms_available_after_the_latency(model) -> None:
+    w = world(model)
+    assert w.next_sample_ns() == 6 * MS  # stamp 0 + 6 ms measurement latency
+    w.advance_to(30 * MS)
+    samples = w.take_samples(21 * MS)
+    assert [s.stamp_ns for s in samples] == [0, 5 * MS, 10 * MS, 15 * MS]
+    assert [s.available_ns for s in samples] == [6 * MS, 11 * MS, 16 * MS, 21 * MS]
+    assert w.next_sample_ns() == 26 * MS
+    ideal = world(model, DisturbanceModel.none())
+    ideal.advance_to(1 * MS)
+    (first,) = ideal.take_samples(0)
+    assert first.available_ns == 0
+    truth = World(model, DisturbanceModel.none(), MotorMap(NEUTRAL, phi_max=3.4)).true_pose()
+    np.testing.assert_array_equal(first.chiee, truth)  # no noise: the plant's pose
+
+
+def test_the_seed_fixes_the_noise(model) -> None:
+    runs = []
+    for seed in (0, 0, 1):
+        w = world(model, DisturbanceModel(seed=seed))
+        w.advance_to(50 * MS)
+        runs.append(np.array([s.chiee for s in w.take_samples(50 * MS)]))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0], runs[2])
+    assert 1e-5 < np.std(runs[0][:, 0]) < 1e-3  # σ = 0.1 mm declared
+
+
+def test_the_state_does_not_depend_on_how_time_is_chopped(model) -> None:
+    """The simulator advances in instants of 1-20 ms, the offline experiment in others: same state, bit for bit."""
+    goals = {3 * MS: 700, 27 * MS: -300, 41 * MS: 1500}
+    states = []
+    for steps in ([97 * MS], list(range(MS, 98 * MS, MS)), [6 * MS, 25 * MS, 26 * MS, 50 * MS, 97 * MS]):
+        w = world(model)
+        times = sorted(set(steps) | set(goals))
+        for t in times:
+            w.advance_to(t)
+            if t in goals:
+                w.write_goals(np.asarray(NEUTRAL) + goals[t], t)
+        w.advance_to(97 * MS)
+        states.append((np.asarray(w.x), w.position.copy(), [s.chiee for s in w.take_samples(97 * MS)]))
+    for x, position, samples in states[1:]:
+        np.testing.assert_array_equal(x, states[0][0])
+        np.testing.assert_array_equal(position, states[0][1])
+        np.testing.assert_array_equal(samples, states[0][2])
+
+
+def test_grid_rounding() -> None:
+    assert to_grid(0) == 0 and to_grid(1) == GRID_NS and to_grid(GRID_NS) == GRID_NS
+    assert MOCAP_PERIOD_NS == 5 * GRID_NS

@@ -1,4 +1,5 @@
-"""Tests of hsa_dynamixel_driver.supervision: the instant-wise goal-rate limiter and the reboot admission (issues 11, 12).
+"""Tests of hsa_dynamixel_driver.supervision: the instant-wise goal-rate limiter and the reboot admission (issues 11,
+12).
 
 Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by the code under
 test: max_rate · dt · 2048/π ticks, rounded down.

@@ -49,6 +49,7 @@ __all__ = ["drivers"]  # fixture used by the tests below
 
 BUS, SERVOS, CONTROL = "dynamixel_driver: bus", "dynamixel_driver: servos", "dynamixel_driver: control"
 FIGURES = Path(__file__).resolve().parents[2] / "out" / "faults"
+ADDR_RETURN_DELAY, ADDR_MODE = 9, 11  # MX-28(2.0) control table (EEPROM)
 
 
 @pytest.fixture
@@ -327,8 +328,8 @@ class CommandStream:
 
 
 def plot_reboot_recovery(trace: BusTrace, goals: list, events: dict[str, float], zero: float, path: Path) -> None:
-    """Twist of motor 22 (present and goal) and every servo's torque over the overload → reboot → torque-on sequence,
-    with the events (times from the emulator's write log and the service calls) as marked lines."""
+    """Twist of motor 22 (present and goal) and every servo's torque over overload → reboot → torque on, with the
+    events (times from the emulator's write log and the service calls) as marked lines."""
     t = np.array([s[0] for s in trace.samples]) - zero
     psi = np.array([(s[1][22] - NEUTRAL[22]) / TICKS_PER_RAD for s in trace.samples])
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 4.8), height_ratios=(1.4, 1.6))
@@ -384,11 +385,15 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
         answer = services.set_torque(True)
         assert not answer.success and "overload" in answer.message and "reboot" in answer.message, answer.message
 
-        # Torque is off (the controller still sends): reboot_22 clears the error, torque stays off until asked.
+        # Torque is off (the controller still sends): reboot_22 clears the error, torque stays off until asked. The
+        # servo's Operating Mode and Return Delay Time are made wrong first: the driver must configure them again.
+        emulator.poke(22, ADDR_MODE, 3)
+        emulator.poke(22, ADDR_RETURN_DELAY, 250)
         answer, sent, answered = services.reboot(22)
         events["reboot_22 request"], events["reboot_22 answer"] = sent, answered
         assert answer.success and "set_torque(true)" in answer.message, answer.message
         assert emulator.hardware_errors()[22] == 0 and torque(emulator) == {False}
+        assert emulator.peek(22, ADDR_MODE) == 4 and emulator.peek(22, ADDR_RETURN_DELAY) == 0  # extended position
         asked = time.monotonic()
         answer = services.set_torque(True)
         assert answer.success and torque(emulator) == {True}, answer.message
@@ -426,6 +431,6 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
     answer = services.set_torque(True)
     assert not answer.success and "IDs [23, 24]" in answer.message and torque(emulator) == {False}
     fault("reboot of all servos while holding, two of them beyond one turn", "torque off first, every servo "
-          f"rebooted in {(answered - sent) * 1e3:.1f} ms; positions re-checked: torque refused for IDs 23, 24 (multi-turn "
-          "count lost)", "manual (re-home)")
+          f"rebooted in {(answered - sent) * 1e3:.1f} ms; positions re-checked: torque refused for IDs 23, 24 "
+          "(multi-turn count lost)", "manual (re-home)")
     assert driver.proc.poll() is None

@@ -2,7 +2,9 @@
 
 Starts launch_scripts/sim.launch.yaml (simulator, real Dynamixel driver on the emulated bus, mocap bridge, kinematics,
 planner, controller, setpoint sequencer, MCAP recorder), waits until the sequencer has played the whole trajectory,
-stops the graph, then reads the recorded bag and prints the metrics table and writes the figures.
+stops the graph, then reads the recorded bag and prints the metrics table and writes the figures. By default the graph
+runs in lockstep simulated time (deterministic, faster than real time); ``--clock wall`` runs it in real time. One
+progress line per step; the nodes' output goes to ``<out>/graph.log`` unless ``--verbose``.
 
     python launch_scripts/run_sim_experiment.py [--material fpu] [--controller psatid] [--out out/run_<time>]
 """
@@ -10,14 +12,84 @@ stops the graph, then reads the recorded bag and prints the metrics table and wr
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 from hsa_bag.analysis import analyze
 from hsa_common.launcher import Launcher, LaunchFile
-from hsa_core import cli, rosenv
+from hsa_core import cli, metrics, rosenv
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
+
+
+class StepMonitor:
+    """Prints one line per finished step from /hsa/controller_info (its own rclpy context, outside the barrier)."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.node import Node
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        from hsa_msgs.msg import ControllerInfo
+
+        self._rclpy = rclpy
+        self._context = rclpy.Context()
+        rclpy.init(context=self._context)
+        self._node = Node("run_monitor", context=self._context, enable_rosout=False)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        self._tracking = ControllerInfo.STATE_TRACKING
+        self._node.create_subscription(ControllerInfo, "/hsa/controller_info", self._on_info, qos)
+        self._rows: list[tuple[float, float, float, float, float]] = []  # t, x_des, y_des, x, y
+        self._index, self._length = -1, 0
+        self._wall0 = time.monotonic()
+        self._t0: float | None = None
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+        executor = SingleThreadedExecutor(context=self._context)
+        executor.add_node(self._node)
+        try:
+            while self._context.ok():
+                executor.spin_once(timeout_sec=0.1)
+        except ExternalShutdownException:
+            pass  # close() shut the context down
+
+    def _on_info(self, msg) -> None:
+        if msg.state != self._tracking:
+            return
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self._t0 = t if self._t0 is None else self._t0
+        if msg.setpoint.trajectory_index != self._index:
+            self._report()
+            self._index, self._length = msg.setpoint.trajectory_index, msg.setpoint.trajectory_length
+        self._rows.append((t, msg.chiee_des.x, msg.chiee_des.y, msg.chiee.x, msg.chiee.y))
+
+    def _report(self) -> None:
+        """One line for the step whose ticks are collected (if it has enough to evaluate)."""
+        if len(self._rows) < 3:
+            self._rows.clear()
+            return
+        rows = np.array(self._rows)
+        self._rows.clear()
+        t = rows[:, 0] - rows[0, 0]
+        step = metrics.evaluate_run(t, rows[:, 1:3], rows[:, 3:5], duration=t[-1] + (t[1] - t[0])).steps[0]
+        error = np.linalg.norm(rows[-1, 1:3] - rows[-1, 3:5])
+        sim = rows[-1, 0] - (self._t0 or rows[0, 0])
+        print(f"[run] step {self._index + 1}/{self._length}: target ({rows[0, 1] * 1e3:6.1f}, {rows[0, 2] * 1e3:6.1f})"
+              f" mm, final error {error * 1e3:5.2f} mm, t_r {step.response_time:5.2f} s; simulated {sim:6.1f} s, "
+              f"wall {time.monotonic() - self._wall0:6.1f} s", flush=True)
+
+    def close(self) -> None:
+        """Report the last step and stop."""
+        self._report()
+        self._context.try_shutdown()
+        self._thread.join(timeout=2.0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,6 +101,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--disturbance", choices=["none", "default"], default="default")
     parser.add_argument("--setpoint-rate", type=cli.non_negative, default=0.0,
                         help="[Hz] setpoints per second; 0 = the paper's (one step every 10 s, 110 s in all)")
+    parser.add_argument("--clock", choices=["lockstep", "wall"], default="lockstep",
+                        help="lockstep: simulated time, deterministic and faster than real time (default); "
+                             "wall: real time")
+    parser.add_argument("--rate", type=cli.positive, default=40.0, help="[Hz] control rate")
+    parser.add_argument("--verbose", action="store_true", help="show the nodes' output instead of logging it")
     parser.add_argument("--out", type=Path, default=Path("out") / time.strftime("run_%Y%m%d-%H%M%S"))
     args = parser.parse_args(argv)
 
@@ -40,16 +117,23 @@ def main(argv: list[str] | None = None) -> int:
     launch_args = {
         "material": args.material, "controller": args.controller, "ee_integral": str(args.ee_integral).lower(),
         "disturbance": args.disturbance, "setpoint_rate": str(args.setpoint_rate), "bag_dir": str(bag),
+        "clock": args.clock, "rate": str(args.rate),
     }
+    log_path = args.out / "graph.log"
     print(f"[run] ROS_DOMAIN_ID={domain}; graph {GRAPH.name} with {launch_args}", flush=True)
+    if not args.verbose:
+        print(f"[run] node output: {log_path.resolve()} (--verbose shows it here)", flush=True)
     started = time.monotonic()
-    code = Launcher(LaunchFile(GRAPH, launch_args).processes()).run()
-    print(f"[run] graph finished after {time.monotonic() - started:.0f} s (exit {code})", flush=True)
-    result = analyze(bag, args.out / "figures", duration=None if args.setpoint_rate else 110.0, csv=True, npz=True,
+    monitor = StepMonitor()
+    with open(log_path, "wb") as log:
+        code = Launcher(LaunchFile(GRAPH, launch_args).processes(), log=None if args.verbose else log).run()
+    monitor.close()
+    print(f"[run] graph finished after {time.monotonic() - started:.1f} s of wall time (exit {code})", flush=True)
+    result = analyze(bag, args.out, duration=None if args.setpoint_rate else 110.0, csv=True, npz=True,
                      name=f"{args.material}_{args.controller}{'_eei' if args.ee_integral else ''}_ros")
     print(result.report)
     print(f"[run] bag: {bag.resolve()}")
-    print(f"[run] figures, metrics.txt, run.csv, run.npz: {(args.out / 'figures').resolve()}")
+    print(f"[run] metrics.txt, run.csv, run.npz and figures/: {args.out.resolve()}")
     return code
 
 

@@ -36,7 +36,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import yaml
 
@@ -265,8 +265,12 @@ class LaunchFile:
 class Launcher:
     """Starts the processes of a launch file and stops them all together."""
 
-    def __init__(self, procs: list[Process], sigterm_timeout: float = 5.0, sigkill_timeout: float = 5.0) -> None:
+    def __init__(self, procs: list[Process], sigterm_timeout: float = 5.0, sigkill_timeout: float = 5.0,
+                 log: BinaryIO | None = None) -> None:
+        """``log``: a binary file that gets the children's output and the launcher's lines instead of the terminal
+        (errors that stop the graph are still printed)."""
         self.procs = procs
+        self.log = log
         self.sigterm_timeout = sigterm_timeout
         self.sigkill_timeout = sigkill_timeout
         self._stop_requested = False
@@ -290,9 +294,9 @@ class Launcher:
         signal.signal(signal.SIGINT, self._request_stop)
         signal.signal(signal.SIGTERM, self._request_stop)
         for proc in self.procs:
-            print(f"[launch] starting {proc.name}: {shlex.join(proc.cmd)}", flush=True)
-            proc.popen = subprocess.Popen(proc.cmd, env=env, stderr=subprocess.PIPE)
-            proc.pump = threading.Thread(target=_pump, args=(proc,), daemon=True)
+            self._say(f"[launch] starting {proc.name}: {shlex.join(proc.cmd)}")
+            proc.popen = subprocess.Popen(proc.cmd, env=env, stderr=subprocess.PIPE, stdout=self.log)
+            proc.pump = threading.Thread(target=_pump, args=(proc, self.log), daemon=True)
             proc.pump.start()
         failed: Process | None = None
         while not self._stop_requested:
@@ -307,6 +311,14 @@ class Launcher:
                   f"stopping the graph", file=sys.stderr, flush=True)
         worst = self.stop()
         return _exit_status(failed.popen.returncode) if failed is not None else worst
+
+    def _say(self, line: str) -> None:
+        """A launcher line, to the log if there is one, else to stdout."""
+        if self.log is not None:
+            self.log.write(line.encode() + b"\n")
+            self.log.flush()
+        else:
+            print(line, flush=True)
 
     def stop(self) -> int:
         """SIGINT all children, escalate after timeouts, and report how each ended."""
@@ -327,7 +339,7 @@ class Launcher:
         for p in self.procs:
             code = p.popen.wait()
             p.pump.join(timeout=2.0)
-            print(f"[launch] {p.name} exited with {code}", flush=True)
+            self._say(f"[launch] {p.name} exited with {code}")
             if _failure(code):
                 worst = worst or _exit_status(code)
         return worst
@@ -343,13 +355,13 @@ def _exit_status(code: int) -> int:
     return code if code > 0 else 128 - code
 
 
-def _pump(proc: Process) -> None:
-    """Copy the process's stderr to ours line by line, keeping the last lines for the failure message.
+def _pump(proc: Process, log: BinaryIO | None = None) -> None:
+    """Copy the process's stderr to ours (or to ``log``) line by line, keeping the last lines for the failure message.
 
     It drains the pipe to the end even if our stderr is gone: a full pipe would block the child's logging.
     """
     assert proc.popen is not None and proc.popen.stderr is not None
-    out = sys.stderr.buffer
+    out = log if log is not None else sys.stderr.buffer
     for raw in iter(proc.popen.stderr.readline, b""):
         try:
             out.write(raw)

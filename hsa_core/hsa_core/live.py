@@ -66,9 +66,9 @@ class Throttle:
     """Lets at most one event through per ``1/rate`` seconds of the times passed in [ns]; the others are dropped.
 
     Times are integer nanoseconds (``time.monotonic_ns()``, a ROS clock's), so a stream on an exact grid (200 Hz
-    states, 25 Hz scene) passes exactly every 8th event, with no rounding loss. A time earlier than the last accepted one (a clock reset, e.g. a
-    restarted simulation) is accepted and restarts the count, so the view never freezes waiting for a time that
-    will not come.
+    states, 25 Hz scene) passes exactly every 8th event, with no rounding loss. A time earlier than the last accepted
+    one (a clock reset, e.g. a restarted simulation) is accepted and restarts the count, so the view never freezes
+    waiting for a time that will not come.
     """
 
     def __init__(self, rate: float) -> None:
@@ -130,8 +130,8 @@ def progress(sequencer_status: str | None, controller_state: int | None, e_norm:
     """Run progress from the sequencer's JSON status, the controller's state code and the newest ‖e‖ [m].
 
     ``step`` counts from 1 (the setpoint point now active), ``steps`` is the trajectory length; ``text`` is the one
-    line a viewer shows, e.g. "step 3/11 · tracking · ‖e‖ 1.25 mm". Missing inputs (no status or no controller_info
-    yet) are reported as such, never invented.
+    line a viewer shows, e.g. "step 3/11 · tracking · ‖e‖ 1.25 mm". Missing inputs (no status or no
+    controller_info yet) are reported as such, never invented.
     """
     status: Mapping[str, Any] = {}
     if sequencer_status:

@@ -5,12 +5,12 @@ logs them on Foxglove channels (docs/nodes/hsa_live.md):
 
 * ``/live/scene`` (foxglove.SceneUpdate): entity ``robot`` (backbone and rod LINE strips, the platform as a cube) of
   the newest state, at most ``scene_rate`` per second of the steady (wall) clock, whatever the simulation speed;
-  entity ``goal`` (setpoint sphere and a
-  translucent ghost of q^d) once a setpoint is known, redrawn at once on a new setpoint. Geometry from hsa_core.visual.
+  entity ``goal`` (setpoint sphere and a translucent ghost of q^d) once a setpoint is known, redrawn at once on a new
+  setpoint. Geometry from hsa_core.visual.
 * ``/live/tracking``, ``/live/actuation``, ``/live/configuration`` (JSON, one message per controller tick): p_ee and
-  p^d with e and ‖e‖; φ commanded, before saturation, φ^ss and the admissible box; q and q^d. ``/live/phi_present``
-  (JSON): the measured φ at the driver rate. The log time of each message is the stamp of the ROS message it
-  comes from, so the plots run on the graph's clock.
+  p^d with e and ‖e‖; φ commanded, before saturation, φ^ss and the admissible box; q and q^d.
+  ``/live/phi_present`` (JSON): the measured φ at the driver rate. The log time of each message is the stamp of the
+  ROS message it comes from, so the plots run on the graph's clock.
 * ``/live/diagnostics`` and ``/live/progress`` (JSON, every ``progress_period`` of the steady clock and on a sequencer
   change): the newest status of every diagnostic name (STALE when silent for ``diagnostics_stale`` s of wall time, so
   a stalled simulation shows), and "step k/n · mode · ‖e‖".
@@ -146,7 +146,8 @@ class LiveNode(Node):
             self._server = foxglove.start_server(name="hsa_live", host=HOST, port=self._p["port"],
                                                  server_listener=self._viewers, context=self._fox)
         except RuntimeError as exc:  # port taken, or not a port this user may bind
-            raise ParameterValidationError(f"parameter 'port': cannot serve on {HOST}:{self._p['port']}: {exc}")
+            raise ParameterValidationError(
+                f"parameter 'port': cannot serve on {HOST}:{self._p['port']}: {exc}") from exc
         self.get_logger().info(f"Foxglove live view on ws://{HOST}:{self._server.port} (layout: "
                                "share/hsa_live/config/foxglove_layout.json)")
         self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,

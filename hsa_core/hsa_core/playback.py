@@ -1,0 +1,117 @@
+"""Lockstep playback decisions (no ROS): when a bag player may publish its next message and move /clock.
+
+A player in lockstep owns /clock and plays a bag's messages in log-time order. :class:`LockstepPlayback` is its
+state machine; the player feeds it the playback time of the next message and the wall time, and acts on each
+:class:`Step`:
+
+* ``start``: simulated time does not start before :meth:`hsa_core.lockstep.Barrier.start_problem` is None and every
+  topic the player publishes is matched by at least as many subscriptions as participants take it (nothing the
+  player publishes may go to a subscription that does not exist yet);
+* an **instant** is the log time of the next message, or an earlier timer due of a participant (so timers run at the
+  instants they were due at, as in the recorded run); the first instant is the first message's log time. Before the
+  clock moves to a new instant, everything published must be taken (``settle_problem``); then /clock is published
+  (``clock``) and the instant must be finished (``finish_problem``: every participant's clock there, its due timers
+  run); /clock is sent again every ``resend`` s while that waits (it is best effort);
+* a message whose log time is the current instant is published (``publish``); after the last one the graph must
+  settle once more (``done``);
+* waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is a failure
+  (``fail``, naming what holds the barrier).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from hsa_core.lockstep import Barrier, Report
+
+START, MOVE, FINISH, OVER = "start", "move", "finish", "over"
+
+
+@dataclass(frozen=True)
+class Step:
+    """What the player does now: ``wait``, ``clock`` (publish /clock at ``t_ns``), ``publish`` (the next message),
+    ``done`` or ``fail``; ``reason`` says what holds the barrier (wait, fail, a resent clock)."""
+
+    action: str
+    t_ns: int | None = None
+    reason: str = ""
+
+
+def unmatched(matched: Mapping[str, int], reports: Iterable[Report]) -> str | None:
+    """Which of the player's topics has fewer matched subscriptions than participants taking it, or None."""
+    reports = list(reports)
+    for topic, count in sorted(matched.items()):
+        takers = sum(1 for r in reports if topic in r.taken)
+        if count < takers:
+            return f"bag_player: '{topic}' matched {count} of {takers} participant subscriptions"
+    return None
+
+
+class LockstepPlayback:
+    """The player's side of the lockstep barrier; see the module docstring. Times: ns of playback time, s of wall."""
+
+    def __init__(self, barrier: Barrier, timeout: float, resend: float = 0.05) -> None:
+        self.barrier = barrier
+        self.timeout = timeout
+        self.resend = resend
+        self.phase = START
+        self.instant: int | None = None  # the instant the graph is working on
+        self._since: float | None = None  # wall time the current wait began
+        self._clock_sent = 0.0
+
+    def step(self, next_ns: int | None, matched: Mapping[str, int], now: float) -> Step:
+        """The next action, given the next message's playback time (None: none left), the player's matched
+        subscription counts per topic, and the wall time ``now``."""
+        if self._since is None:
+            self._since = now
+        if self.phase == START:
+            problem = self.barrier.start_problem() or unmatched(matched, self.barrier.reports.values())
+            if problem is not None:
+                return self._wait(problem, now, 10 * self.timeout)
+            self.barrier.start()
+            self._progress(MOVE, now)
+        if self.phase == FINISH:
+            assert self.instant is not None
+            problem = self.barrier.finish_problem(self.instant)
+            if problem is not None:
+                failed = self._wait(problem, now, self.timeout)
+                if failed.action == "wait" and now - self._clock_sent >= self.resend:
+                    self._clock_sent = now
+                    return Step("clock", self.instant, problem)
+                return failed
+            self._progress(MOVE, now)
+        if self.phase == MOVE:
+            if next_ns is not None and self.instant is not None and next_ns <= self.instant:
+                self._progress(MOVE, now)
+                return Step("publish", self.instant)
+            problem = self.barrier.settle_problem()
+            if problem is not None:
+                return self._wait(problem, now, self.timeout)
+            if next_ns is None:
+                self.phase = OVER
+                return Step("done", self.instant)
+            due = self.barrier.next_due_ns()
+            if self.instant is not None and due is not None and self.instant < due < next_ns:
+                next_ns = due
+            self.instant = next_ns
+            self._progress(FINISH, now)
+            self._clock_sent = now
+            return Step("clock", self.instant)
+        return Step("done", self.instant)
+
+    def _progress(self, phase: str, now: float) -> None:
+        """Enter ``phase``; the wait for it starts now."""
+        self.phase = phase
+        self._since = now
+
+    def _wait(self, problem: str, now: float, limit: float) -> Step:
+        """Wait for ``problem`` to clear, or fail once the current wait is longer than ``limit`` s."""
+        assert self._since is not None
+        waited = now - self._since
+        if waited <= limit:
+            return Step("wait", self.instant, problem)
+        where = "before simulated time started" if self.phase == START else \
+            f"at t = {(self.instant or 0) * 1e-9:.3f} s"
+        return Step("fail", self.instant,
+                    f"lockstep barrier {where} not finished after {waited:.1f} s of wall time: {problem}")

@@ -165,10 +165,14 @@ def _steps(log: RunLog) -> list[tuple[int, int]]:
     return bounds if len(bounds) <= MAX_STEPS else []
 
 
-def _step_window(log: RunLog, start: int) -> tuple[np.ndarray, np.ndarray]:
-    """Tick mask of the window around the step starting at tick ``start`` and its time relative to the change."""
+def _step_window(log: RunLog, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+    """Tick mask of the window around the step of ticks [start, stop) and the time relative to its change.
+
+    The window ends before the next step's first tick, so the next setpoint change is not drawn (nor scaled to).
+    """
     tau = log.t - log.t[start]
-    return (tau >= STEP_WINDOW[0]) & (tau <= STEP_WINDOW[1]), tau
+    before_next = np.arange(len(log)) < stop
+    return (tau >= STEP_WINDOW[0]) & (tau < STEP_WINDOW[1]) & before_next, tau
 
 
 def _panel_grid(n: int, height: float = 1.9) -> tuple[plt.Figure, list[plt.Axes]]:
@@ -206,8 +210,8 @@ def steps_figure(log: RunLog, label: RunLabel) -> plt.Figure | None:
     if not bounds:
         return None
     fig, axes = _panel_grid(len(bounds))
-    for i, (ax, (start, _)) in enumerate(zip(axes, bounds)):
-        window, tau = _step_window(log, start)
+    for i, (ax, (start, stop)) in enumerate(zip(axes, bounds)):
+        window, tau = _step_window(log, start, stop)
         target = log.chiee_des[start, :2]
         for k, color in enumerate(("C0", "C1")):
             ax.plot(tau[window], (log.chiee[window, k] - target[k]) * MM, color=color, label=AXES_XY[k], gid="run:0")
@@ -357,13 +361,13 @@ def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> 
         return None
     fig, axes = _panel_grid(n)
     for i, (log, label, steps) in enumerate(zip(logs, labels, bounds)):
-        for j, (ax, (start, _)) in enumerate(zip(axes, steps)):
-            window, tau = _step_window(log, start)
+        for ax, (start, stop) in zip(axes, steps):
+            window, tau = _step_window(log, start, stop)
             target = log.chiee_des[start, :2]
             distance = np.linalg.norm(log.chiee[window, :2] - target, axis=1) * MM
             ax.plot(tau[window], distance, color=f"C{i}", label=label.short, gid=f"run:{i}")
-    for j, (ax, (start, _)) in enumerate(zip(axes, bounds[0])):  # the reference of the first run, on top
-        window, tau = _step_window(logs[0], start)
+    for j, (ax, (start, stop)) in enumerate(zip(axes, bounds[0])):  # the reference of the first run, on top
+        window, tau = _step_window(logs[0], start, stop)
         ref = np.linalg.norm(logs[0].chiee_des[window, :2] - logs[0].chiee_des[start, :2], axis=1) * MM
         ax.plot(tau[window], ref, label="reference", **SETPOINT)
         ax.set_title(f"step {j + 1} at {logs[0].t[start]:.1f} s", fontsize=8)

@@ -23,9 +23,10 @@ PHI_MAX = 3.49  # rad
 UNIT = re.compile(r"\[[^\]]+\]$")  # an axis label ends with its unit in brackets
 
 
-def make_log(controller: str = "psatid", material: str = "fpu", phi_meas: bool = True, **meta: str) -> RunLog:
-    """Three 5 s steps; measured = reference + OFFSET; φ commands and φ^ss recognisable; optional measured φ."""
-    n_step = round(5.0 / DT)
+def make_log(controller: str = "psatid", material: str = "fpu", phi_meas: bool = True, step: float = 5.0,
+             **meta: str) -> RunLog:
+    """Three steps of ``step`` s; measured = reference + OFFSET; recognisable φ and φ^ss; optional measured φ."""
+    n_step = round(step / DT)
     p_des = np.repeat(np.array(TARGETS), n_step, axis=0)
     n = len(p_des)
     k = np.arange(n, dtype=float)
@@ -135,6 +136,17 @@ def test_step_figure_zooms_into_each_step() -> None:
         np.testing.assert_allclose(x[np.asarray(lines(ax, "run:0")[0].get_xdata()) >= 0], OFFSET[0] * 1e3)
         np.testing.assert_allclose(y[np.asarray(lines(ax, "run:0")[1].get_xdata()) >= 0], OFFSET[1] * 1e3)
         assert f"step {i + 1} at {5.0 * i:.1f} s" == ax.get_title()
+
+
+def test_step_panels_stop_before_the_next_setpoint_change() -> None:
+    log = make_log(step=2.0)  # the 2 s window then reaches the next change exactly
+    fig = plotting.steps_figure(log, plotting.RunLabel.of(log))
+    targets = np.array(TARGETS) * 1e3
+    for i, ax in enumerate(fig.axes):
+        seen = {round(float(v), 6) for line in lines(ax, "reference") for v in line.get_ydata()}
+        before = targets[i - 1] - targets[i] if i else np.zeros(2)
+        assert seen <= {0.0, *np.round(before, 6)}, seen  # never the next step's offset
+        assert max(float(np.max(line.get_xdata())) for line in ax.get_lines()) < 2.0
 
 
 @pytest.mark.parametrize(("controller", "with_ss"), [("psatid", True), ("psatid_gc", True), ("pid", False)])

@@ -20,7 +20,16 @@
 * **Start.** ``--wait-for-subscribers`` first waits (bounded) for a subscriber on every played topic, or only on the
   recorded names given to ``--wait-topics`` (e.g. the inputs of the nodes under test, not topics only a recorder or
   viewer may take).
-* **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 2 for a bad bag or argument.
+* **Lockstep** (ROS parameter ``lockstep: true``, with ``use_sim_time``; the replay graph's default): the player owns
+  /clock and plays losslessly and deterministically, whatever the machine's load. It coordinates the barrier of
+  :mod:`hsa_core.lockstep` (decisions in :mod:`hsa_core.playback`): simulated time starts once the nodes named in the
+  parameter ``participants`` have reported and every topic the player publishes is matched by the participants that
+  take it; each message is published at the instant of its log time (timer dues of the participants in between are
+  instants of their own), after every message before it has been taken and the instant's timers have run. ``--rate``,
+  ``--clock HZ`` and ``--busy-wait-ms`` do not apply. An instant not finished within ``barrier_timeout`` s of wall
+  time (10× that for the start) is an ERROR naming what holds it, and the player exits 1.
+* **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 1 after a lockstep barrier timeout, 2 for a bad bag,
+  argument or parameter.
 """
 
 from __future__ import annotations
@@ -30,11 +39,13 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -44,10 +55,24 @@ from rosgraph_msgs.msg import Clock
 from hsa_bag.bagio import Bag, BagError
 from hsa_bag.msgtypes import message_class
 from hsa_bag.qos import publisher_profile
+from hsa_common import lockstep
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_core import cli, rosenv
+from hsa_core.lockstep import Barrier
+from hsa_core.playback import LockstepPlayback
+from hsa_msgs.msg import LockstepAck
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ACK_TIMEOUT = Duration(seconds=5.0)
+LOCKSTEP_SPIN = 0.01  # [s] longest wait for a participant's report while the barrier holds
+
+SPECS = (
+    ParamSpec("participants", [""], "lockstep: fully qualified names of the nodes simulated time waits for before "
+              "it starts (others join when they first report)", read_only=True),
+    ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails (the "
+              "start: 10x)", low=0.1, high=3600.0, read_only=True),
+)
+"""ROS parameters of the player (besides ``lockstep`` and ``use_sim_time``); the playback options are arguments."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +99,7 @@ class Result:
     passes: int
     elapsed: float
     max_late: float
+    failure: str = ""  # lockstep: why the barrier timed out
 
 
 def message_classes(bag: Bag, options: Options) -> dict[str, type]:
@@ -98,9 +124,12 @@ class Player:
     """Publishes one bag through one node; :meth:`play` returns when done or when ``stop`` is set."""
 
     def __init__(
-        self, bag: Bag, options: Options, classes: dict[str, type], node: Node, stop: threading.Event
+        self, bag: Bag, options: Options, classes: dict[str, type], node: Node, stop: threading.Event,
+        playback: LockstepPlayback | None = None,
     ) -> None:
         self.bag = bag
+        self.node = node
+        self.playback = playback
         self.options = options
         self.stop = stop
         self.topics = list(classes)
@@ -109,7 +138,7 @@ class Player:
             for name, cls in classes.items()
         }
         self.clock: Publisher | None = None
-        if options.clock_hz > 0:
+        if options.clock_hz > 0 or playback is not None:
             self.clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
         self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
         mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
@@ -166,6 +195,8 @@ class Player:
             self._wait_for_subscribers()
         if self.options.delay > 0 and self.stop.wait(self.options.delay):
             return Result(0, 0, 0.0, 0.0)
+        if self.playback is not None:
+            return self._play_lockstep(self.playback)
         published = passes = 0
         max_late = 0.0
         self._t0 = self._next_clock = time.monotonic()
@@ -185,10 +216,70 @@ class Player:
             if published == before:
                 break  # nothing after the start offset: another pass would spin
         elapsed = time.monotonic() - self._t0
+        self._wait_for_acks()
+        return Result(published, passes, elapsed, max_late)
+
+    def _wait_for_acks(self) -> None:
+        """Wait (bounded) until reliable subscribers have acknowledged every message."""
         for pub in self.publishers.values():
             if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
                 pub.wait_for_all_acked(ACK_TIMEOUT)
-        return Result(published, passes, elapsed, max_late)
+
+    def _timeline(self, passes: list[int]) -> Iterator[tuple[str, int, bytes]]:
+        """(topic, playback time [ns], data) of every message to play, pass after pass; counts passes in ``passes``."""
+        while self.options.loops == 0 or passes[0] < self.options.loops:
+            shift = passes[0] * self.loop_span
+            played = False
+            for topic, stamp, data in self.bag.messages(self.topics, start=self.first):
+                played = True
+                yield topic, stamp + shift, data
+            passes[0] += 1
+            if not played:
+                return  # nothing after the start offset: another pass would spin
+
+    def _play_lockstep(self, playback: LockstepPlayback) -> Result:
+        """Lockstep: publish each message at the instant of its log time, as the barrier allows (module docstring)."""
+        assert self.clock is not None
+        executor = SingleThreadedExecutor()
+        executor.add_node(self.node)
+        passes = [0]
+        timeline = self._timeline(passes)
+        upcoming = next(timeline, None)
+        published = 0
+        failure = ""
+        start = time.monotonic()
+        logger = self.node.get_logger()
+        while not self.stop.is_set():
+            matched = {pub.topic_name: pub.get_subscription_count() for pub in self.publishers.values()}
+            started = playback.barrier.started
+            step = playback.step(None if upcoming is None else upcoming[1], matched, time.monotonic())
+            if playback.barrier.started and not started:
+                logger.info(f"lockstep: simulated time starts ({len(playback.barrier.reports)} participants)")
+            if step.action == "publish":
+                assert upcoming is not None
+                self.publishers[upcoming[0]].publish(upcoming[2])
+                published += 1
+                upcoming = next(timeline, None)
+            elif step.action == "clock":
+                assert step.t_ns is not None
+                msg = Clock()
+                msg.clock.sec, msg.clock.nanosec = divmod(step.t_ns, 1_000_000_000)
+                self.clock.publish(msg)
+            elif step.action == "done":
+                break
+            elif step.action == "fail":
+                failure = step.reason
+                logger.error(failure)
+                break
+            else:
+                if not playback.barrier.started:
+                    logger.info(f"lockstep: simulated time has not started: {step.reason}", throttle_duration_sec=5.0)
+                executor.spin_once(timeout_sec=LOCKSTEP_SPIN)
+        executor.remove_node(self.node)
+        executor.shutdown(timeout_sec=1.0)
+        if not failure:
+            self._wait_for_acks()
+        return Result(published, passes[0], time.monotonic() - start, 0.0, failure)
 
 
 def _remap(text: str) -> tuple[str, str]:
@@ -280,17 +371,30 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node("bag_player")
     try:
-        player = Player(bag, options, classes, node, stop)
+        try:
+            params = declare(node, SPECS)
+        except ParameterValidationError as exc:
+            print(f"bag_player: {exc}", file=sys.stderr)
+            return 2
+        playback = None
+        if lockstep.enabled(node):
+            barrier = Barrier(n for n in params["participants"] if n)
+            playback = LockstepPlayback(barrier, params["barrier_timeout"])
+        player = Player(bag, options, classes, node, stop, playback)
+        if playback is not None:
+            barrier.own = lockstep.Participant(node, publish_acks=False).published  # live: its messages count at once
+            node.create_subscription(LockstepAck, lockstep.ACK_TOPIC, lambda m: barrier.report(lockstep.from_msg(m)),
+                                     lockstep.ACK_READER_QOS)
         span = (bag.end - player.first) / 1e9
         topics = ", ".join(player.topics)
-        print(f"playing {path}: {topics}; {span:.3f} s of bag time at rate {options.rate}", flush=True)
+        pace = f"in lockstep with {list(barrier.expected)}" if playback is not None else f"at rate {options.rate}"
+        print(f"playing {path}: {topics}; {span:.3f} s of bag time {pace}", flush=True)
         result = player.play()
-        print(
-            f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; "
-            f"latest {result.max_late * 1e3:.2f} ms behind schedule", flush=True,
-        )  # fmt: skip
+        summary = "lockstep" if playback is not None else f"latest {result.max_late * 1e3:.2f} ms behind schedule"
+        print(f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; {summary}",
+              flush=True)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
         bag.close()
-    return 0
+    return 1 if result.failure else 0

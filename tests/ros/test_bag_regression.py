@@ -1,55 +1,71 @@
-"""Regression by replay: a recorded mocap stream, played through a fresh real kinematics_node, regenerates the
-recorded ``state`` messages.
+"""Regression by replay, in lockstep: a recorded mocap stream, played through a fresh real kinematics_node,
+regenerates every recorded ``state`` message, identical, whatever the load of the machine.
 
-Run 1: the test publishes a synthetic 200 Hz ee_pose stream (regular mocap stamps) into kinematics_node in /hsa while
-bag_recorder records /hsa/ee_pose and /hsa/state. Run 2: bag_player plays only the recorded ee_pose, remapped to
-/replay/ee_pose, into a second kinematics_node (fresh estimator) in /replay. Each regenerated state must equal the
-recorded state with the same mocap stamp: q, pose, window fill and validity exactly, the Savitzky–Golay rates to
-rounding, since the estimator saw the same samples with the same stamps.
+Run 1: bag_player plays a synthetic 200 Hz ee_pose bag (regular mocap stamps, log time = stamp) into kinematics_node
+in /hsa while bag_recorder records /hsa/ee_pose and /hsa/state. Run 2: bag_player plays only the recorded ee_pose,
+remapped to /replay/ee_pose, into a second kinematics_node (fresh estimator) in /replay, and a second recorder records
+/replay/state. Every node runs with ``use_sim_time`` and ``lockstep``; the player owns /clock and publishes a sample
+only when the participants have taken everything before it (hsa_core.playback). So nothing is lost: run 1 records all
+N samples and N states, each at the simulated instant of its sample, and run 2 regenerates all N states with every
+field bit-identical (the estimator sees the same samples with the same stamps in the same order).
 """
 
 from __future__ import annotations
 
 import math
 import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from hsa_bag.bagio import Bag
-from hsa_common import qos
+from hsa_bag.msgtypes import TypeRegistry
+from hsa_bag.storage import SplitBagWriter
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
-from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
-RECEIVE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 N, PERIOD_NS, T0_NS = 400, 5_000_000, 1_760_000_000 * 10**9  # 2 s of 200 Hz mocap
+LOCKSTEP = ["-p", "use_sim_time:=true", "-p", "lockstep:=true"]
+INFINITE = QosTime(9223372036, 854775807)
+MOCAP_OFFER = Qos(QosHistory.UNKNOWN, 0, QosReliability.BEST_EFFORT, QosDurability.VOLATILE, INFINITE, INFINITE,
+                  QosLiveliness.AUTOMATIC, INFINITE, False)  # as a sensor-data publisher offers it  # fmt: skip
 
 
 def kinematics(namespace: str) -> subprocess.Popen:
-    """A kinematics_node in ``namespace`` whose ee_pose queue holds the whole stream (no drops when it lags).
+    """A kinematics_node in ``namespace``, in lockstep (its default ee_pose queue and late-sample gate)."""
+    return start_process([find_executable("hsa_kinematics_node", "kinematics_node"), "--ros-args",
+                          "-r", f"__ns:={namespace}", *LOCKSTEP])  # fmt: skip
 
-    The late-sample gate (``max_lag``, a real-time guard for the controller) is off: it drops whatever a loaded
-    machine delays, and this test is about regenerating every state, not about timing.
-    """
-    return start_process([
-        find_executable("hsa_kinematics_node", "kinematics_node"), "--ros-args", "-r", f"__ns:={namespace}",
-        "-p", f"qos_overrides.{namespace}/ee_pose.subscription.depth:={N}", "-p", "max_lag:=0.0",
-    ])  # fmt: skip
+
+def recorder(namespace: str, bag: Path, topics: str) -> subprocess.Popen:
+    """A bag_recorder in ``namespace`` recording ``topics`` (a YAML list) into ``bag``, in lockstep."""
+    return start_process([find_executable("hsa_bag", "bag_recorder"), "--ros-args", "-r", f"__ns:={namespace}",
+                          "-p", f"output:={bag}", "-p", f"topics:={topics}", *LOCKSTEP])  # fmt: skip
+
+
+def play(bag: Path, participants: list[str], *args: str) -> str:
+    """bag_player in lockstep with ``participants`` to completion; its output (asserting exit code 0)."""
+    proc = start_process([find_executable("hsa_bag", "bag_player"), str(bag), *args, "--ros-args", *LOCKSTEP,
+                          "-p", f"participants:=[{', '.join(participants)}]"])  # fmt: skip
+    try:
+        out, _ = proc.communicate(timeout=300)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 0, out
+    return out
 
 
 @pytest.fixture
 def processes() -> Iterator[dict[str, subprocess.Popen]]:
-    """Both kinematics nodes and the recorder, started together (start-up compiles JAX); stopped at teardown."""
+    """The nodes of a run, stopped at teardown if the test did not stop them."""
     procs: dict[str, subprocess.Popen] = {}
     yield procs
     for proc in procs.values():
@@ -69,6 +85,19 @@ def pose(i: int) -> PlanarPoseStamped:
     return msg
 
 
+def mocap_bag(path: Path) -> Path:
+    """A bag of the N synthetic samples on /hsa/ee_pose, each logged at its stamp."""
+    registry = TypeRegistry()
+    registry.ensure("hsa_msgs/msg/PlanarPoseStamped")
+    writer = SplitBagWriter(path, registry.store)
+    writer.open()
+    handle = writer.add_topic("/hsa/ee_pose", "hsa_msgs/msg/PlanarPoseStamped", [MOCAP_OFFER])
+    for i in range(N):
+        writer.write(handle, T0_NS + i * PERIOD_NS, serialize_message(pose(i)))
+    writer.close()
+    return path
+
+
 def key(state: PlanarState) -> int:
     """Mocap stamp [ns] of a state."""
     return state.header.stamp.sec * 10**9 + state.header.stamp.nanosec
@@ -83,56 +112,43 @@ def content(state: PlanarState) -> np.ndarray:
     ])  # fmt: skip
 
 
-def test_replayed_mocap_regenerates_the_recorded_states(ros_node: Node, processes, tmp_path: Path) -> None:
-    bag = tmp_path / "mocap_run"
-    ee_pose = ros_node.create_publisher(PlanarPoseStamped, "/hsa/ee_pose", qos.SENSOR)
-    live: list[PlanarState] = []
-    replayed: list[PlanarState] = []
-    ros_node.create_subscription(PlanarState, "/hsa/state", live.append, RECEIVE)
-    ros_node.create_subscription(PlanarState, "/replay/state", replayed.append, RECEIVE)
-    processes["original"] = kinematics("/hsa")
-    processes["replay"] = kinematics("/replay")
-    processes["recorder"] = start_process([
-        find_executable("hsa_bag", "bag_recorder"), "--ros-args", "-p", f"output:={bag}",
-        "-p", "topics:=[/hsa/ee_pose, /hsa/state]",
-    ])  # fmt: skip
-    for proc in processes.values():
-        wait_for_line(proc, "ready", timeout=120.0)
-    recorded_topics = ("/hsa/ee_pose", "/hsa/state")
-    assert wait_until(lambda: all(
-        any(s.node_name == "bag_recorder" for s in ros_node.get_subscriptions_info_by_topic(t)) for t in recorded_topics
-    ), timeout=60.0), "bag_recorder did not subscribe"  # fmt: skip
-    assert wait_until(lambda: ee_pose.get_subscription_count() >= 2, timeout=60.0), "ee_pose not matched by node and recorder"
-
-    start = time.monotonic()
-    for i in range(N):  # run 1: live
-        time.sleep(max(0.0, start + i * PERIOD_NS * 1e-9 - time.monotonic()))
-        ee_pose.publish(pose(i))
-    wait_until(lambda: len(live) >= N, timeout=30.0)  # a loaded node works through its queue after the stream
-    time.sleep(1.0)
-    assert stop_process(processes.pop("recorder")) == 0
-
+def states_of(bag: Path, topic: str) -> list[tuple[int, PlanarState]]:
+    """(log time, message) of every state recorded on ``topic``."""
     with Bag(bag) as recorded:
-        assert recorded.topics["/hsa/ee_pose"].count >= 0.98 * N
-        recorded_states = (deserialize_message(d, PlanarState) for _, _, d in recorded.messages(["/hsa/state"]))
-        states = {key(s): s for s in recorded_states}
-    assert len(states) >= 0.98 * N and all(np.isfinite(content(s)[:6]).all() for s in states.values())
-    assert sum(s.velocity_valid for s in states.values()) >= 0.9 * N
+        return [(t, deserialize_message(d, PlanarState)) for _, t, d in recorded.messages([topic])]
 
-    player = start_process([  # run 2: replay of the recorded mocap only
-        find_executable("hsa_bag", "bag_player"), str(bag), "--topics", "/hsa/ee_pose",
-        "--remap", "/hsa/ee_pose:=/replay/ee_pose", "--wait-for-subscribers", "30", "--delay", "0.5",
-    ])  # fmt: skip
-    out, _ = player.communicate(timeout=120)
-    assert player.returncode == 0, out
-    wait_until(lambda: len(replayed) >= len(states), timeout=30.0)
 
-    again = {key(s): s for s in replayed}
-    common = sorted(states.keys() & again.keys())
-    missing = [(k - T0_NS) // PERIOD_NS for k in sorted(states.keys() - again.keys())]
-    assert len(common) >= 0.98 * len(states), f"{len(missing)} not regenerated, samples {missing[:3]}…{missing[-3:]}"
-    for stamp in common:  # IK per sample: identical
-        np.testing.assert_array_equal(content(again[stamp])[:6], content(states[stamp])[:6])
-    identical = [np.allclose(content(again[s]), content(states[s]), rtol=1e-9, atol=1e-12, equal_nan=True)
-                 for s in common]  # fmt: skip
-    assert np.mean(identical) >= 0.95  # rates too, except after a sample one of the runs lost
+def run(processes: dict[str, subprocess.Popen], namespace: str, played: Path, recorded: Path, topics: str,
+        *player_args: str) -> str:
+    """One lockstep run: kinematics_node and bag_recorder in ``namespace``, the player; the player's output."""
+    processes["kinematics"] = kinematics(namespace)
+    processes["recorder"] = recorder(namespace, recorded, topics)
+    for proc in processes.values():
+        wait_for_line(proc, "ready", timeout=180.0)
+    out = play(played, [f"{namespace}/kinematics_node", f"{namespace}/bag_recorder"], *player_args)
+    assert stop_process(processes.pop("recorder")) == 0  # closes the bag
+    stop_process(processes.pop("kinematics"))
+    return out
+
+
+def test_replayed_mocap_regenerates_every_recorded_state(processes, tmp_path: Path) -> None:
+    synthetic, first, second = mocap_bag(tmp_path / "synthetic"), tmp_path / "mocap_run", tmp_path / "replay_run"
+    out = run(processes, "/hsa", synthetic, first, "[/hsa/ee_pose, /hsa/state]")  # run 1
+    assert f"published {N} messages in 1 pass(es)" in out and "lockstep: simulated time starts" in out, out
+
+    with Bag(first) as recorded:
+        poses = [(t, deserialize_message(d, PlanarPoseStamped)) for _, t, d in recorded.messages(["/hsa/ee_pose"])]
+    assert [t for t, _ in poses] == [T0_NS + i * PERIOD_NS for i in range(N)]  # every sample, at its instant
+    states = states_of(first, "/hsa/state")
+    assert [key(s) for _, s in states] == [T0_NS + i * PERIOD_NS for i in range(N)]  # a state per sample, in order
+    assert all(t == key(s) for t, s in states)  # computed within the instant of its sample (simulated time)
+    assert all(np.isfinite(content(s)[:6]).all() for _, s in states)
+    assert sum(s.velocity_valid for _, s in states) >= 0.9 * N
+
+    run(processes, "/replay", first, second, "[/replay/state]", "--topics", "/hsa/ee_pose",
+        "--remap", "/hsa/ee_pose:=/replay/ee_pose")  # run 2: replay of the recorded mocap only
+    again = states_of(second, "/replay/state")
+    assert [t for t, _ in again] == [t for t, _ in states]  # every recorded state regenerated, at the same instant
+    for (_, original), (_, regenerated) in zip(states, again):  # same samples, same order: bit-identical
+        np.testing.assert_array_equal(content(regenerated), content(original))
+        assert key(regenerated) == key(original)

@@ -15,7 +15,8 @@ publications are counted in the same way. From the latest report of every partic
 Message counting detects messages in flight between processes without any assumption on delivery order: a
 participant reports only after its callbacks ran, so every message it published is counted before the report that
 would hide it arrives. A participant that joins after the start is taken as settled at its first report (its
-subscriptions cannot have received what was published before they existed); one that leaves is dropped.
+subscriptions cannot have received what was published before they existed); one that leaves is dropped, and once
+an expected participant has left (``left``) the graph is ending.
 Every ``*_problem`` method returns a one-line reason naming the participants and topics that hold the barrier.
 """
 
@@ -48,12 +49,15 @@ class Barrier:
         self.reports: dict[str, Report] = {}
         self.own: dict[str, int] = {}  # the simulator's publications per topic
         self.started = False
+        self.left: list[str] = []  # expected participants that have left: the graph is ending
         self._baseline: dict[str, dict[str, int]] = {}  # late joiner: taken offset per topic at its first report
 
     def report(self, report: Report) -> None:
         """Take a participant's newest report (a leaving participant is dropped)."""
         if report.leaving:
             self.reports.pop(report.node, None)
+            if report.node in self.expected and report.node not in self.left:
+                self.left.append(report.node)
             return
         if self.started and report.node not in self.reports and report.node not in self._baseline:
             totals = self.published_totals()

@@ -129,6 +129,7 @@ class SimNode(Node):
             self._waiting_since = time.monotonic()
             self._clock_sent = 0.0
             self._synced = 0
+            self._halted = False
             lockstep.wall_timer(self, 0.01, self._pump)
             self.get_logger().info(f"lockstep: waiting for {list(self._barrier.expected)}")
         else:
@@ -193,7 +194,7 @@ class SimNode(Node):
 
     def _pump(self) -> None:
         """Move simulated time as far as the barrier allows (see the module docstring and docs/simulation.md)."""
-        if self._failure:
+        if self._failure or self._stopped():
             return
         for _ in range(MAX_INSTANTS_PER_PUMP):
             if self._phase == "start":
@@ -225,6 +226,14 @@ class SimNode(Node):
                 self._phase = "advance"
             else:
                 self._advance()
+
+    def _stopped(self) -> bool:
+        """Once an expected participant has left, the graph is ending: simulated time stops (once logged)."""
+        if self._barrier.left and not self._halted:
+            self._halted = True
+            self.get_logger().info(f"lockstep: {self._barrier.left[0]} left; simulated time stops at "
+                                   f"{self._instant * 1e-9:.3f} s")
+        return self._halted
 
     def _advance(self) -> None:
         """Run the world to the next event: samples become available (published at once), or a timer instant

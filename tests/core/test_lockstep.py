@@ -80,3 +80,11 @@ def test_a_late_joiner_is_settled_at_its_first_report_and_a_leaver_is_dropped() 
     assert "/viewer has taken 5 of 6" in barrier.settle_problem()
     barrier.report(Report("/viewer", 0, leaving=True))
     assert barrier.settle_problem() is None
+
+
+def test_an_expected_participant_leaving_marks_the_end_of_the_graph() -> None:
+    barrier = graph()
+    barrier.report(Report("/viewer", 0, leaving=True))
+    assert barrier.left == []  # not expected: nothing ends
+    barrier.report(Report("/kin", 0, leaving=True))
+    assert barrier.left == ["/kin"] and "/kin" not in barrier.reports

@@ -44,11 +44,10 @@ from foxglove.messages import (
     Vector3,
 )
 from foxglove.websocket import ChannelView, Client
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hsa_common import qos
+from hsa_common import lockstep, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
@@ -161,8 +160,8 @@ class LiveNode(Node):
         self.create_subscription(String, "sequencer_status", self._on_sequencer, qos.LATCHED,
                                  qos_overriding_options=qos.overridable())
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
-        self.create_timer(self._p["progress_period"], self._publish_status,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))  # runs on while simulated time stands
+        # on the steady clock, outside the lockstep barrier: runs on while simulated time stands
+        lockstep.wall_timer(self, self._p["progress_period"], self._publish_status)
         self._diagnostics = Diagnostics(self, self._p["diagnostics_period"])
         self._diagnostics.add("live view", self._report)
 

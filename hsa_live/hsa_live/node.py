@@ -30,19 +30,7 @@ import jax
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from foxglove.channels import SceneUpdateChannel
-from foxglove.messages import (
-    Color,
-    CubePrimitive,
-    LinePrimitive,
-    Point3,
-    Pose,
-    Quaternion,
-    SceneEntity,
-    SceneUpdate,
-    SpherePrimitive,
-    Timestamp,
-    Vector3,
-)
+from foxglove.messages import SceneEntity, SceneUpdate, Timestamp
 from foxglove.websocket import ChannelView, Client
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -55,6 +43,7 @@ from hsa_common.runner import run
 from hsa_core import live
 from hsa_core.params import phi_bounds
 from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_live import scene
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 
 HOST = "127.0.0.1"
@@ -81,17 +70,6 @@ SPECS = (
     ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
               read_only=True),
 )
-
-BACKBONE = (0.9, 0.9, 0.9)
-RODS = ((0.85, 0.33, 0.10), (0.00, 0.45, 0.74))  # virtual rod 1 (roff < 0), rod 2 (roff > 0), as marker_node
-PLATFORM = (0.55, 0.55, 0.6)
-SETPOINT = (0.15, 0.8, 0.15)
-GHOST = (0.3, 0.8, 1.0)
-
-CHANNELS = ("/live/scene", "/live/tracking", "/live/actuation", "/live/configuration", "/live/phi_present",
-            "/live/diagnostics", "/live/progress")
-"""Every Foxglove channel of the node (the layout in share/hsa_live/config refers to these)."""
-
 
 class _Subscribers:
     """Counts viewer subscriptions per channel (called from the server's threads)."""
@@ -125,13 +103,13 @@ class LiveNode(Node):
         self._params = load_model(self._p)
         self._geometry = geometry_fn(self._params, self._p["n_points"])
         self._compute(np.zeros(3))  # JIT-compile now, not on the first state
-        self._rod_width = float(2.0 * np.max(np.asarray(self._params.r_out)))
-        self._plate_size = np.asarray(self._params.platform_size, dtype=float)
         self._phi_box = tuple(np.asarray(b, dtype=float) for b in phi_bounds(self._params))
         self._throttle = live.Throttle(self._p["scene_rate"])
         self._table = live.DiagnosticsTable(self._p["diagnostics_stale"])
+        self._style = self._drawing_style()
         guard_updates(self, SPECS, self._update)
         self._goal: SceneEntity | None = None
+        self._setpoint: Setpoint | None = None
         self._sequencer: str | None = None
         self._controller_state: int | None = None
         self._e_norm: float | None = None
@@ -168,8 +146,18 @@ class LiveNode(Node):
     def _update(self, changes: dict[str, Any]) -> None:
         """Apply accepted run-time updates (scene rate, drawing sizes, stale limit)."""
         self._p.update(changes)
+        self._style = self._drawing_style()
         self._throttle.rate = self._p["scene_rate"]
         self._table.stale_after = self._p["diagnostics_stale"]
+        if self._setpoint is not None:
+            self._on_setpoint(self._setpoint)  # the goal redrawn with the new sizes
+
+    def _drawing_style(self) -> scene.Style:
+        """Sizes and opacity of the scene from the parameters and the model (rod width = 2 r_out)."""
+        return scene.Style(self._p["frame_id"], self._p["backbone_width"],
+                           float(2.0 * np.max(np.asarray(self._params.r_out))),
+                           tuple(float(v) for v in np.asarray(self._params.platform_size)),
+                           self._p["setpoint_diameter"], self._p["ghost_alpha"])
 
     def _compute(self, q: np.ndarray) -> RobotGeometry:
         """Geometry of configuration q as NumPy arrays."""
@@ -183,44 +171,18 @@ class LiveNode(Node):
         if not self._scene.has_sinks() or not self._throttle.due(time.monotonic_ns()):
             return
         q = msg.q
-        robot = self._robot_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])), msg.header.stamp)
+        robot = scene.robot_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])),
+                                   _stamp(msg.header.stamp), self._style)
         self._log_scene([robot, *([self._goal] if self._goal is not None else [])], _ns(msg.header.stamp))
 
     def _on_setpoint(self, msg: Setpoint) -> None:
         """Rebuild the goal entity and send it at once."""
-        goal = msg.chiee_des
-        sphere = SpherePrimitive(pose=_pose(goal.x, goal.y), color=_color(SETPOINT, 1.0),
-                                 size=Vector3(x=self._p["setpoint_diameter"], y=self._p["setpoint_diameter"],
-                                              z=self._p["setpoint_diameter"]))
+        self._setpoint = msg
         q = msg.q_des
-        g = self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax]))
-        color = _color(GHOST, self._p["ghost_alpha"])
-        lines = [self._line(g.backbone, color, self._p["backbone_width"]),
-                 *(self._line(rod, color, self._rod_width) for rod in g.rods),
-                 self._line(g.platform, color, self._p["backbone_width"])]
-        self._goal = SceneEntity(timestamp=_stamp(msg.header.stamp), frame_id=self._p["frame_id"], id="goal",
-                                 spheres=[sphere], lines=lines)
+        self._goal = scene.goal_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])),
+                                       (msg.chiee_des.x, msg.chiee_des.y), _stamp(msg.header.stamp), self._style)
         if self._scene.has_sinks():
             self._log_scene([self._goal], _ns(msg.header.stamp))
-
-    def _robot_entity(self, g: RobotGeometry, stamp: Any) -> SceneEntity:
-        """Backbone and rods as line strips, the platform as a cube at its pose."""
-        x, y, _ = (float(v) for v in g.platform_pose)
-        ox, oy, oz, ow = (float(v) for v in g.platform_orientation)
-        sx, sy, sz = (float(v) for v in self._plate_size)
-        plate = CubePrimitive(pose=Pose(position=Vector3(x=x, y=y, z=0.0),
-                                        orientation=Quaternion(x=ox, y=oy, z=oz, w=ow)),
-                              size=Vector3(x=sx, y=sy, z=sz), color=_color(PLATFORM, 1.0))
-        lines = [self._line(g.backbone, _color(BACKBONE, 1.0), self._p["backbone_width"]),
-                 *(self._line(rod, _color(rgb, 1.0), self._rod_width) for rod, rgb in zip(g.rods, RODS))]
-        return SceneEntity(timestamp=_stamp(stamp), frame_id=self._p["frame_id"], id="robot", lines=lines,
-                           cubes=[plate])
-
-    @staticmethod
-    def _line(points: np.ndarray, color: Color, width: float) -> LinePrimitive:
-        """A line strip through planar points (z = 0), ``width`` [m] thick."""
-        return LinePrimitive(points=[Point3(x=float(px), y=float(py), z=0.0) for px, py in points],
-                             thickness=float(width), color=color, pose=_pose(0.0, 0.0))
 
     def _log_scene(self, entities: list[SceneEntity], log_time: int) -> None:
         """One SceneUpdate with the given entities."""
@@ -321,16 +283,6 @@ def _ns(stamp: Any) -> int:
 def _stamp(stamp: Any) -> Timestamp:
     """Foxglove Timestamp of a builtin_interfaces Time."""
     return Timestamp(int(stamp.sec), int(stamp.nanosec))
-
-
-def _pose(x: float, y: float) -> Pose:
-    """Pose at planar position (x, y) with identity orientation."""
-    return Pose(position=Vector3(x=float(x), y=float(y), z=0.0), orientation=Quaternion(w=1.0))
-
-
-def _color(rgb: tuple[float, ...], alpha: float) -> Color:
-    """Foxglove Color of an RGB triple and an opacity."""
-    return Color(r=rgb[0], g=rgb[1], b=rgb[2], a=float(alpha))
 
 
 def main() -> None:

@@ -41,7 +41,7 @@ from hsa_common.launcher import LaunchFile, find_executable, package_share
 from hsa_core import kinematics as kin
 from hsa_core.params import load_params
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
@@ -279,6 +279,9 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     client = threading.Thread(target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True)
     client.start()
     assert subscribed.wait(30.0), "no advertise from the server"
+    parameters = ParameterClient(ros_node, "/hsa/live_node")
+    assert not parameters.set("scene_rate", 0.5).successful  # below 1 Hz: refused, the node runs on
+    assert parameters.set("ghost_alpha", 0.5).successful
     time.sleep(0.5)  # the server has taken the subscriptions in
     graph.start()
     started = time.monotonic()
@@ -322,7 +325,7 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
         np.testing.assert_allclose([sphere.pose.position.x, sphere.pose.position.y], goal_xy, atol=1e-12)
         ghost_backbone = goal.lines[0].points[-1]
         np.testing.assert_allclose([ghost_backbone.x, ghost_backbone.y], goal_xy, atol=1e-12)
-        assert 0.0 < goal.lines[0].color.a < 1.0  # translucent ghost of q^d
+        assert goal.lines[0].color.a == pytest.approx(0.5)  # translucent ghost of q^d, alpha updated at run time
 
     print(f"{len(session.received['/live/tracking'])} of {len(graph.published['info'])} ticks; "
           f"scene {len(robot_updates) / streamed:.1f} Hz, "

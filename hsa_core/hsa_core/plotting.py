@@ -242,18 +242,18 @@ def path_figure(log: RunLog, label: RunLabel) -> plt.Figure:
     return fig
 
 
-def _draw_reference_path(ax: plt.Axes, log: RunLog) -> None:
-    """Setpoints as crosses (step run) or the reference path dashed (contour), on top."""
+def _draw_reference_path(ax: plt.Axes, log: RunLog, color: str = "k", whose: str = "") -> None:
+    """Setpoints as numbered crosses (step run) or the reference path dashed (contour), on top."""
     bounds = _steps(log)
     if bounds:
         points = np.array([log.chiee_des[a, :2] for a, _ in bounds]) * MM
-        ax.plot(points[:, 0], points[:, 1], marker="x", ms=7, mew=1.6, ls="none", color="k", zorder=5,
-                label="setpoints $p^d_\\mathrm{ee}$", gid="reference")
+        ax.plot(points[:, 0], points[:, 1], marker="x", ms=7, mew=1.6, ls="none", color=color, zorder=5,
+                label=f"setpoints $p^d_\\mathrm{{ee}}${whose}", gid="reference")
         for i, (x, y) in enumerate(points):
-            ax.annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            ax.annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color=color)
     else:
-        ax.plot(log.chiee_des[:, 0] * MM, log.chiee_des[:, 1] * MM, label="reference $p^d_\\mathrm{ee}$",
-                **REFERENCE)
+        ax.plot(log.chiee_des[:, 0] * MM, log.chiee_des[:, 1] * MM, label=f"reference $p^d_\\mathrm{{ee}}${whose}",
+                **{**REFERENCE, "color": color})
 
 
 def _path_axes(ax: plt.Axes) -> None:
@@ -338,15 +338,39 @@ def all_figures(log: RunLog, out_dir: Path, prefix: str = "", phi_max: float | S
 # --- several runs ---------------------------------------------------------------------------------------------------
 
 
+def _setpoints(log: RunLog) -> np.ndarray:
+    """(t [s], x [m], y [m]) of every setpoint change of a run."""
+    return np.array([(log.t[a], *log.chiee_des[a, :2]) for a, _ in step_bounds(log.chiee_des[:, :2])])
+
+
+def _same_reference(a: RunLog, b: RunLog) -> bool:
+    """Whether two runs tracked the same setpoints at the same times (within 50 ms and 10 µm: drawn as one)."""
+    sa, sb = _setpoints(a), _setpoints(b)
+    if sa.shape != sb.shape:
+        return False
+    return np.allclose(sa[:, 0], sb[:, 0], atol=0.05) and np.allclose(sa[:, 1:], sb[:, 1:], atol=1e-5)
+
+
+def _references(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> list[tuple[int, str, str]]:
+    """(run index, colour, legend suffix) of each distinct reference: one black one if all runs share it."""
+    owners = [i for i, log in enumerate(logs) if not any(_same_reference(log, logs[j]) for j in range(i))]
+    if len(owners) == 1:
+        return [(0, "k", "")]
+    return [(i, f"C{i}", f" of {labels[i].law}, {labels[i].material}") for i in owners]
+
+
 def overlay_end_effector_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure:
-    """x_ee, y_ee of every run over the (first run's) reference, and every run's ‖e‖(t)."""
+    """x_ee, y_ee of every run over the reference (each distinct one, in its run's colour), every run's ‖e‖(t)."""
     fig, axes = _figure(3, 7.0, height_ratios=(1, 1, 1.1))
     for i, (log, label) in enumerate(zip(logs, labels)):
         for k in range(2):
             axes[k].plot(log.t, log.chiee[:, k] * MM, color=f"C{i}", lw=0.8, label=label.short, gid=f"run:{i}")
         axes[2].plot(log.t, _error_mm(log), color=f"C{i}", lw=0.7, gid=f"run:{i}")
+    for i, color, whose in _references(logs, labels):
+        for k in range(2):
+            axes[k].plot(logs[i].t, logs[i].chiee_des[:, k] * MM, label=f"reference $p^d_\\mathrm{{ee}}${whose}",
+                         **{**SETPOINT, "color": color})
     for k in range(2):
-        axes[k].plot(logs[0].t, logs[0].chiee_des[:, k] * MM, label=r"reference $p^d_\mathrm{ee}$", **SETPOINT)
         axes[k].set_ylabel(f"{AXES_XY[k]} [mm]")
     _error_axis(axes[2])
     _finish(fig, axes, f"End-effector position, {len(logs)} runs", max(log.t[-1] for log in logs), columns=2)
@@ -354,7 +378,7 @@ def overlay_end_effector_figure(logs: Sequence[RunLog], labels: Sequence[RunLabe
 
 
 def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure | None:
-    """Per step of the first run, every run's distance to the step's target ‖p_ee − p^d_k‖ (first 2 s)."""
+    """Per step, every run's distance to its step's target ‖p_ee − p^d_k‖ (first 2 s), with the references."""
     bounds = [_steps(log) for log in logs]
     n = min(len(b) for b in bounds)
     if n == 0:
@@ -366,11 +390,14 @@ def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> 
             target = log.chiee_des[start, :2]
             distance = np.linalg.norm(log.chiee[window, :2] - target, axis=1) * MM
             ax.plot(tau[window], distance, color=f"C{i}", label=label.short, gid=f"run:{i}")
-    for j, (ax, (start, stop)) in enumerate(zip(axes, bounds[0])):  # the reference of the first run, on top
-        window, tau = _step_window(logs[0], start, stop)
-        ref = np.linalg.norm(logs[0].chiee_des[window, :2] - logs[0].chiee_des[start, :2], axis=1) * MM
-        ax.plot(tau[window], ref, label="reference", **SETPOINT)
-        ax.set_title(f"step {j + 1} at {logs[0].t[start]:.1f} s", fontsize=8)
+    references = _references(logs, labels)
+    for i, color, whose in references:  # on top of the runs
+        for ax, (start, stop) in zip(axes, bounds[i]):
+            window, tau = _step_window(logs[i], start, stop)
+            ref = np.linalg.norm(logs[i].chiee_des[window, :2] - logs[i].chiee_des[start, :2], axis=1) * MM
+            ax.plot(tau[window], ref, label=f"reference{whose}", **{**SETPOINT, "color": color})
+    for j, (ax, (start, _)) in enumerate(zip(axes, bounds[0])):  # the time only where all runs share it
+        ax.set_title(f"step {j + 1}" + (f" at {logs[0].t[start]:.1f} s" if len(references) == 1 else ""), fontsize=8)
         ax.set_xlim(*STEP_WINDOW)
     for ax in axes[-STEP_COLUMNS:]:
         ax.set_xlabel(r"$t - t_k$ [s]")
@@ -384,14 +411,19 @@ def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> 
 
 
 def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure:
-    """Every run's path in the x–y plane over the first run's setpoints or reference path."""
-    fig, ax = plt.subplots(figsize=(6.0, 6.0))
+    """Every run's path in the x–y plane over the setpoints or reference paths (each distinct one)."""
+    points = np.concatenate([np.concatenate([log.chiee[:, :2], log.chiee_des[:, :2]]) for log in logs])
+    width, height = np.ptp(points, axis=0) + 1e-3  # m; the plane's height for the width, legend below
+    fig, ax = plt.subplots(figsize=(6.5, float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)),
+                           layout="constrained")
     for i, (log, label) in enumerate(zip(logs, labels)):
         ax.plot(log.chiee[:, 0] * MM, log.chiee[:, 1] * MM, color=f"C{i}", lw=0.8, label=label.short, gid=f"run:{i}")
-    _draw_reference_path(ax, logs[0])
+    for i, color, whose in _references(logs, labels):
+        _draw_reference_path(ax, logs[i], color, whose)
     _path_axes(ax)
-    ax.legend(loc="best", fontsize=7)
-    ax.set_title(f"End-effector path, {len(logs)} runs")
+    ax.get_legend().remove()  # below the plane instead: paths fill the axes
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=1)
+    fig.suptitle(f"End-effector path, {len(logs)} runs")
     return fig
 
 

@@ -218,3 +218,25 @@ def test_measured_phi_survives_npz_and_trimming(tmp_path: Path) -> None:
     cut = log.trimmed(1.0)
     assert len(cut) == 40 and cut.phi_meas.shape == (40, 2)
     assert RunLog.load_npz(make_log(phi_meas=False).save_npz(tmp_path / "none.npz")).phi_meas is None
+
+
+def test_overlay_draws_each_distinct_reference_in_its_runs_colour() -> None:
+    same = [make_log("psatid"), make_log("pid")]
+    other = make_log("psatid_gc", material="epu")
+    other.chiee_des[:, :2] += [0.002, 0.001]  # another step list (another material's)
+    other.chiee[:, :2] += [0.002, 0.001]
+    logs = [*same, other]
+    labels = [plotting.RunLabel.of(log) for log in logs]
+    fig = plotting.overlay_end_effector_figure(same, labels[:2])
+    assert [line.get_color() for line in lines(fig.axes[0], "reference")] == ["k"]  # shared: drawn once, black
+    fig = plotting.overlay_end_effector_figure(logs, labels)
+    for k, ax in enumerate(fig.axes[:2]):
+        refs = lines(ax, "reference")
+        assert [r.get_color() for r in refs] == ["C0", "C2"]  # the first run's and the EPU run's
+        np.testing.assert_allclose(refs[1].get_ydata(), other.chiee_des[:, k] * 1e3)
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any("P-satI-D + GC, EPU" in t and t.startswith("reference") for t in legend)
+    steps = plotting.overlay_steps_figure(logs, labels)
+    assert all(len(lines(ax, "reference")) == 2 for ax in steps.axes)
+    path = plotting.overlay_path_figure(logs, labels)
+    assert len(lines(path.axes[0], "reference")) == 2

@@ -24,7 +24,7 @@ READY = re.compile(r"\[hsa\.(\w+)\]: ready")
 DIAGNOSTICS_DELAY = 4.0  # [s] a status must follow `ready` within this (1 Hz reports, loaded 2-core machine)
 # node -> (a status name it publishes, values that status must carry)
 EXPECTED = {
-    "sim_node": ("sim_node: plant", ()),
+    "sim_node": ("sim_node: world", ()),
     "dynamixel_driver": ("dynamixel_driver: bus", ()),
     "mocap_bridge": ("mocap_bridge: platform", ("received", "published", "rejected_non_finite", "rejected_jump",
                                                 "rejected_workspace", "rejected_out_of_order", "input_rate_hz",

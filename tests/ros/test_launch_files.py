@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from hsa_common.launcher import LaunchError, LaunchFile, Process, main
+from hsa_common.parameters import RUNNER_PARAMS
 
 GRAPHS = sorted((Path(__file__).parents[2] / "launch_scripts").glob("*.launch.yaml"))
 REQUIRED = {"replay.launch.yaml": {"bag": "/tmp/some_bag"}}
@@ -59,15 +60,18 @@ def test_bad_invocations_are_refused(tmp_path, capsys) -> None:
 
 
 def _given_parameters(proc: Process) -> set[str]:
-    """Names of the parameters a launch entry gives its node: its parameter files' keys and its -p overrides."""
+    """Names of the parameters a launch entry gives its node: the keys of the parameter-file sections that match it
+    (``/**`` or ``…/<node name>``) and its -p overrides; ``use_sim_time`` and the runner's parameters (``lockstep``),
+    which every node accepts, are left out."""
     names = set()
     for flag, value in zip(proc.cmd, proc.cmd[1:]):
         if flag == "--params-file":
-            for section in (yaml.safe_load(Path(value).read_text()) or {}).values():
-                names.update((section or {}).get("ros__parameters", {}) or {})
+            for key, section in (yaml.safe_load(Path(value).read_text()) or {}).items():
+                if key == "/**" or key.rsplit("/", 1)[-1] == proc.name:
+                    names.update((section or {}).get("ros__parameters", {}) or {})
         elif flag == "-p":
             names.add(value.split(":=", 1)[0])
-    return names
+    return names - {"use_sim_time"} - RUNNER_PARAMS
 
 
 def _node_specs(executable: str) -> set[str] | None:

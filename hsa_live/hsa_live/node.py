@@ -101,6 +101,18 @@ class LiveNode(Node):
         super().__init__("live_node")
         self._p = declare(self, SPECS)
         self._params = load_model(self._p)
+        # bind first: a taken port is refused before seconds of JIT compilation
+        self._viewers = _Subscribers()
+        self._fox = foxglove.Context()
+        self._scene = SceneUpdateChannel("/live/scene", context=self._fox)
+        self._json = {topic: foxglove.Channel(topic, schema=schema, context=self._fox)
+                      for topic, schema in _schemas().items()}
+        try:
+            self._server = foxglove.start_server(name="hsa_live", host=HOST, port=self._p["port"],
+                                                 server_listener=self._viewers, context=self._fox)
+        except RuntimeError as exc:  # port taken, or not a port this user may bind
+            raise ParameterValidationError(
+                f"parameter 'port': cannot serve on {HOST}:{self._p['port']}: {exc}") from exc
         self._geometry = geometry_fn(self._params, self._p["n_points"])
         self._compute(np.zeros(3))  # JIT-compile now, not on the first state
         self._phi_box = tuple(np.asarray(b, dtype=float) for b in phi_bounds(self._params))
@@ -114,17 +126,6 @@ class LiveNode(Node):
         self._controller_state: int | None = None
         self._e_norm: float | None = None
         self._counts = {"states": 0, "scenes": 0, "ticks": 0, "phi_present": 0, "diagnostics": 0}
-        self._viewers = _Subscribers()
-        self._fox = foxglove.Context()
-        self._scene = SceneUpdateChannel("/live/scene", context=self._fox)
-        self._json = {topic: foxglove.Channel(topic, schema=schema, context=self._fox)
-                      for topic, schema in _schemas().items()}
-        try:
-            self._server = foxglove.start_server(name="hsa_live", host=HOST, port=self._p["port"],
-                                                 server_listener=self._viewers, context=self._fox)
-        except RuntimeError as exc:  # port taken, or not a port this user may bind
-            raise ParameterValidationError(
-                f"parameter 'port': cannot serve on {HOST}:{self._p['port']}: {exc}") from exc
         self.get_logger().info(f"Foxglove live view on ws://{HOST}:{self._server.port} (layout: "
                                "share/hsa_live/config/foxglove_layout.json)")
         self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,

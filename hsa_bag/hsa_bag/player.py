@@ -134,7 +134,7 @@ class Player:
         self.stop = stop
         self.topics = list(classes)
         self.publishers: dict[str, Publisher] = {
-            name: node.create_publisher(cls, options.remap.get(name, name), publisher_profile(bag.topics[name].qos))
+            name: node.create_publisher(cls, options.remap.get(name, name), self._profile(bag, name))
             for name, cls in classes.items()
         }
         self.clock: Publisher | None = None
@@ -145,6 +145,14 @@ class Player:
         self.loop_span = max(bag.end - self.first, 0) + mean_period
         self._t0 = 0.0
         self._next_clock = 0.0
+
+    def _profile(self, bag: Bag, topic: str) -> QoSProfile:
+        """The recorded offers' profile; reliable in lockstep: a subscription matched just before time starts (a
+        recorder that subscribes on discovery) may not know the player yet, and only a reliable writer resends."""
+        profile = publisher_profile(bag.topics[topic].qos)
+        if self.playback is not None:
+            profile.reliability = ReliabilityPolicy.RELIABLE
+        return profile
 
     def _playback_ns(self, when: float) -> int:
         """Playback (bag) time [ns] at monotonic time ``when``."""

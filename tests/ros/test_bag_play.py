@@ -5,10 +5,16 @@ is the reverse of time order, so a player that plays file after file would be of
 hold on a 2-core machine shared with other test runs (load average up to ~10; benchmarks/bench_bag.py reports the
 actual figures): inter-arrival error against the bag median ≤ 5 ms per topic and p99 ≤ 50 ms over both topics, every
 message within 300 ms of its schedule.
+
+Lockstep (``lockstep: true``): with a real bag_recorder as the barrier's participant, every message is recorded at its
+log time and /clock visits every log time in order; a participant that stalls (SIGSTOP) or never comes fails the
+player with an ERROR naming it and exit code 1 after ``barrier_timeout`` (10× that for the start).
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import time
 from collections.abc import Iterator
@@ -24,12 +30,13 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from rosgraph_msgs.msg import Clock
 
 from hsa_bag import player
+from hsa_bag.bagio import Bag
 from hsa_bag.msgtypes import TypeRegistry
 from hsa_bag.storage import SplitBagWriter, read_metadata
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import ControllerInfo, PlanarState
-from tests.ros.conftest import start_process, stop_process
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
@@ -198,3 +205,69 @@ def test_unknown_topic_is_refused(bag: Path, capsys) -> None:
     assert player.main([str(bag), "--remap", "/nope:=/x"]) == 2
     assert player.main([str(bag), "--topics", INFO, "--wait-topics", STATE]) == 2
     assert f"--wait-topics {STATE} is not a played topic" in capsys.readouterr().err
+
+
+LOCKSTEP = ["-p", "use_sim_time:=true", "-p", "lockstep:=true"]
+
+
+def lockstep_recorder(output: Path) -> subprocess.Popen:
+    """A bag_recorder (/bag_recorder) in lockstep recording both played topics into ``output``."""
+    proc = start_process([find_executable("hsa_bag", "bag_recorder"), "--ros-args", "-p", f"output:={output}",
+                          "-p", f"topics:=[{STATE}, {INFO}]", *LOCKSTEP])  # fmt: skip
+    wait_for_line(proc, "ready", timeout=120.0)
+    return proc
+
+
+def lockstep_player(bag: Path, participants: str, timeout: float, *args: str) -> subprocess.Popen:
+    """bag_player in lockstep with ``participants`` (a YAML list) and ``barrier_timeout``."""
+    return start_process([find_executable("hsa_bag", "bag_player"), str(bag), *args, "--ros-args", *LOCKSTEP,
+                          "-p", f"participants:={participants}", "-p", f"barrier_timeout:={timeout}"])  # fmt: skip
+
+
+def test_lockstep_records_every_message_at_its_log_time(ros_node: Node, bag: Path, tmp_path: Path) -> None:
+    rx = Arrivals(ros_node)
+    recorder = lockstep_recorder(tmp_path / "lockstep")
+    try:
+        player_proc = lockstep_player(bag, "[/bag_recorder]", 30.0)
+        out, _ = player_proc.communicate(timeout=300)
+        assert player_proc.returncode == 0, out
+        assert "published 480 messages in 1 pass(es)" in out and "lockstep: simulated time starts" in out, out
+    finally:
+        assert stop_process(recorder) == 0
+    with Bag(bag) as original, Bag(tmp_path / "lockstep") as recorded:
+        played = sorted((t, topic, data) for topic, t, data in original.messages([STATE, INFO]))
+        got = sorted((t, topic, data) for topic, t, data in recorded.messages([STATE, INFO]))
+    assert got == played  # every message (the 200 Hz stream is best effort), each logged at its recorded log time
+    clock = np.array(rx.clock)  # this test node is no participant: it may match /clock after the first instants
+    assert clock.size and np.all(np.diff(clock) >= 0) and clock[-1] == played[-1][0]
+    assert set(clock) >= {t for t, _, _ in played if t >= clock[0]}  # /clock: every log time, in order
+
+
+def test_lockstep_participant_that_stalls_fails_the_player_naming_it(bag: Path, tmp_path: Path) -> None:
+    recorder = lockstep_recorder(tmp_path / "stalled")
+    player_proc = lockstep_player(bag, "[/bag_recorder]", 2.0, "--loop")
+    try:
+        wait_for_line(player_proc, "lockstep: simulated time starts", timeout=120.0)
+        os.kill(recorder.pid, signal.SIGSTOP)  # the participant stops answering mid-run
+        stopped = time.monotonic()
+        out, _ = player_proc.communicate(timeout=60)
+        took = time.monotonic() - stopped
+    finally:
+        os.kill(recorder.pid, signal.SIGCONT)
+        stop_process(player_proc)
+        stop_process(recorder)
+    assert player_proc.returncode == 1, out
+    assert "[ERROR]" in out and "not finished after" in out and "/bag_recorder" in out, out
+    assert 2.0 <= took < 30.0, took  # the barrier timeout, plus the player's own exit
+    print(f"stalled participant: player exited 1 after {took:.2f} s (barrier_timeout 2 s)")
+
+
+def test_lockstep_missing_participant_fails_the_start(bag: Path) -> None:
+    proc = lockstep_player(bag, "[/hsa/nobody]", 0.3)
+    try:
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 1, out
+    assert "lockstep barrier before simulated time started not finished after" in out, out
+    assert "waiting for participants ['/hsa/nobody']" in out and "published 0 messages" in out, out

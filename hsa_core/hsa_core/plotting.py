@@ -429,16 +429,25 @@ def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> p
 
 def overlay_actuation_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel],
                              phi_max: float | Sequence[float] | None = None) -> plt.Figure:
-    """Every run's commanded φ₁, φ₂ with the limits [0, φ_max] (of the first run that has them)."""
-    limits = next((lim for lim in (_phi_max(log, phi_max) for log in logs) if lim is not None), None)
+    """Every run's commanded φ₁, φ₂ with the limits [0, φ_max]: each distinct φ_max in its run's colour."""
+    limits = [_phi_max(log, phi_max) for log in logs]
+    owners = [i for i, lim in enumerate(limits)
+              if lim is not None and not any(limits[j] is not None and np.allclose(limits[j], lim) for j in range(i))]
     fig, axes = _figure(2, 5.6)
     for i, (log, label) in enumerate(zip(logs, labels)):
         for k, ax in enumerate(axes):
             ax.plot(log.t, log.phi_sat[:, k], color=f"C{i}", drawstyle="steps-post", lw=0.8, label=label.short,
                     gid=f"run:{i}")
     for k, ax in enumerate(axes):
-        if limits is not None:
-            _draw_limits(ax, float(limits[k]))
+        if len(owners) == 1:
+            _draw_limits(ax, float(limits[owners[0]][k]))
+        elif owners:
+            ax.axhline(0.0, gid="limit", **LIMIT)
+            for i in owners:
+                ax.axhline(float(limits[i][k]), label=f"$\\phi_\\mathrm{{max}}$ of {labels[i].material}", gid="limit",
+                           **{**LIMIT, "color": f"C{i}"})
+            top = max(float(limits[i][k]) for i in owners)
+            ax.set_ylim(-0.08 * top, 1.08 * top)
         ax.set_ylabel(f"$\\phi_{k + 1}$ command [rad]")
     _finish(fig, axes, f"Actuation (commands), {len(logs)} runs", max(log.t[-1] for log in logs), columns=2)
     return fig

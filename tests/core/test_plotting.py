@@ -240,3 +240,15 @@ def test_overlay_draws_each_distinct_reference_in_its_runs_colour() -> None:
     assert all(len(lines(ax, "reference")) == 2 for ax in steps.axes)
     path = plotting.overlay_path_figure(logs, labels)
     assert len(lines(path.axes[0], "reference")) == 2
+
+
+def test_overlay_actuation_draws_each_materials_limit() -> None:
+    logs = [make_log("psatid", phi_max="3.49"), make_log("pid", material="epu", phi_max="4.712389")]
+    labels = [plotting.RunLabel.of(log) for log in logs]
+    fig = plotting.overlay_actuation_figure(logs, labels)
+    for ax in fig.axes:
+        limits = {(round(float(line.get_ydata()[0]), 6), line.get_label()) for line in lines(ax, "limit")}
+        assert {(3.49, r"$\phi_\mathrm{max}$ of FPU"), (4.712389, r"$\phi_\mathrm{max}$ of EPU")} <= limits
+        assert 0.0 in {v for v, _ in limits}
+    same = plotting.overlay_actuation_figure([logs[0], logs[0]], [labels[0]] * 2)
+    assert sorted(float(line.get_ydata()[0]) for line in lines(same.axes[0], "limit")) == [0.0, 3.49]

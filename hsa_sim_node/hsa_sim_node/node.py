@@ -40,7 +40,7 @@ from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, B
 
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
 CLOCK_RESEND = 0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
-SYNC_NS = 20_000_000  # lockstep: wait for the graph to take every sample at least every 20 ms of simulated time
+SYNC_NS = 50_000_000  # lockstep: wait for the graph to take every sample at least every 50 ms of simulated time
 MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
 
@@ -250,6 +250,8 @@ class SimNode(Node):
             return
         self._world.advance_to(event)
         self._sync_shafts()
+        self._instant = event
+        self._send_clock()  # data callbacks see the sample's instant; no participant has to report it
         self._publish_samples(event)
         self._phase = "advance_more"
 

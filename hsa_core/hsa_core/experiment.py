@@ -87,7 +87,6 @@ class ExperimentResult:
     true_chiee: np.ndarray  # plant EE pose at each tick (no noise, no latency)
     plan_failures: list[tuple[float, PlanResult]]
     wall_time: float
-    phi_goal: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # twists of the written goal ticks
 
     def true_steady_state_error(self) -> float:
         """Mean over steps after the first of ‖p^d − p_true‖ in each step's last 2 s [m] (noise-free e_ss)."""
@@ -128,7 +127,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     end: int | None = None
     rows: list[tuple] = []
     truth: list[np.ndarray] = []
-    goals: list[np.ndarray] = []
+    measured: list[np.ndarray] = []  # twists the servos report at each tick (what the driver's read gives)
     k = 0
     tick = period_ns
     bar = _progress(reference.duration, config.name) if progress else None
@@ -159,7 +158,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 world.write_goals(ticks, instant)
                 rows.append(((instant - t0) * 1e-9, info))
                 truth.append(world.true_pose())
-                goals.append(motor_map.present_twists(ticks))
+                measured.append(motor_map.present_twists(world.present_ticks()))
                 if bar is not None and len(rows) % round(config.rate) == 0:
                     bar.update(1.0)
             tick += period_ns
@@ -168,17 +167,16 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     if not rows:
         raise RuntimeError(f"{config.name}: the controller never ran (no setpoint could be planned)")
 
-    log = _to_runlog(rows, config, model)
+    log = _to_runlog(rows, config, model, np.asarray(measured))
     run_metrics = metrics.evaluate_run(
         log.t, log.chiee_des[:, :2], log.chiee[:, :2], log.saturated, duration=reference.duration, name=config.name
     )
     fails = [((t - (t0 or s0)) * 1e-9, r) for t, r in failures]
-    return ExperimentResult(config, log, run_metrics, np.asarray(truth), fails, time.perf_counter() - wall0,
-                            np.asarray(goals))
+    return ExperimentResult(config, log, run_metrics, np.asarray(truth), fails, time.perf_counter() - wall0)
 
 
-def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams) -> RunLog:
-    """Stack the controller-info records of all ticks into a RunLog."""
+def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams, phi_meas: np.ndarray) -> RunLog:
+    """Stack the controller-info records of all ticks into a RunLog (with the servos' twist at each tick)."""
     t = np.array([r[0] for r in rows])
     infos = [r[1] for r in rows]
 
@@ -189,7 +187,7 @@ def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams) ->
         t=t, chiee=stack("chiee"), chiee_des=stack("chiee_des"), q=stack("q"), q_des=stack("q_des"),
         varphi=stack("varphi"), varphi_des=stack("varphi_des"), phi_ss=stack("phi_ss"),
         phi_unsat=stack("phi_des_unsat"), phi_sat=stack("phi_des_sat"), e_int=stack("e_int"),
-        saturated=np.array([bool(i.saturated) for i in infos]),
+        saturated=np.array([bool(i.saturated) for i in infos]), phi_meas=phi_meas,
         meta={"material": config.material, "controller": config.controller + (" + EE integral" if config.ee_integral else ""),
               "rate_hz": str(config.rate), "phi_max": str(float(np.max(np.asarray(model.phi_max))))},
     )
@@ -294,9 +292,11 @@ def main(argv: list[str] | None = None) -> int:
             result.log.save_csv(out / "log.csv")
             if not args.no_figures:
                 plotting.all_figures(result.log, out, phi_max=float(result.log.meta["phi_max"]),
-                                     contour=args.trajectory != "steps")
+                                     contour=args.trajectory != "steps", rmse=result.metrics.rmse)
             for t_fail, failure in result.plan_failures:
                 print(f"[{config.name}] planning failed at t = {t_fail:.2f} s: {failure.status.name}: {failure.message}")
+    if not args.no_figures and len(results) > 1:
+        plotting.overlay_figures([r.log for r in results], args.out / "figures", [r.metrics.rmse for r in results])
     print(metrics.format_summary([r.metrics for r in results]))
     print("\nnoise-free steady-state error (plant truth, mean over steps after the first):")
     for r in results:

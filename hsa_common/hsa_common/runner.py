@@ -9,8 +9,11 @@ Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the P
 our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
 SIGINT/SIGTERM only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
 interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
-Nodes without an ``on_shutdown`` hook tear down at the lowest CPU priority: when a whole graph stops at once on two
-cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind their teardown.
+Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority (``TEARDOWN_NICE``): when a whole graph stops
+at once on two cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind them.
+
+A node without a hook leaves with ``os._exit`` once rclpy is shut down: it has nothing to persist, and the
+interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1 s without it), past the launcher's SIGTERM.
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's barrier
 (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and, whenever none is ready, the
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 from collections.abc import Callable
 
 import rclpy
@@ -42,6 +46,10 @@ from hsa_common import lockstep
 from hsa_common.parameters import ParameterValidationError
 from hsa_core import rosenv
 
+TEARDOWN_NICE = 5
+"""Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a graph stop, but
+not starved — at 19 a teardown beside busy processes took a minute (54-67 s measured beside six busy processes), so
+the launcher's SIGTERM escalation hit every node."""
 SPIN_PERIOD = 0.02
 """[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (< 100 ms torque-off)."""
 
@@ -90,11 +98,16 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         if hook is not None:
             hook()
         else:
-            os.nice(19)  # nothing safety-relevant left here: yield the CPU to the driver's torque-off in a graph stop
+            os.nice(TEARDOWN_NICE)  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()
-    return int(getattr(node, "exit_code", 0))
+    code = int(getattr(node, "exit_code", 0))
+    if hook is None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)  # nothing left to persist: skip the interpreter's teardown (JAX/XLA), seconds on a busy machine
+    return code
 
 
 def _spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:

@@ -10,8 +10,8 @@ state machine; the player feeds it the playback time of the next message and the
 * an **instant** is the log time of the next message, or an earlier timer due of a participant (so timers run at the
   instants they were due at, as in the recorded run); the first instant is the first message's log time. Before the
   clock moves to a new instant, everything published must be taken (``settle_problem``); then /clock is published
-  (``clock``) and the instant must be finished (``finish_problem``: every participant's clock there, its due timers
-  run); /clock is sent again every ``resend`` s while that waits (it is best effort);
+  (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has run);
+  /clock is sent again every ``resend`` s while that waits (it is best effort);
 * a message whose log time is the current instant is published (``publish``); after the last one the graph must
   settle once more (``done``);
 * waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is a failure

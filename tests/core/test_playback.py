@@ -45,10 +45,11 @@ def test_unmatched_counts_only_participants_that_take_the_topic() -> None:
 
 def test_a_message_is_published_only_after_its_instant_is_finished() -> None:
     barrier, playback = started()
+    barrier.report(kinematics(due=T0))  # a timer due at the first instant
     assert playback.step(T0, {"/ee": 1}, now=0.0).action == "clock"
     step = playback.step(T0, {"/ee": 1}, now=0.001)
-    assert step.action == "wait" and "not yet reached by ['/kin']" in step.reason
-    barrier.report(kinematics(clock_ns=T0))
+    assert step.action == "wait" and step.reason == f"timers due at {T0} ns not yet run by ['/kin']"
+    barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))  # it ran
     assert playback.step(T0, {"/ee": 1}, now=0.002).action == "publish"
     barrier.own["/ee"] = 1
     assert playback.step(T0, {"/ee": 1}, now=0.003).action == "publish"  # a second message of the same log time
@@ -74,7 +75,7 @@ def test_a_timer_due_before_the_next_message_gets_its_own_instant() -> None:
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
     assert (step.action, step.t_ns) == ("clock", T0 + 25 * MS)  # the timer's instant, not the message's
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.01)
-    assert step.action == "wait" and "not yet reached" in step.reason
+    assert step.action == "wait" and "timers due" in step.reason
     barrier.report(kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS))  # the timer ran at its instant
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
     assert (step.action, step.t_ns) == ("clock", T0 + 40 * MS)  # the message, before the next due (50 ms)
@@ -90,10 +91,11 @@ def test_timer_dues_before_the_first_message_are_not_stepped_through() -> None:
 
 def test_the_clock_is_sent_again_while_an_instant_waits() -> None:
     barrier, playback = started()
+    barrier.report(kinematics(due=T0))
     playback.step(T0, {"/ee": 1}, now=0.0)
     assert playback.step(T0, {"/ee": 1}, now=0.03).action == "wait"
     step = playback.step(T0, {"/ee": 1}, now=0.06)
-    assert (step.action, step.t_ns) == ("clock", T0) and "not yet reached" in step.reason
+    assert (step.action, step.t_ns) == ("clock", T0) and "timers due" in step.reason
     assert playback.step(T0, {"/ee": 1}, now=0.08).action == "wait"
 
 
@@ -110,12 +112,13 @@ def test_done_only_when_the_last_message_was_taken() -> None:
 
 def test_an_instant_that_does_not_finish_in_time_fails_naming_the_holder() -> None:
     barrier, playback = started(timeout=2.0)
+    barrier.report(kinematics(due=T0))  # a timer that never runs (the participant stalled)
     playback.step(T0, {"/ee": 1}, now=10.0)
     assert playback.step(T0, {"/ee": 1}, now=11.9).action in ("wait", "clock")
     step = playback.step(T0, {"/ee": 1}, now=12.1)
     assert step.action == "fail"
     assert step.reason.startswith("lockstep barrier at t = 1760000000.000 s not finished after 2.1 s of wall time")
-    assert "clock 1760000000000000000 ns not yet reached by ['/kin']" in step.reason
+    assert step.reason.endswith("timers due at 1760000000000000000 ns not yet run by ['/kin']")
 
 
 def test_each_instant_has_its_own_timeout_and_the_start_ten_times_as_long() -> None:
@@ -126,8 +129,8 @@ def test_each_instant_has_its_own_timeout_and_the_start_ten_times_as_long() -> N
     step = playback.step(T0, {}, now=10.1)
     assert step.action == "fail" and "before simulated time started" in step.reason
     barrier, playback = started(timeout=1.0)
-    for k in range(5):  # five instants of 0.9 s each: no failure
-        barrier.report(kinematics(clock_ns=T0 + k * MS))
+    for k in range(5):  # five instants, each finished 0.9 s after its clock: no failure
+        barrier.report(kinematics(clock_ns=T0 + (k - 1) * MS, due=T0 + k * MS))
         assert playback.step(T0 + k * MS, {"/ee": 1}, now=0.9 * k).action == "clock"
-    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"
-    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=5.6).action == "fail"  # the sixth instant is never reached
+    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"  # instant 4 waits 0.9 s: a resend
+    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.7).action == "fail"  # its timer never runs

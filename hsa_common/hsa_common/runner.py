@@ -12,7 +12,7 @@ interrupt it half-way — e.g. a bus transaction — and the events executor log
 Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority (``TEARDOWN_NICE``): when a whole graph stops
 at once on two cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind them.
 
-A node without a hook leaves with ``os._exit`` once rclpy is shut down: it has nothing to persist, and the
+After its hook and rclpy's shutdown a node leaves with ``os._exit``: what must persist is persisted by then, and the
 interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1 s without it), past the launcher's SIGTERM.
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's barrier
@@ -55,7 +55,8 @@ SPIN_PERIOD = 0.02
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
-    """Create the node with ``node_factory`` and spin it until shutdown; see the module docstring for exit codes."""
+    """Create the node with ``node_factory``, spin it until shutdown and end the process with its exit code (see the
+    module docstring); returns only when the node could not be created."""
     rosenv.ensure_for_node()
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -103,11 +104,9 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         node.destroy_node()
         rclpy.try_shutdown()
     code = int(getattr(node, "exit_code", 0))
-    if hook is None:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)  # nothing left to persist: skip the interpreter's teardown (JAX/XLA), seconds on a busy machine
-    return code
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
 
 
 def _spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:

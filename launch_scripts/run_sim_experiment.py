@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
                              "wall: real time")
     parser.add_argument("--rate", type=cli.positive, default=40.0, help="[Hz] control rate")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output instead of logging it")
+    parser.add_argument("--live", action="store_true",
+                        help="serve the run to Foxglove on ws://127.0.0.1:8765 (hsa_live; docs/nodes/hsa_live.md)")
     parser.add_argument("--out", type=Path, default=Path("out") / time.strftime("run_%Y%m%d-%H%M%S"))
     args = parser.parse_args(argv)
 
@@ -117,12 +119,14 @@ def main(argv: list[str] | None = None) -> int:
     launch_args = {
         "material": args.material, "controller": args.controller, "ee_integral": str(args.ee_integral).lower(),
         "disturbance": args.disturbance, "setpoint_rate": str(args.setpoint_rate), "bag_dir": str(bag),
-        "clock": args.clock, "rate": str(args.rate),
+        "clock": args.clock, "rate": str(args.rate), "live": str(args.live).lower(),
     }
     log_path = args.out / "graph.log"
     print(f"[run] ROS_DOMAIN_ID={domain}; graph {GRAPH.name} with {launch_args}", flush=True)
     if not args.verbose:
         print(f"[run] node output: {log_path.resolve()} (--verbose shows it here)", flush=True)
+    if args.live:
+        print("[run] live view: open ws://127.0.0.1:8765 in Foxglove (layout: share/hsa_live/config/)", flush=True)
     started = time.monotonic()
     monitor = StepMonitor()
     with open(log_path, "wb") as log:

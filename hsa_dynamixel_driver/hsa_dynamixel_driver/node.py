@@ -226,8 +226,8 @@ class DynamixelDriver(LifecycleNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def lockstep_ready(self) -> bool:
-        """Lockstep: simulated time may start once the bus is connected and the driver active (torque handled)."""
-        return self._active and self._link_up
+        """Lockstep: simulated time may start once the bus is connected, the driver active and torque on if wanted."""
+        return self._active and self._link_up and (self._torque_on or not self._torque_wanted)
 
     def _autostart(self) -> None:
         """One-shot: configure and activate without a lifecycle manager."""

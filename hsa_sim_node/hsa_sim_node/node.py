@@ -41,6 +41,7 @@ from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, B
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
 CLOCK_RESEND = 0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
 SYNC_NS = 50_000_000  # lockstep: wait for the graph to take every sample at least every 50 ms of simulated time
+START_TIMEOUT = 180.0  # s of wall time simulated time may wait to start (planner compilation on a busy machine)
 MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
 
@@ -96,13 +97,14 @@ class SimNode(Node):
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"
         os.makedirs(os.path.dirname(port), exist_ok=True)
-        self._emulator = MX28Emulator(ids, baudrate=self._p["baudrate"], initial_ticks=dict(zip(ids, ticks)),
-                                      model=None, link_path=port).start()
-        self.get_logger().info(f"emulated MX-28 bus of IDs {ids} at {port}; compiling the world")
-        self._world = World(model, disturbance, self._map)
+        self._world = World(model, disturbance, self._map)  # compiles: the bus appears only when it can answer in time
         self._world.set_torque([False] * len(ids))
         self._world.advance_to(0)
+        self._emulator = MX28Emulator(ids, baudrate=self._p["baudrate"], initial_ticks=dict(zip(ids, ticks)),
+                                      model=None, link_path=port)
         self._sync_shafts()
+        self._emulator.start()
+        self.get_logger().info(f"emulated MX-28 bus of IDs {ids} at {port}")
 
         options = qos.overridable()
         self._pub_platform = self.create_publisher(PoseStamped, self._p["platform_topic"], qos.SENSOR,
@@ -271,7 +273,8 @@ class SimNode(Node):
         waited = now - self._waiting_since
         if self._phase == "start":
             self.get_logger().info(f"lockstep: simulated time has not started: {problem}", throttle_duration_sec=5.0)
-        if self._phase != "start" and waited > self._p["barrier_timeout"] or waited > 10 * self._p["barrier_timeout"]:
+        limit = self._p["barrier_timeout"] if self._phase != "start" else max(START_TIMEOUT, self._p["barrier_timeout"])
+        if waited > limit:
             self._failure = (f"lockstep barrier at t = {self._instant * 1e-9:.3f} s not finished after "
                              f"{waited:.1f} s of wall time: {problem}")
             self.get_logger().error(self._failure)

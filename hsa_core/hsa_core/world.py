@@ -91,6 +91,7 @@ class World:
         self._sample_latency_ns = seconds_to_ns(disturbance.measurement_latency)
         self._goals: deque[tuple[int, np.ndarray]] = deque()  # (effective at [ns], goal ticks)
         self._samples: deque[MocapSample] = deque()
+        self._sample()
 
     # ---------------------------------------------------------------- inputs (what the bus client does)
     def write_goals(self, ticks: ArrayLike, at_ns: int | None = None) -> None:
@@ -107,14 +108,11 @@ class World:
     def advance_to(self, t_ns: int) -> None:
         """Run the grid up to ``t_ns`` (rounded up to the grid); the state is then that of instant t.
 
-        Per grid interval: sample the pose (every 5 ms), apply the goals due, move the shafts, integrate the plant.
-        Intervals without an event in between run as one jitted segment."""
+        Per grid interval: apply the goals due, move the shafts, integrate the plant; on reaching an instant on the
+        5 ms grid, sample the pose. Intervals without an event in between run as one jitted segment."""
         end = to_grid(t_ns)
         while self.t_ns < end:
             t = self.t_ns
-            if t % MOCAP_PERIOD_NS == 0:
-                chiee = self.disturbance.measure(self._rng, self.true_pose())
-                self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
             while self._goals and self._goals[0][0] <= t:
                 self.goal = self._goals.popleft()[1]
             stop = min(end, (t // MOCAP_PERIOD_NS + 1) * MOCAP_PERIOD_NS)
@@ -125,6 +123,14 @@ class World:
             self.x = x
             self.position, self.velocity = np.array(position), np.array(velocity) / (GRID_NS * 1e-9)
             self.t_ns = stop
+            self._sample()
+
+    def _sample(self) -> None:
+        """Take the mocap sample of the current instant if one is due (every 5 ms, from t = 0)."""
+        t = self.t_ns
+        if t % MOCAP_PERIOD_NS == 0:
+            chiee = self.disturbance.measure(self._rng, self.true_pose())
+            self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
 
     # ---------------------------------------------------------------- outputs
     def twists(self) -> np.ndarray:
@@ -143,7 +149,7 @@ class World:
         """When the next not yet handed-over mocap sample becomes available [ns]."""
         if self._samples:
             return self._samples[0].available_ns
-        next_stamp = -(-self.t_ns // MOCAP_PERIOD_NS) * MOCAP_PERIOD_NS
+        next_stamp = (self.t_ns // MOCAP_PERIOD_NS + 1) * MOCAP_PERIOD_NS  # the current instant's is taken already
         return next_stamp + self._sample_latency_ns
 
     def take_samples(self, t_ns: int) -> list[MocapSample]:

@@ -252,9 +252,7 @@ class SimNode(Node):
             return
         self._world.advance_to(event)
         self._sync_shafts()
-        self._instant = event
-        self._send_clock()  # data callbacks see the sample's instant; no participant has to report it
-        self._publish_samples(event)
+        self._publish_samples(event)  # no /clock: data callbacks keep the clock of the last timer instant
         self._phase = "advance_more"
 
     def _send_clock(self) -> None:

@@ -110,3 +110,14 @@ def test_the_state_does_not_depend_on_how_time_is_chopped(model) -> None:
 def test_grid_rounding() -> None:
     assert to_grid(0) == 0 and to_grid(1) == GRID_NS and to_grid(GRID_NS) == GRID_NS
     assert MOCAP_PERIOD_NS == 5 * GRID_NS
+
+
+def test_without_latency_a_sample_is_available_at_its_own_instant(model) -> None:
+    """DisturbanceModel.none(): the sample of instant t is there once the world reached t (the offline loop waits on
+    next_sample_ns and must move on)."""
+    w = world(model, DisturbanceModel.none())
+    assert w.next_sample_ns() == 0
+    assert [s.stamp_ns for s in w.take_samples(0)] == [0]
+    assert w.next_sample_ns() == 5 * MS
+    w.advance_to(5 * MS)
+    assert [s.stamp_ns for s in w.take_samples(5 * MS)] == [5 * MS]

@@ -111,7 +111,7 @@ class SimNode(Node):
                                                    qos_overriding_options=options)
         self._pub_base = (self.create_publisher(PoseStamped, self._p["base_topic"], qos.SENSOR,
                                                 qos_overriding_options=options) if self._p["base_topic"] else None)
-        self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time": 0.0, "barrier_wait": 0.0}
+        self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time": 0.0}
         self._report_base = (time.monotonic(), dict(self._stats))
         self._emulator_base = (time.monotonic(), self._emulator.stats())
         self._lockstep = lockstep.enabled(self)
@@ -226,7 +226,7 @@ class SimNode(Node):
                 self._stats["instants"] += 1
                 self._publish_samples(self._instant)
                 self._phase = "advance"
-            else:
+            else:  # "advance"
                 self._advance()
 
     def _stopped(self) -> bool:
@@ -253,7 +253,6 @@ class SimNode(Node):
         self._world.advance_to(event)
         self._sync_shafts()
         self._publish_samples(event)  # no /clock: data callbacks keep the clock of the last timer instant
-        self._phase = "advance_more"
 
     def _send_clock(self) -> None:
         """Publish /clock at the current instant."""

@@ -1,7 +1,8 @@
 """A node's side of the lockstep barrier: count what it publishes and takes, and report when it runs out of work.
 
 ``Participant(node)`` wraps the node's publishers, subscriptions, service servers and clients to count messages per
-topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events and the barrier's own topic are not counted),
+topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the barrier's own topic and the node's private
+parameter/lifecycle services are not counted),
 and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
 (:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.lockstep`; the contract is in
 docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder:
@@ -15,8 +16,8 @@ from typing import Any
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.timer import Timer
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.timer import Timer
 
 from hsa_core.lockstep import Report
 from hsa_msgs.msg import LockstepAck
@@ -32,13 +33,12 @@ ACK_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliabil
 """The simulator's subscription: deep enough for a burst of reports from every participant."""
 UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC})
 UNMATCHED = 2**32 - 1  # LockstepAck.matched of a service client (its readiness is service_is_ready)
-_WALL_TIMERS: set[int] = set()
 
 
 def wall_timer(node: Node, period: float, callback: Any) -> Timer:
     """A timer on the steady clock, outside the barrier (graph discovery, wall-clock supervision)."""
     timer = node.create_timer(period, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
-    _WALL_TIMERS.add(id(timer))
+    timer.lockstep_wall = True  # read by Participant.report: not a timer of simulated time
     return timer
 
 
@@ -81,11 +81,15 @@ class Participant:
             self._wrapped.add(id(sub))
             self.taken.setdefault(sub.topic_name, 0)
             sub.callback = self._counting(sub.callback, self.taken, sub.topic_name)
+        private = self.node.get_fully_qualified_name() + "/"  # parameter, lifecycle and type services of the node
         for srv in self.node.services:
             if id(srv) in self._wrapped:
                 continue
             self._wrapped.add(id(srv))
-            name = f"srv:{self.node.resolve_service_name(srv.srv_name)}"
+            resolved = self.node.resolve_service_name(srv.srv_name)
+            if resolved.startswith(private):
+                continue
+            name = f"srv:{resolved}"
             self.taken.setdefault(name, 0)
             srv.callback = self._counting(srv.callback, self.taken, name)
         for client in self.node.clients:
@@ -124,7 +128,7 @@ class Participant:
         now = clock.now().nanoseconds
         dues = []
         for timer in self.node.timers:
-            if id(timer) in _WALL_TIMERS or timer.is_canceled():
+            if getattr(timer, "lockstep_wall", False) or timer.is_canceled():
                 continue
             remaining = timer.time_until_next_call()
             if remaining is not None:

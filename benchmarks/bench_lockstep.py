@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import platform
 import re
 import subprocess
@@ -59,12 +60,14 @@ def run_graph(out: Path, *extra: str) -> dict:
     """The main job; its graph wall time [s] (start to end, as run.sh prints it) and, in lockstep, the wall time
     from the start of simulated time to its stop (sim_node's log lines) and the simulated time covered."""
     started = time.monotonic()
+    load_before = os.getloadavg()[0]
     proc = subprocess.run([sys.executable, str(RUN), "--out", str(out), *extra], capture_output=True, text=True,
                           timeout=3600)
     found = re.search(r"graph finished after ([0-9.]+) s of wall time \(exit (\d+)\)", proc.stdout)
     if proc.returncode != 0 or not found:
         raise RuntimeError(f"run failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    result = {"graph_wall_s": float(found.group(1)), "total_wall_s": round(time.monotonic() - started, 1)}
+    result = {"graph_wall_s": float(found.group(1)), "total_wall_s": round(time.monotonic() - started, 1),
+              "load_average_1min_before": round(load_before, 1), "load_average_1min_after": round(os.getloadavg()[0], 1)}
     log = (out / "graph.log").read_text(errors="replace")
     begin = re.search(r"\[(\d+\.\d+)\] \[hsa\.sim_node\]: lockstep: simulated time starts", log)
     end = re.search(r"\[(\d+\.\d+)\] \[hsa\.sim_node\]: lockstep: \S+ left; simulated time stops at ([0-9.]+) s",
@@ -104,7 +107,7 @@ def main() -> int:
     parser.add_argument("--wall-seconds", type=float, default=30.0, help="length of the wall-clock recorder run")
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_lockstep_"))
-    result: dict = {"machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()}}
+    result: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}}
 
     quiet = run_graph(work / "quiet")
     with burners():

@@ -22,6 +22,7 @@ import numpy as np
 import yaml
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.time import Time
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
@@ -738,7 +739,10 @@ class DynamixelDriver(LifecycleNode):
         self._limiter.written(goal, now)
         self._counts["writes"] += 1
         msg = PlanarActuation(phi=self._map.present_twists(goal), source_stamp=self._target_source)
-        msg.header.stamp = self.get_clock().now().to_msg()
+        # a goal cannot leave before the command it came from: under simulated time a phi_cmd may be taken before
+        # this node has seen the /clock of the tick that sent it
+        issued = Time.from_msg(self._command.header.stamp).nanoseconds if self._command is not None else 0
+        msg.header.stamp = Time(nanoseconds=max(self.get_clock().now().nanoseconds, issued)).to_msg()
         self._pub_goal.publish(msg)
 
     def _publish_state(self, ticks_by_id: dict[int, int], velocities: dict[int, int]) -> None:

@@ -15,6 +15,7 @@ See docs/nodes/hsa_sim_node.md.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from typing import Any
 
@@ -41,6 +42,10 @@ from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, B
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
 CLOCK_RESEND = 0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
 SYNC_NS = 50_000_000  # lockstep: wait for the graph to take every sample at least every 50 ms of simulated time
+GIL_SWITCH_INTERVAL = 5e-4
+"""[s] Python thread switch interval of this process (default 5 ms): the emulator's serving thread must answer within
+the Dynamixel SDK's wall-clock packet timeout (≈ 34 ms) while the main thread handles the barrier's reports; with
+the default, reads timed out on a busy machine (4 of 4484 in a lockstep run beside two busy processes)."""
 START_TIMEOUT = 180.0  # s of wall time simulated time may wait to start (planner compilation on a busy machine)
 MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
@@ -345,4 +350,5 @@ class SimNode(Node):
 
 def main() -> None:
     """Console entry point ``sim_node``."""
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
     raise SystemExit(run(SimNode, "sim_node"))

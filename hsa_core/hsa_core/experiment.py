@@ -4,8 +4,9 @@ The timeline is the one the ROS graph runs in lockstep (docs/simulation.md), so 
 seed both produce the same ticks to float round-off:
 
 * the world (plant, servos, mocap) runs on its 1 ms grid from t = 0, the robot hanging at rest with φ = 0;
-* at every instant, first the mocap samples that became available are handed to the estimator (closed-form IK +
-  causal Savitzky–Golay: the kinematics node's code path), then the timers due at that instant run;
+* at every instant, first the timers due at that instant run (sequencer, controller), then the mocap samples that
+  became available are handed to the estimator (closed-form IK + causal Savitzky–Golay: the kinematics node's code
+  path) — in the graph, an instant's samples go out once the instant is finished;
 * the setpoint sequencer plans point k at S_k = S_0 + t_k (t_k: the reference's point times); S_0 is its first
   supervision tick after the start delay (:func:`first_point_ns`, the sequencer's rule); a failed plan keeps the
   previous setpoint and is reported;
@@ -134,12 +135,6 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     while end is None or tick < end:
         instant = min(tick, world.next_sample_ns(), points[k] if k < len(points) else tick)
         world.advance_to(instant)
-        for sample in world.take_samples(instant):
-            origin = sample.stamp_ns if origin is None else origin
-            q = configuration_from_pose(model, sample.chiee)
-            est = estimator.update((sample.stamp_ns - origin) * 1e-9, np.concatenate([q, sample.chiee]))
-            if est.ready:
-                state = (q, est.derivative[:3], sample.chiee, est.derivative[3:])
         if k < len(points) and points[k] == instant:
             result = planner.plan(reference.p_des[k], warm_start=warm)
             if result.success:
@@ -162,6 +157,12 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 if bar is not None and len(rows) % round(config.rate) == 0:
                     bar.update(1.0)
             tick += period_ns
+        for sample in world.take_samples(instant):
+            origin = sample.stamp_ns if origin is None else origin
+            q = configuration_from_pose(model, sample.chiee)
+            est = estimator.update((sample.stamp_ns - origin) * 1e-9, np.concatenate([q, sample.chiee]))
+            if est.ready:
+                state = (q, est.derivative[:3], sample.chiee, est.derivative[3:])
     if bar is not None:
         bar.close()
     if not rows:

@@ -126,7 +126,14 @@ def describe_hardware_error(bits: int) -> str:
 
 
 class _WaitingPortHandler(PortHandler):
-    """PortHandler that sleeps in select() until bytes arrive or the packet deadline passes, instead of busy-polling."""
+    """PortHandler that sleeps in select() until bytes arrive or the packet deadline passes, instead of busy-polling;
+    ``min_timeout_ms`` raises the SDK's per-packet timeout (≈ 34 ms) to at least that much."""
+
+    min_timeout_ms = 0.0
+
+    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 (SDK method name)
+        super().setPacketTimeout(packet_length)
+        self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
 
     def readPort(self, length: int) -> bytes:  # noqa: N802 (SDK method name)
         if length > 0:
@@ -149,6 +156,7 @@ class DynamixelBus:
         ids: Sequence[int],
         *,
         model_number: int = MX28_MODEL_NUMBER,
+        min_packet_timeout_ms: float = 0.0,
     ) -> None:
         if baudrate not in SDK_BAUDRATES:
             raise ValueError(f"baudrate {baudrate} is not one the Dynamixel SDK supports: {SDK_BAUDRATES}")
@@ -163,6 +171,7 @@ class DynamixelBus:
         self._port: _WaitingPortHandler | None = None
         self._lock = threading.RLock()
         self._mode = EXTENDED_POSITION_MODE  # assumed until configure() sets it; only bounds goal checks
+        self._min_timeout_ms = float(min_packet_timeout_ms)
 
     @property
     def ids(self) -> tuple[int, ...]:
@@ -191,6 +200,7 @@ class DynamixelBus:
             if self._port is not None:
                 raise RuntimeError(f"{self._port_name} is already open")
             port = _WaitingPortHandler(self._port_name)
+            port.min_timeout_ms = self._min_timeout_ms
             try:
                 opened = port.setBaudRate(self._baudrate)
             except (serial.SerialException, OSError, termios.error) as exc:

@@ -114,6 +114,9 @@ SPECS = (
               "the next phi_cmd, which re-enables torque if safe)", choices=("hold", "relax")),
     ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
               read_only=True),
+    ParamSpec("packet_timeout", 0.0, "[ms] least time to wait for a status packet; 0 = the SDK's (about 34 ms). "
+              "The simulated graph raises it: there a late reply is the machine's load, not the servo",
+              low=0.0, high=10_000.0, read_only=True),
     ParamSpec("error_limit", 10, "consecutive failed cycles before the bus counts as lost", low=1, high=10_000,
               read_only=True),
 )
@@ -297,7 +300,8 @@ class DynamixelDriver(LifecycleNode):
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Create the bus and try to open it; while it is absent the reconnect timer keeps trying."""
-        self._bus = DynamixelBus(self._p["port"], self._p["baudrate"], self._ids)
+        self._bus = DynamixelBus(self._p["port"], self._p["baudrate"], self._ids,
+                                 min_packet_timeout_ms=self._p["packet_timeout"])
         self._map = self._limits = self._sane = None
         if self._stored_neutral is not None:
             self._set_neutral(self._stored_neutral)

@@ -135,6 +135,10 @@ class _WaitingPortHandler(PortHandler):
         super().setPacketTimeout(packet_length)
         self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
 
+    def setPacketTimeoutMillis(self, msec: float) -> None:  # noqa: N802 (SDK method name)
+        super().setPacketTimeoutMillis(msec)
+        self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
+
     def readPort(self, length: int) -> bytes:  # noqa: N802 (SDK method name)
         if length > 0:
             remaining_ms = self.packet_timeout - self.getTimeSinceStart()

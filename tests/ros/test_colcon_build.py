@@ -74,7 +74,8 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
     """
     path = REPO / "launch_scripts" / graph
     names = [p.name for p in LaunchFile(path, args).processes()]
-    launcher = subprocess.Popen([sys.executable, "-m", "hsa_common.launcher", str(path),
+    # a loaded machine: once the setpoint sequencer needed longer than SIGINT + 5 s + SIGTERM + 5 s to end (SIGKILLed)
+    launcher = subprocess.Popen([sys.executable, "-m", "hsa_common.launcher", str(path), "--sigterm-timeout", "20",
                                  *(f"{k}:={v}" for k, v in args.items())], env=install_environment(install), cwd=cwd,
                                 start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []

@@ -228,8 +228,8 @@ class Player:
         return Result(published, passes, elapsed, max_late)
 
     def _wait_for_acks(self) -> None:
-        """Wait (bounded) until reliable subscribers have acknowledged every message."""
-        for pub in self.publishers.values():
+        """Wait (bounded) until reliable subscribers have acknowledged every message (the last /clock too)."""
+        for pub in [*self.publishers.values(), *([self.clock] if self.clock is not None else [])]:
             if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
                 pub.wait_for_all_acked(ACK_TIMEOUT)
 
@@ -258,8 +258,8 @@ class Player:
         start = time.monotonic()
         logger = self.node.get_logger()
         while not self.stop.is_set():
-            matched = {pub.topic_name: pub.get_subscription_count() for pub in self.publishers.values()}
             started = playback.barrier.started
+            matched = lockstep.matched_of(self.node) if not started else {}  # graph queries only before the start
             step = playback.step(None if upcoming is None else upcoming[1], matched, time.monotonic())
             if playback.barrier.started and not started:
                 logger.info(f"lockstep: simulated time starts ({len(playback.barrier.reports)} participants)")

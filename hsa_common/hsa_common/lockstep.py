@@ -32,6 +32,8 @@ ACK_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliabil
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """The simulator's subscription: deep enough for a burst of reports from every participant."""
 UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC})
+UNWATCHED = UNCOUNTED - {"/clock"}
+"""Topics whose discovery does not hold the start (every other subscription, /clock included, must be matched)."""
 UNMATCHED = 2**32 - 1  # LockstepAck.matched of a service client (its readiness is service_is_ready)
 
 
@@ -62,6 +64,7 @@ class Participant:
         self._last: tuple | None = None
         self._ready: bool | None = None
         self._matched: dict[str, int] = {}
+        self._heard: dict[str, int] = {}
         self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, ACK_QOS) if publish_acks else None
         self.instrument()
 
@@ -137,9 +140,9 @@ class Participant:
             hook = getattr(self.node, "lockstep_ready", None)
             self._ready = all(c.service_is_ready() for c in self.node.clients) and (hook is None or bool(hook()))
             self._matched = {t: min(p.get_subscription_count() for p in pubs) for t, pubs in self._pubs.items()}
-        ready, matched = self._ready, self._matched
-        return Report(self.node.get_fully_qualified_name(), now, ready, leaving, min(dues) if dues else None,
-                      self.pending, dict(self.published), matched, dict(self.taken))
+            self._heard = heard(self.node)
+        return Report(self.node.get_fully_qualified_name(), now, self._ready, leaving, min(dues) if dues else None,
+                      self.pending, dict(self.published), self._matched, dict(self.taken), self._heard)
 
     def idle(self, leaving: bool = False) -> None:
         """The runner found nothing to run: publish the report if anything but the clock changed."""
@@ -147,11 +150,32 @@ class Participant:
             return
         r = self.report(leaving)
         key = (r.ready, r.leaving, r.next_due_ns, r.pending, tuple(sorted(r.published.items())),
-               tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())))
+               tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())), tuple(sorted(r.heard.items())))
         if key == self._last:
             return  # only the clock moved: the simulator does not wait for that
         self._last = key
         self._ack_pub.publish(to_msg(r))
+
+
+def heard(node: Node) -> dict[str, int]:
+    """Publishers matched per subscribed topic (the fewest of the node's subscriptions on it), /clock included."""
+    counts: dict[str, int] = {}
+    for sub in node.subscriptions:
+        if sub.topic_name not in UNWATCHED:
+            n = sub.get_publisher_count()
+            counts[sub.topic_name] = min(n, counts.get(sub.topic_name, n))
+    return counts
+
+
+def matched_of(node: Node) -> dict[str, int]:
+    """Subscriptions matched per published topic (the fewest of the node's publishers on it), /clock included: a
+    coordinator's own side of discovery."""
+    counts: dict[str, int] = {}
+    for pub in node.publishers:
+        if pub.topic_name not in UNWATCHED:
+            n = pub.get_subscription_count()
+            counts[pub.topic_name] = min(n, counts.get(pub.topic_name, n))
+    return counts
 
 
 def to_msg(r: Report) -> LockstepAck:
@@ -164,6 +188,8 @@ def to_msg(r: Report) -> LockstepAck:
     msg.matched = [r.matched.get(t, UNMATCHED) for t in msg.pub_topics]
     msg.sub_topics = list(r.taken)
     msg.taken = [r.taken[t] for t in msg.sub_topics]
+    msg.heard_topics = list(r.heard)
+    msg.heard = [r.heard[t] for t in msg.heard_topics]
     return msg
 
 
@@ -173,4 +199,4 @@ def from_msg(msg: LockstepAck) -> Report:
                   None if msg.next_due < 0 else msg.next_due, msg.pending,
                   dict(zip(msg.pub_topics, msg.published)),
                   {t: n for t, n in zip(msg.pub_topics, msg.matched) if n != UNMATCHED},
-                  dict(zip(msg.sub_topics, msg.taken)))
+                  dict(zip(msg.sub_topics, msg.taken)), dict(zip(msg.heard_topics, msg.heard)))

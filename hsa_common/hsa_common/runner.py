@@ -82,7 +82,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     try:
         node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
         if in_lockstep:
-            _spin_lockstep(executor, participant, stop)
+            spin_lockstep(executor, participant, stop)
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD)
     except ExternalShutdownException:
@@ -109,7 +109,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
 
 
-def _spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:
+def spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:
     """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a participant)."""
     idle = False
     while not stop and rclpy.ok():

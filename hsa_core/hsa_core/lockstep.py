@@ -6,7 +6,11 @@ requests it awaits, and per topic how many messages it has published and taken s
 publications are counted in the same way. From the latest report of every participant the barrier decides:
 
 * ``start_problem()`` — simulated time may start (None) once every expected participant has reported, is ready,
-  and every publisher has matched at least as many subscriptions as participants take its topic;
+  and discovery is complete on both sides of every topic: each publisher (a participant's or the simulator's own,
+  ``own_matched``, /clock included) has matched at least as many subscriptions as participants subscribe to its
+  topic, and each participant's subscriptions have matched at least as many publishers as participants and the
+  simulator have on it (``heard``). DDS matches the two ends separately: a writer that knows a reader sends to it,
+  but a reader that does not know the writer yet drops what arrives, so one side alone loses the first messages;
 * ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes it has taken
   every message published on it, and no service request is unanswered;
 * ``finish_problem(t)`` — instant t is finished (None): settled, and no participant has a timer due at or before t
@@ -40,6 +44,7 @@ class Report:
     published: Mapping[str, int] = field(default_factory=dict)
     matched: Mapping[str, int] = field(default_factory=dict)
     taken: Mapping[str, int] = field(default_factory=dict)
+    heard: Mapping[str, int] = field(default_factory=dict)  # per subscribed topic (/clock too): publishers matched
 
 
 class Barrier:
@@ -49,6 +54,7 @@ class Barrier:
         self.expected = tuple(expected)
         self.reports: dict[str, Report] = {}
         self.own: dict[str, int] = {}  # the simulator's publications per topic
+        self.own_matched: dict[str, int] = {}  # the simulator's publishers (/clock too): subscriptions matched
         self.started = False
         self.left: list[str] = []  # expected participants that have left: the graph is ending
         self._baseline: dict[str, dict[str, int]] = {}  # late joiner: taken offset per topic at its first report
@@ -81,14 +87,22 @@ class Barrier:
         unready = sorted(n for n, r in self.reports.items() if not r.ready)
         if unready:
             return f"participants not ready (publishers unmatched or services missing): {unready}"
-        takers: dict[str, int] = {}
+        takers: dict[str, int] = {}  # participants subscribed per topic
+        writers: dict[str, int] = {t: 1 for t in self.own_matched}  # publishers per topic: the simulator's ...
         for r in self.reports.values():
-            for topic in r.taken:
+            for topic in r.heard.keys() | r.taken.keys():
                 takers[topic] = takers.get(topic, 0) + 1
+            for topic in r.matched:  # ... and the participants'
+                writers[topic] = writers.get(topic, 0) + 1
+        pubs = [(r.node, r.matched) for r in self.reports.values()] + [("simulator", self.own_matched)]
+        for node, matched in pubs:
+            for topic, n in sorted(matched.items()):
+                if n < takers.get(topic, 0):
+                    return f"{node}: '{topic}' matched {n} of {takers[topic]} participant subscriptions"
         for r in self.reports.values():
-            for topic, matched in r.matched.items():
-                if matched < takers.get(topic, 0):
-                    return f"{r.node}: '{topic}' matched {matched} of {takers[topic]} participant subscriptions"
+            for topic, n in sorted(r.heard.items()):
+                if n < writers.get(topic, 0):
+                    return f"{r.node}: subscription to '{topic}' matched {n} of {writers[topic]} publishers"
         return None
 
     def start(self) -> None:

@@ -4,9 +4,9 @@ A player in lockstep owns /clock and plays a bag's messages in log-time order. :
 state machine; the player feeds it the playback time of the next message and the wall time, and acts on each
 :class:`Step`:
 
-* ``start``: simulated time does not start before :meth:`hsa_core.lockstep.Barrier.start_problem` is None and every
-  topic the player publishes is matched by at least as many subscriptions as participants take it (nothing the
-  player publishes may go to a subscription that does not exist yet);
+* ``start``: simulated time does not start before :meth:`hsa_core.lockstep.Barrier.start_problem` is None, the
+  player's own publishers (/clock included) being the simulator's (nothing the player publishes may go to a
+  subscription that does not know it yet);
 * an **instant** is the log time of the next message, or an earlier timer due of a participant (so timers run at the
   instants they were due at, as in the recorded run); the first instant is the first message's log time. Before the
   clock moves to a new instant, everything published must be taken (``settle_problem``); then /clock is published
@@ -20,10 +20,10 @@ state machine; the player feeds it the playback time of the next message and the
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 
-from hsa_core.lockstep import Barrier, Report
+from hsa_core.lockstep import Barrier
 
 START, MOVE, FINISH, OVER = "start", "move", "finish", "over"
 
@@ -36,16 +36,6 @@ class Step:
     action: str
     t_ns: int | None = None
     reason: str = ""
-
-
-def unmatched(matched: Mapping[str, int], reports: Iterable[Report]) -> str | None:
-    """Which of the player's topics has fewer matched subscriptions than participants taking it, or None."""
-    reports = list(reports)
-    for topic, count in sorted(matched.items()):
-        takers = sum(1 for r in reports if topic in r.taken)
-        if count < takers:
-            return f"bag_player: '{topic}' matched {count} of {takers} participant subscriptions"
-    return None
 
 
 class LockstepPlayback:
@@ -62,11 +52,12 @@ class LockstepPlayback:
 
     def step(self, next_ns: int | None, matched: Mapping[str, int], now: float) -> Step:
         """The next action, given the next message's playback time (None: none left), the player's matched
-        subscription counts per topic, and the wall time ``now``."""
+        subscription counts per published topic (/clock included), and the wall time ``now``."""
         if self._since is None:
             self._since = now
         if self.phase == START:
-            problem = self.barrier.start_problem() or unmatched(matched, self.barrier.reports.values())
+            self.barrier.own_matched = dict(matched)
+            problem = self.barrier.start_problem()
             if problem is not None:
                 return self._wait(problem, now, 10 * self.timeout)
             self.barrier.start()

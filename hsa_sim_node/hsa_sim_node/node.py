@@ -205,6 +205,7 @@ class SimNode(Node):
             return
         for _ in range(MAX_INSTANTS_PER_PUMP):
             if self._phase == "start":
+                self._barrier.own_matched = lockstep.matched_of(self)
                 problem = self._barrier.start_problem()
                 if problem is not None:
                     return self._still_waiting(problem, send_clock=True)

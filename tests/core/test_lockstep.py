@@ -34,6 +34,31 @@ def test_time_starts_only_when_every_expected_participant_is_ready_and_matched()
     assert barrier.start_problem() is None
 
 
+def test_time_starts_only_when_every_subscription_knows_every_publisher() -> None:
+    """DDS matches the ends separately: a reader that does not know a writer yet drops what it sends."""
+    barrier = Barrier(["/bridge", "/kin"])
+    barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, heard={"/clock": 1}))
+    barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1}))  # the writer knows the reader
+    assert barrier.start_problem() == "/kin: subscription to '/ee' matched 0 of 1 publishers"
+    barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 1}))
+    assert barrier.start_problem() is None
+    barrier.own_matched = {"/clock": 2}  # the simulator publishes /clock: it must be known too
+    barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 0}))
+    assert barrier.start_problem() == "/kin: subscription to '/clock' matched 0 of 1 publishers"
+
+
+def test_the_simulators_own_publishers_must_reach_every_participant_subscription() -> None:
+    barrier = Barrier(["/kin", "/rec"])
+    barrier.report(Report("/kin", 0, heard={"/pose": 1, "/clock": 1}))
+    barrier.report(Report("/rec", 0, taken={"/pose": 0}, heard={"/clock": 1}))  # takers: from taken as well
+    barrier.own_matched = {"/pose": 1, "/clock": 2, "/diagnostics": 0}  # nobody subscribes to /diagnostics
+    assert barrier.start_problem() == "simulator: '/pose' matched 1 of 2 participant subscriptions"
+    barrier.own_matched = {"/pose": 2, "/clock": 1, "/diagnostics": 0}
+    assert barrier.start_problem() == "simulator: '/clock' matched 1 of 2 participant subscriptions"
+    barrier.own_matched = {"/pose": 2, "/clock": 2, "/diagnostics": 0}
+    assert barrier.start_problem() is None
+
+
 def test_a_message_in_flight_holds_the_barrier_until_its_taker_reports() -> None:
     barrier = graph()
     assert barrier.settle_problem() is None

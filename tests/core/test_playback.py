@@ -4,7 +4,7 @@ clock moves, finish before the next message, /clock resend, wall-clock timeouts.
 from __future__ import annotations
 
 from hsa_core.lockstep import Barrier, Report
-from hsa_core.playback import LockstepPlayback, unmatched
+from hsa_core.playback import LockstepPlayback
 
 MS = 1_000_000
 T0 = 1_760_000_000 * 10**9  # a real bag's log times: ns since the epoch
@@ -32,15 +32,9 @@ def test_time_starts_when_the_participants_are_ready_and_take_the_players_topics
     assert step.action == "wait" and "waiting for participants ['/kin']" in step.reason
     barrier.report(kinematics())
     step = playback.step(T0, {"/ee": 0}, now=0.1)
-    assert step.action == "wait" and step.reason == "bag_player: '/ee' matched 0 of 1 participant subscriptions"
+    assert step.action == "wait" and step.reason == "simulator: '/ee' matched 0 of 1 participant subscriptions"
     step = playback.step(T0, {"/ee": 1}, now=0.2)
     assert (step.action, step.t_ns) == ("clock", T0) and barrier.started  # the first instant: the first log time
-
-
-def test_unmatched_counts_only_participants_that_take_the_topic() -> None:
-    reports = [kinematics(), Report("/rec", 0, taken={"/ee": 0, "/state": 0})]
-    assert unmatched({"/ee": 2, "/other": 0}, reports) is None
-    assert unmatched({"/ee": 1}, reports) == "bag_player: '/ee' matched 1 of 2 participant subscriptions"
 
 
 def test_a_message_is_published_only_after_its_instant_is_finished() -> None:

@@ -1,0 +1,268 @@
+"""The offline experiment as one pure JAX function: jit-able, vmap-able over plants, gains and noise (no ROS).
+
+:func:`rollout` runs the timeline of :mod:`hsa_core.experiment` on the world of :mod:`hsa_core.world` — 1 ms grid,
+plant integrated with two RK4 steps per interval, MX-28 speed cap, goals effective after the actuation latency,
+200 Hz mocap with latency and noise, closed-form IK, causal Savitzky–Golay, the control law with its integrators and
+saturation, goal ticks truncated towards zero — as ``lax.scan`` over the control ticks (``fori_loop`` over the 1 ms
+instants inside). At each instant, as in the experiment: the tick (if one is due) runs first, then the samples that
+became available reach the estimator, then the world runs one interval. The setpoints come from the planner before
+the loop (:func:`prepare`); a tick uses the newest one planned strictly before it.
+
+What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters, the gains, the
+noise sequence, the servo speed. What shapes the loop is static (:class:`LoopSpec`): law, rate, latencies, length.
+For the same :class:`~hsa_core.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s (test:
+tests/core/test_closed_loop.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from hsa_core import control, kinematics, metrics, simulation
+from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap, _TRUNC_GUARD
+from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
+from hsa_core.estimation import derivative_coefficients
+from hsa_core.experiment import (ESTIMATOR_ORDER, ESTIMATOR_WINDOW, NEUTRAL_TICKS, ExperimentConfig,
+                                 first_point_ns)
+from hsa_core.params import HsaParams, load_params
+from hsa_core.planning import Planner
+from hsa_core.trajectories import step_reference
+from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, PLANT_SUBSTEPS, seconds_to_ns
+
+MS = GRID_NS
+MOCAP_MS = MOCAP_PERIOD_NS // GRID_NS
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopSpec:
+    """What shapes the loop (static under jit): law, rate, latencies [ms], number of ticks, metrics window."""
+
+    kind: ControllerKind
+    gravity_cancellation: bool
+    ee_integral: EeIntegralGains | None
+    period_ms: int
+    measurement_latency_ms: int
+    actuation_latency_ms: int
+    n_ticks: int
+    first_tick: int  # index of the first tick that sends a command (t = 0 of the metrics)
+    n_eval: int  # ticks in the metrics window (reference.duration)
+    phi_max: float  # command clip, the driver's [0, phi_max]
+    dt: float  # [s] the law's nominal period, 1/rate
+
+
+class LoopInputs(NamedTuple):
+    """What may differ between runs (batch any leaf with ``jax.vmap``)."""
+
+    plant: HsaParams  # the simulated plant
+    gains: CollocatedGains | PidGains
+    noise: Array  # (n_samples, 3) mocap noise [m, m, rad], sample k stamped at 5k ms
+    servo_speed: Array  # [ticks per 1 ms interval]
+
+
+class LoopConstants(NamedTuple):
+    """What is the same for every run of a batch: the controller's model and the planned setpoints."""
+
+    model: HsaParams
+    refs: control.ControlReference  # stacked per planned setpoint
+    ref_index: Array  # (n_ticks,) setpoint active at each tick, -1: none yet
+
+
+class TickLog(NamedTuple):
+    """Per tick: whether the law ran, measured and desired EE pose, command and saturation, the plant's true pose."""
+
+    ran: Array
+    chiee: Array
+    chiee_des: Array
+    phi_cmd: Array
+    saturated: Array
+    true_chiee: Array
+
+
+class _Carry(NamedTuple):
+    x: Array  # plant state [q, q_dot]
+    position: Array  # shaft positions [ticks]
+    goal: Array  # goal in force [ticks]
+    pending: Array  # goal written, not yet in force [ticks]
+    pending_at: Array  # [ms] when it takes effect (-1: none)
+    window: Array  # (N, 6) estimator window [q, chiee], oldest first
+    stamps: Array  # (N,) their stamps [s]
+    count: Array  # samples taken by the estimator
+    ctrl: Array  # [e_int, z_ee]
+    samples: Array  # (Q, 3) recent noisy poses, by sample index mod Q
+
+
+def prepare(config: ExperimentConfig) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
+    """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants."""
+    model = load_params(config.material)
+    reference = config.reference or step_reference(config.material)
+    period_ns = seconds_to_ns(1.0 / config.rate)
+    if period_ns % GRID_NS or period_ns < GRID_NS:
+        raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
+    dist = config.disturbance
+    lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
+    if lat_m % GRID_NS or lat_a % GRID_NS or lat_a >= period_ns:
+        raise ValueError("latencies must be whole milliseconds, the actuation latency below the control period")
+    planner = Planner(model, config.planner)
+    s0 = first_point_ns(config.start_delay)
+    warm = len(reference) > 20
+    planned = []  # (planned at [ns], reference)
+    for k, t in enumerate(reference.t):
+        result = planner.plan(reference.p_des[k], warm_start=warm)
+        if result.success:
+            ref = control.make_reference(model, result.setpoint, ee_integral=config.ee_integral)
+            planned.append((s0 + seconds_to_ns(float(t)), ref))
+    if not planned:
+        raise RuntimeError(f"{config.name}: no setpoint could be planned")
+    ready_ns = (ESTIMATOR_WINDOW - 1) * MOCAP_PERIOD_NS + lat_m  # the estimator's first full window
+    first = next(j for j in range(1, 10**7) if j * period_ns > max(ready_ns, planned[0][0]))
+    n_eval = int(np.ceil(seconds_to_ns(reference.duration) / period_ns))
+    n_ticks = first + n_eval
+    tick_ns = np.arange(n_ticks) * period_ns
+    at = np.array([p[0] for p in planned])
+    ref_index = np.searchsorted(at, tick_ns, side="left") - 1  # planned strictly before the tick
+    refs = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *[p[1] for p in planned])
+    kind = ControllerKind(config.controller)
+    gains = config.gains or control.default_gains(kind, config.material)
+    ee = control.EeIntegralGains() if config.ee_integral else None
+    phi_max = float(np.min(np.asarray(model.phi_max)))
+    spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
+                    lat_a // GRID_NS, n_ticks, first, n_eval, phi_max, 1.0 / config.rate)
+    inputs = LoopInputs(dist.plant_params(model), gains, jnp.asarray(noise(dist, spec)),
+                        jnp.asarray(dist.servo_max_speed * TICKS_PER_RAD * GRID_NS * 1e-9))
+    return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
+
+
+def noise(disturbance, spec: LoopSpec, seed: int | None = None) -> np.ndarray:
+    """The mocap noise of a run, drawn as the world draws it (one seeded generator, sample by sample)."""
+    rng = np.random.default_rng(disturbance.seed if seed is None else seed)
+    n = spec.n_ticks * spec.period_ms // MOCAP_MS + 2
+    std = np.asarray(disturbance.pose_noise_std, dtype=np.float64)
+    return np.array([rng.normal(0.0, 1.0, 3) * std for _ in range(n)])
+
+
+def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> TickLog:
+    """Run the closed loop; one TickLog row per control tick (see the module docstring). Pure; jit with ``spec``
+    static (:func:`compiled`)."""
+    plant, model = inputs.plant, constants.model
+    motor_map = MotorMap(NEUTRAL_TICKS, phi_max=spec.phi_max)
+    neutral = jnp.asarray(NEUTRAL_TICKS, dtype=jnp.float64)
+    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(NEUTRAL_TICKS)))) * RAD_PER_TICK
+    motor_sign = jnp.asarray(motor_map.sign, dtype=jnp.float64)
+    rod_index = jnp.asarray(motor_map._rod_index)
+    coeffs = jnp.asarray(derivative_coefficients(np.arange(ESTIMATOR_WINDOW) - (ESTIMATOR_WINDOW - 1.0),
+                                                 ESTIMATOR_ORDER))
+    q_ddot = simulation.forward_dynamics_fn(plant)
+    dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
+    queue = max(2, -(-spec.measurement_latency_ms // MOCAP_MS) + 2)
+    lat_m, lat_a, period = spec.measurement_latency_ms, spec.actuation_latency_ms, spec.period_ms
+
+    def pose(x: Array) -> Array:
+        return kinematics.end_effector_pose(plant, x[:3])
+
+    def instant(c: _Carry, t: Array) -> _Carry:
+        """Samples at instant t (taken; handed to the estimator once available), then the interval [t, t + 1 ms)."""
+        k = t // MOCAP_MS
+        taken = (t % MOCAP_MS) == 0
+        samples = jnp.where(taken, c.samples.at[k % queue].set(pose(c.x) + inputs.noise[k]), c.samples)
+        ts = t - lat_m
+        available = (ts >= 0) & (ts % MOCAP_MS == 0)
+        chiee = samples[(ts // MOCAP_MS) % queue]
+        z = jnp.concatenate([kinematics.inverse_kinematics(model, chiee), chiee])
+        window = jnp.where(available, jnp.concatenate([c.window[1:], z[None]]), c.window)
+        stamp = (ts * MS) * 1e-9  # [s] as the estimator gets it: (stamp − origin) · 1e-9, origin 0
+        stamps = jnp.where(available, jnp.concatenate([c.stamps[1:], stamp[None]]), c.stamps)
+        count = c.count + available
+        effective = (c.pending_at >= 0) & (c.pending_at <= t)
+        goal = jnp.where(effective, c.pending, c.goal)
+        pending_at = jnp.where(effective, -1, c.pending_at)
+        moved = c.position + jnp.clip(goal - c.position, -inputs.servo_speed, inputs.servo_speed)
+        phi = to_rods @ (moved - neutral)
+        x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation._rk4(q_ddot, xk, phi, dt), c.x)
+        return c._replace(x=x, position=moved, goal=goal, pending_at=pending_at, window=window, stamps=stamps,
+                          count=count, samples=samples)
+
+    def tick(c: _Carry, j: Array) -> tuple[_Carry, TickLog]:
+        """Control tick j at t = j·period, then the instants up to the next tick."""
+        t = j * period
+        ref_i = constants.ref_index[j]
+        run = (ref_i >= 0) & (c.count >= ESTIMATOR_WINDOW)
+        ref = jax.tree_util.tree_map(lambda a: a[jnp.maximum(ref_i, 0)], constants.refs)
+        mean_dt = (c.stamps[-1] - c.stamps[0]) / (ESTIMATOR_WINDOW - 1)
+        derivative = coeffs @ c.window / mean_dt
+        meas = control.Measurement(c.window[-1, :3], derivative[:3], c.window[-1, 3:], derivative[3:])
+        state = control.ControllerState(c.ctrl[:2], c.ctrl[2:])
+        tick_dt = spec.dt
+        if spec.kind is ControllerKind.PID:
+            phi_cmd, new, info = control.task_space_pid(model, inputs.gains, ref, state, meas, tick_dt)
+        else:
+            phi_cmd, new, info = control.p_sati_d(model, inputs.gains, ref, state, meas, tick_dt,
+                                                  gravity_cancellation=spec.gravity_cancellation,
+                                                  ee_integral=spec.ee_integral)
+        ctrl = jnp.clip(jnp.concatenate([new.e_int, new.z_ee]), -control.INTEGRAL_LIMIT, control.INTEGRAL_LIMIT)
+        phi = jnp.clip(phi_cmd, 0.0, spec.phi_max)
+        raw = phi[rod_index] * motor_sign * TICKS_PER_RAD
+        goal = neutral + jnp.trunc(raw + jnp.copysign(_TRUNC_GUARD, raw))
+        log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, pose(c.x))
+        c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl), pending=jnp.where(run, goal, c.pending),
+                       pending_at=jnp.where(run, t + lat_a, c.pending_at))
+        c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
+        return c, log
+
+    x0 = simulation.steady_state_rollout(plant, jnp.zeros(2))
+    x0 = x0.at[3:].set(0.0)
+    c = _Carry(x0, neutral, neutral, neutral, jnp.asarray(-1), jnp.zeros((ESTIMATOR_WINDOW, 6)),
+               jnp.zeros(ESTIMATOR_WINDOW), jnp.asarray(0), jnp.zeros(4), jnp.zeros((queue, 3)))
+    c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)  # the instants before the first tick
+    _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
+    return log
+
+
+compiled = jax.jit(rollout, static_argnums=0)
+"""``rollout`` compiled (``spec`` static); :func:`batch_rollout` batches."""
+
+
+def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, axes: LoopInputs) -> TickLog:
+    """Many runs at once: ``jax.vmap`` over the leaves of ``inputs`` whose entry in ``axes`` is 0 (None: shared).
+
+    The batch axis is split over every JAX device (``jax.sharding``: one shard per device, constants replicated), so
+    the same call uses all GPUs of a workstation, or the host devices XLA is told to make; the batch size must be a
+    multiple of the device count."""
+    def sizes(axis: int | None, sub: object) -> set[int]:
+        return {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(sub)} if axis == 0 else set()
+
+    batch = set().union(*jax.tree_util.tree_leaves(jax.tree_util.tree_map(sizes, axes, inputs, is_leaf=_none)))
+    if len(batch) != 1:
+        raise ValueError(f"the batched inputs must share one batch size, got {sorted(batch)}")
+    devices = jax.devices()
+    if batch.pop() % len(devices):
+        raise ValueError(f"the batch size must be a multiple of the {len(devices)} devices")
+    mesh = Mesh(np.array(devices), ("batch",))
+    split, shared = NamedSharding(mesh, PartitionSpec("batch")), NamedSharding(mesh, PartitionSpec())
+    placed = jax.tree_util.tree_map(lambda axis, leaf: jax.device_put(leaf, shared if axis is None else split),
+                                    axes, inputs, is_leaf=_none)
+    fn = jax.jit(jax.vmap(partial(rollout, spec), in_axes=(axes, None)))
+    return fn(placed, jax.device_put(constants, shared))
+
+
+def _none(a: object) -> bool:
+    """Leaf test for in_axes trees: None marks a shared input."""
+    return a is None
+
+
+def evaluate(spec: LoopSpec, log: TickLog, name: str = "") -> metrics.RunMetrics:
+    """The experiment's metrics of one run's TickLog (ticks from the first command, ``n_eval`` of them)."""
+    ran = np.asarray(log.ran)
+    first = int(np.argmax(ran))
+    window = slice(first, first + spec.n_eval)
+    t = np.arange(spec.n_eval) * spec.period_ms * 1e-3
+    chiee, chiee_des = np.asarray(log.chiee)[window], np.asarray(log.chiee_des)[window]
+    return metrics.evaluate_run(t[: len(chiee)], chiee_des[:, :2], chiee[:, :2], np.asarray(log.saturated)[window],
+                                duration=spec.n_eval * spec.period_ms * 1e-3, name=name)

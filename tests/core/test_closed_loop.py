@@ -1,0 +1,93 @@
+"""The JAX closed loop (hsa_core.closed_loop) against the offline experiment it must reproduce, and its batching."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from functools import partial
+
+import jax
+import numpy as np
+import pytest
+
+from hsa_core import closed_loop
+from hsa_core.control import CollocatedGains
+from hsa_core.experiment import ExperimentConfig, run_experiment
+from hsa_core.trajectories import TimedReference, step_reference
+
+RTOL = 1e-6
+
+
+def short(material: str = "fpu", seconds: float = 20.0) -> TimedReference:
+    """The material's step list cut to its first ``seconds`` (two steps of 10 s)."""
+    ref = step_reference(material)
+    keep = ref.t < seconds
+    return TimedReference(ref.t[keep], ref.p_des[keep], ref.name, seconds)
+
+
+def metric_values(m) -> np.ndarray:
+    """RMSE, saturation, mean t_r, t_s, overshoot and e_ss of a RunMetrics, as one vector."""
+    return np.array([m.rmse, m.saturated_fraction, m.response_time_mean, m.settling_time_mean, m.overshoot_mean,
+                     m.steady_state_error_mean, m.n_ticks])
+
+
+@pytest.mark.parametrize("law, ee_integral", [("psatid", False), ("pid", False), ("psatid_gc", True)])
+def test_the_jax_loop_reproduces_the_offline_experiment(law: str, ee_integral: bool) -> None:
+    config = ExperimentConfig("fpu", law, ee_integral, reference=short())
+    offline = run_experiment(config)
+    spec, inputs, constants = closed_loop.prepare(config)
+    log = closed_loop.compiled(spec, inputs, constants)
+    got = closed_loop.evaluate(spec, log, config.name)
+    ran = np.asarray(log.ran)
+    first = int(np.argmax(ran))
+    chiee = np.asarray(log.chiee)[first:first + spec.n_eval]
+    assert chiee.shape == offline.log.chiee.shape
+    np.testing.assert_allclose(chiee, offline.log.chiee, rtol=0, atol=1e-9)  # tick by tick
+    np.testing.assert_allclose(metric_values(got), metric_values(offline.metrics), rtol=RTOL)
+
+
+def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
+    config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0))
+    spec, inputs, constants = closed_loop.prepare(config)
+    gains = [CollocatedGains(), CollocatedGains(kp=0.2, ki=0.1, kd=0.01, gamma=50.0)]
+    batched = jax.tree_util.tree_map(lambda *v: np.stack(v), *gains)
+    axes = closed_loop.LoopInputs(None, 0, None, None)
+    logs = jax.jit(jax.vmap(partial(closed_loop.rollout, spec), in_axes=(axes, None)))(
+        inputs._replace(gains=batched), constants)
+    for i, g in enumerate(gains):
+        one = run_experiment(dataclasses.replace(config, gains=g))
+        got = closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[i], logs))
+        np.testing.assert_allclose(metric_values(got), metric_values(one.metrics), rtol=RTOL)
+
+
+SHARDED = """
+import json, sys
+import jax, numpy as np
+from hsa_core import closed_loop
+from hsa_core.experiment import ExperimentConfig
+from hsa_core.trajectories import TimedReference, step_reference
+ref = step_reference("fpu")
+config = ExperimentConfig("fpu", "psatid", reference=TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 3.0))
+spec, inputs, constants = closed_loop.prepare(config)
+noise = np.stack([closed_loop.noise(config.disturbance, spec, seed=s) for s in range(4)])
+axes = closed_loop.LoopInputs(None, None, 0, None)
+logs = closed_loop.batch_rollout(spec, inputs._replace(noise=noise), constants, axes)
+one = closed_loop.compiled(spec, inputs._replace(noise=noise[3]), constants)
+print(json.dumps({"devices": len(jax.devices()), "shards": len(logs.chiee.sharding.device_set),
+                  "rmse": [closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[i], logs)).rmse
+                           for i in range(4)], "one": closed_loop.evaluate(spec, one).rmse}))
+"""
+
+
+def test_the_batch_is_split_over_every_device() -> None:
+    """Two host devices (XLA_FLAGS) stand in for two GPUs: each holds half the batch, results as on one device."""
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["devices"] == 2 and got["shards"] == 2
+    assert len(set(got["rmse"])) == 4  # four seeds, four different runs
+    assert got["rmse"][3] == pytest.approx(got["one"], rel=RTOL)

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hsa_core import rosenv
+from hsa_core.jaxsetup import configure_jax
 
 RESULTS = Path(__file__).resolve().parent / "results" / "bag.json"
 BIN = Path(sys.executable).parent
@@ -209,6 +210,7 @@ def record_throughput(bag: Path, work: Path, factor: float, sizes: dict[str, int
 
 def main() -> None:
     """Run both benchmarks and write the JSON results."""
+    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seconds", type=float, default=10.0, help="length of the synthetic bag")
     seconds = parser.parse_args().seconds

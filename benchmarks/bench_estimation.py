@@ -25,6 +25,7 @@ from hsa_core.estimation import SavitzkyGolayDifferentiator, configuration_from_
 from hsa_core.mocap import planar_to_world, world_to_planar
 from hsa_core.params import load_params
 from hsa_core.trajectories import step_reference
+from hsa_core.jaxsetup import configure_jax
 
 RESULTS = Path(__file__).resolve().parent / "results" / "estimation.json"
 TARGET_SG_US = 5.0
@@ -74,6 +75,7 @@ def bench_sg(n: int, dim: int, stamps: np.ndarray) -> dict[str, object]:
 
 def main() -> None:
     """Run all benchmarks and write the JSON results."""
+    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--samples", type=int, default=100_000, help="timed calls per SG case")
     n = parser.parse_args().samples

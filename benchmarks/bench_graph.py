@@ -38,6 +38,7 @@ from rosbags.rosbag2 import Reader
 from hsa_bag.msgtypes import TypeRegistry
 from hsa_core import rosenv
 from hsa_core.trajectories import step_reference
+from hsa_core.jaxsetup import configure_jax
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"
@@ -143,6 +144,7 @@ def median_of(runs: list[dict]) -> dict:
 
 def main() -> int:
     """Run both rates, print and write the JSON."""
+    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3)
     parser.add_argument("--step-period", type=float, default=5.0)

@@ -38,6 +38,7 @@ from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
 from hsa_core import metrics
 from hsa_core.experiment import ExperimentConfig, run_experiment
+from hsa_core.jaxsetup import configure_jax
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN = ROOT / "launch_scripts" / "run_sim_experiment.py"
@@ -103,6 +104,7 @@ def _digest(reader: Bag, topic: str) -> str:
 
 
 def main() -> int:
+    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--skip-200hz", action="store_true")
     parser.add_argument("--wall-steps", action="store_true",

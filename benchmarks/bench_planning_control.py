@@ -256,7 +256,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="skip the unseeded rollout LM (minutes)")
     args = parser.parse_args()
     if args.section:
-        import hsa_core  # noqa: F401  (x64)
+        from hsa_core.jaxsetup import configure_jax
+
+        configure_jax()
 
         print(json.dumps(SECTIONS[args.section](not args.quick)))
         return

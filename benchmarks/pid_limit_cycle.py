@@ -39,6 +39,7 @@ from hsa_core.control import default_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.dynamics import forward_dynamics_fn
 from hsa_core.estimation import Estimate, derivative_coefficients
+from hsa_core.jaxsetup import configure_jax
 from hsa_core.params import HsaParams, load_params
 from hsa_core.experiment import ExperimentConfig, ExperimentResult, run_experiment
 from hsa_core.trajectories import TimedReference, step_reference
@@ -306,6 +307,7 @@ def _table(records: list[dict[str, object]]) -> str:
 
 def main() -> None:
     """Run the selected rows for the selected laws, print a markdown table and write the JSON."""
+    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=40.0, help="truncate the FPU step list [s] (110 = all)")
     parser.add_argument("--laws", default="pid,psatid")

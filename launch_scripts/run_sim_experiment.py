@@ -21,6 +21,7 @@ import numpy as np
 from hsa_bag.analysis import analyze
 from hsa_common.launcher import Launcher, LaunchFile
 from hsa_core import cli, metrics, rosenv
+from hsa_core.jaxsetup import configure_jax
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
 
@@ -94,6 +95,7 @@ class StepMonitor:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the graph, then analyse its bag; exit code 0 only if both succeeded."""
+    configure_jax()
     parser = cli.ArgumentParser(prog="run_sim_experiment.py", description=__doc__.splitlines()[0])
     parser.add_argument("--material", choices=["fpu", "epu"], default="fpu")
     parser.add_argument("--controller", choices=["psatid", "psatid_gc", "pid"], default="psatid")

@@ -50,6 +50,7 @@ from hsa_core.metrics import RunMetrics, evaluate_run, format_steps, format_summ
 from hsa_core.params import ParameterError, load_params, phi_bounds
 from hsa_core.plotting import all_figures, overlay_figures
 from hsa_core.runlog import RunLog
+from hsa_core.jaxsetup import configure_jax
 
 TOPIC = "/hsa/controller_info"
 CONTROLLER_INFO = "hsa_msgs/msg/ControllerInfo"
@@ -274,6 +275,7 @@ def _unique_names(paths: Sequence[Path]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``hsa_analyze``."""
+    configure_jax()
     parser = cli.ArgumentParser(prog="hsa_analyze", description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", type=Path, nargs="+", metavar="RUN",
                         help="rosbag2 directory, .mcap file, or NPZ RunLog (hsa_experiment's log.npz); "

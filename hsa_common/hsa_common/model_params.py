@@ -4,12 +4,14 @@ sigma_a_eq; and loading the HsaParams they select. Shared by every node that nee
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rclpy.parameter import Parameter
 
 from hsa_common.parameters import ParameterValidationError, ParamSpec
-from hsa_core.params import HsaParams, ParameterError, load_params
+
+if TYPE_CHECKING:
+    from hsa_core.params import HsaParams
 
 MATERIALS = ("fpu", "epu")
 
@@ -36,6 +38,8 @@ MODEL_SPECS = (
 
 def load_model(values: dict[str, Any]) -> HsaParams:
     """HsaParams selected by the declared MODEL_SPECS values (raises ParameterValidationError naming the parameter)."""
+    from hsa_core.params import ParameterError, load_params  # JAX: only nodes that load the model import it
+
     source = values["params_file"] or values["material"]
     overrides = {"sigma_a_eq": list(values["sigma_a_eq"])} if values["sigma_a_eq"] else {}
     try:

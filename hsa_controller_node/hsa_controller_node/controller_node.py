@@ -41,6 +41,7 @@ from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
 from hsa_core.validation import POSE_TOLERANCE, SetpointValidator, q_bounds, state_problem
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
 from hsa_common.model_params import MODEL_SPECS, load_model
+from hsa_core.jaxsetup import configure_jax
 
 FRAME_ID = "hsa_base"
 DEADLINE_FACTOR = 1.5
@@ -454,4 +455,5 @@ def _pose_msg(chiee: np.ndarray) -> PlanarPose:
 
 def main() -> None:
     """Console script `controller_node`."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(ControllerNode, "controller_node"))

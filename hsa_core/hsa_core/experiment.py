@@ -41,6 +41,7 @@ from hsa_core.planning import Planner, PlanResult, Setpoint
 from hsa_core.runlog import RunLog
 from hsa_core.trajectories import TimedReference, circle_reference, contour_reference, star_reference, step_reference
 from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
+from hsa_core.jaxsetup import configure_jax
 
 SUPERVISION_PERIOD_NS = 50_000_000
 """[ns] the setpoint sequencer's supervision timer (service check, start delay)."""
@@ -246,6 +247,7 @@ def _trajectory(text: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """CLI: run the selected experiments, print the metrics table, write figures, logs (NPZ, CSV) and a summary."""
+    configure_jax()
     parser = cli.ArgumentParser(prog="hsa_experiment",
                                 description="Closed-loop HSA experiments in simulation, without ROS.")
     parser.add_argument("--material", choices=["fpu", "epu", "both"], default="fpu")

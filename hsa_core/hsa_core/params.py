@@ -19,6 +19,8 @@ import numpy as np
 import yaml
 from jax import Array
 
+from hsa_core import jaxsetup
+
 KAPPA_RULES = ("exact", "exp2023_shift")
 """`exact`: smooth model, no shift (default). `exp2023_shift`: test-compatibility mode of model.md §8.4(1)."""
 
@@ -246,6 +248,7 @@ def _resolve(name_or_path: str | Path) -> Path:
 
 def load_params(name_or_path: str | Path = "fpu", **overrides: Any) -> HsaParams:
     """Load, validate and double a per-physical-rod YAML set; overrides use file (per-physical-rod) semantics."""
+    jaxsetup.require()
     path = _resolve(name_or_path)
     try:
         raw = yaml.safe_load(path.read_text())

@@ -38,7 +38,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -193,6 +192,8 @@ def contour_reference(
     path = Path(image_path)
     if not path.is_file():
         raise FileNotFoundError(f"image not found: {path}")
+    import cv2  # OpenCV only where an image is read: the sequencer and the planner load this module without it
+
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise ValueError(f"cannot read image {path} (not a supported image format?)")

@@ -42,6 +42,7 @@ from hsa_core.actuation import (
     ticks_to_angles,
 )
 from hsa_core.params import ParameterError, load_params
+from hsa_core.jaxsetup import configure_jax
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     SDK_BAUDRATES,
@@ -837,4 +838,5 @@ class DynamixelDriver(LifecycleNode):
 
 def main() -> None:
     """Console entry point ``dynamixel_driver``."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(DynamixelDriver, "dynamixel_driver"))

@@ -27,6 +27,7 @@ from hsa_common.runner import run
 from hsa_core import calibration
 from hsa_core.identification import write_parameter_file
 from hsa_core.params import CONFIG_DIR
+from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import PlanarActuation, PlanarState
 from hsa_msgs.srv import CalibrateRestStrain
 
@@ -145,4 +146,5 @@ class CalibrationNode(Node):
 
 def main() -> None:
     """Console script `calibration_node`."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(CalibrationNode, "calibration_node"))

@@ -18,6 +18,7 @@ import yaml
 from hsa_bag.bagio import BagError
 from hsa_core import calibration, identification, verification, workspace
 from hsa_core.params import CONFIG_DIR, HsaParams, ParameterError, load_params
+from hsa_core.jaxsetup import configure_jax
 from hsa_identification.records import load_arrays, load_record
 
 DEFAULT_OUT = Path("out/identification")
@@ -37,6 +38,7 @@ def _base_file(source: str) -> Path:
 
 def identify_main(argv: list[str] | None = None) -> int:
     """`hsa_identify CAMPAIGN [--out DIR]`: identify the constants from the campaign's records."""
+    configure_jax()
     parser = argparse.ArgumentParser(prog="hsa_identify", description="Least-squares identification of the elastic "
                                      "and actuation constants from recorded settled holds (identification.md §4).")
     parser.add_argument("campaign", type=Path, help="campaign YAML: base_params, records [{path, role, payload}]")
@@ -91,6 +93,7 @@ def verify_record(params: HsaParams, path: Path, calibrate_s: float) -> tuple[ve
 
 def verify_main(argv: list[str] | None = None) -> int:
     """`hsa_verify RECORD... [--params P] [--out DIR]`: replay recorded phi through the model, RMSE and figures."""
+    configure_jax()
     parser = argparse.ArgumentParser(prog="hsa_verify", description="Open-loop replay of recorded phi(t) through the "
                                      "model (Dopri5, 0.1 ms), compared with the measured EE pose and q.")
     parser.add_argument("records", type=Path, nargs="+", help="bag directories, .mcap or .npz files")
@@ -128,6 +131,7 @@ def verify_main(argv: list[str] | None = None) -> int:
 
 def workspace_main(argv: list[str] | None = None) -> int:
     """`hsa_workspace [--params P] [--n N] [--out DIR]`: workspace map figure and data."""
+    configure_jax()
     parser = argparse.ArgumentParser(prog="hsa_workspace", description="Reachable end-effector positions over phi in "
                                      "[0, phi_max]^2 coloured by mean actuation magnitude, with sample configurations.")
     parser.add_argument("--params", default="fpu", help="parameter set: fpu, epu or a YAML file (default fpu)")

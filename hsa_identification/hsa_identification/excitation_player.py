@@ -23,6 +23,7 @@ from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_common.runner import run
 from hsa_core import excitation
+from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import PlanarActuation
 
 SPECS = (
@@ -100,4 +101,5 @@ class ExcitationPlayer(Node):
 
 def main() -> None:
     """Console script `excitation_player`."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(ExcitationPlayer, "excitation_player"))

@@ -26,6 +26,7 @@ from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
 from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import CsConfiguration, PlanarState, Setpoint
 
 SPECS = (
@@ -175,4 +176,5 @@ def _marker(ns: str, marker_id: int, kind: int, rgb: tuple[float, ...], alpha: f
 
 def main() -> None:
     """Console script ``marker_node``."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(MarkerNode, "marker_node"))

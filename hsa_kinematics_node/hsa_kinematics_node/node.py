@@ -27,6 +27,7 @@ from hsa_common.runner import run, seconds
 from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
 from hsa_core.validation import DelayGate
+from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
 
 NOT_AVAILABLE = (math.nan,) * 6  # rates [q̇, χ̇_ee] while the estimator is not ready
@@ -170,4 +171,5 @@ def _configuration(values: Any) -> CsConfiguration:
 
 def main() -> None:
     """Console script ``kinematics_node``."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(KinematicsNode, "kinematics_node"))

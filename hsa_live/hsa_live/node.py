@@ -43,6 +43,7 @@ from hsa_common.runner import run
 from hsa_core import live
 from hsa_core.params import phi_bounds
 from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.jaxsetup import configure_jax
 from hsa_live import scene
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 
@@ -288,4 +289,5 @@ def _stamp(stamp: Any) -> Timestamp:
 
 def main() -> None:
     """Console script ``live_node``."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(LiveNode, "live_node"))

@@ -25,6 +25,7 @@ from hsa_core.planning import DEFAULT_PLANNER, MAX_OPTIMALITY_ERROR, PLANNER_KIN
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
 from hsa_common.model_params import MODEL_SPECS, load_model
+from hsa_core.jaxsetup import configure_jax
 
 FRAME_ID = "hsa_base"
 REQUEST_KINDS = {PlanSetpoint.Request.PLANNER_STATIC: "static", PlanSetpoint.Request.PLANNER_ROLLOUT: "rollout"}
@@ -158,4 +159,5 @@ def _invalid(reason: str, kind: str = "") -> PlanResult:
 
 def main() -> None:
     """Console script `planner_node`."""
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(PlannerNode, "planner_node"))

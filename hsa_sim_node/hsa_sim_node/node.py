@@ -36,6 +36,7 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
 from hsa_core.world import MOCAP_PERIOD_NS, World
+from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import LockstepAck
 from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
 
@@ -352,4 +353,5 @@ class SimNode(Node):
 def main() -> None:
     """Console entry point ``sim_node``."""
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+    configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(SimNode, "sim_node"))

@@ -66,6 +66,8 @@ def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
 SHARDED = """
 import json, sys
 import jax, numpy as np
+from hsa_core.jaxsetup import configure_jax
+configure_jax()
 from hsa_core import closed_loop
 from hsa_core.experiment import ExperimentConfig
 from hsa_core.trajectories import TimedReference, step_reference

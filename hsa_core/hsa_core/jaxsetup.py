@@ -1,0 +1,37 @@
+"""JAX settings of hsa-ros, made by an explicit call at every entry point (importing hsa_core changes nothing).
+
+:func:`configure_jax` switches JAX to float64 (the model needs double precision, model.md §9.1), runs small compiled
+calls on the calling thread (no hand-off to a dispatch thread: the per-tick model calls of the nodes are microseconds
+long, benchmarks/results/model.json), and enables JAX's persistent compilation cache, so that a process started a
+second time loads its compiled model instead of compiling it again (directory: ``HSA_JAX_CACHE_DIR``, default
+``~/.cache/hsa_ros/jax``; an empty string disables it). :func:`require` is the guard of the model's entry
+(:func:`hsa_core.params.load_params`): a program that forgot the call fails with one clear line instead of computing
+in float32. Nodes and programs that never touch the model (bridge, driver, sequencer, recorder, player, launcher)
+never import JAX.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def configure_jax() -> None:
+    """float64, synchronous CPU dispatch and the persistent compilation cache (see the module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
+    cache = os.environ.get("HSA_JAX_CACHE_DIR", str(Path.home() / ".cache" / "hsa_ros" / "jax"))
+    if cache:
+        jax.config.update("jax_compilation_cache_dir", cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+
+
+def require() -> None:
+    """Raise RuntimeError unless :func:`configure_jax` has run (JAX in float64)."""
+    import jax
+
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("JAX is not configured for hsa_core: call hsa_core.jaxsetup.configure_jax() at the entry "
+                           "point, before any model computation (the model needs float64)")

@@ -22,5 +22,6 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main"]},
+    entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main",
+                                      "hsa_robustness = hsa_core.robustness:main"]},
 )

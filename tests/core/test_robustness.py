@@ -1,0 +1,90 @@
+"""hsa_robustness: plant perturbations, the unstable / limit-cycle classification, and the CLI end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hsa_core import closed_loop, robustness
+from hsa_core.control import ControllerKind
+from hsa_core.params import load_params
+
+PERIOD_MS = 25
+N = 800  # 20 s at 40 Hz: two steps of 10 s
+
+
+def spec() -> closed_loop.LoopSpec:
+    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, 2, N + 5, 5, N, 1.0, 0.025)
+
+
+def log_of(true_xy: np.ndarray) -> closed_loop.TickLog:
+    """A TickLog whose law ran from tick 5 on, reference (0, 0.12) then (0.005, 0.128) m, plant at ``true_xy``."""
+    n = N + 5
+    desired = np.zeros((n, 3))
+    desired[:, 1] = 0.12
+    desired[5 + N // 2:, :2] = (0.005, 0.128)
+    true = np.zeros((n, 3))
+    true[5:, :2] = true_xy
+    ran = np.arange(n) >= 5
+    return closed_loop.TickLog(ran, true, desired, np.zeros((n, 2)), np.zeros(n, bool), true)
+
+
+def reference_xy() -> np.ndarray:
+    xy = np.tile([0.0, 0.12], (N, 1))
+    xy[N // 2:] = (0.005, 0.128)
+    return xy
+
+
+def test_a_settled_run_is_neither_unstable_nor_cycling() -> None:
+    assert robustness.classify(spec(), log_of(reference_xy() + 1e-4)) == (False, False)
+
+
+def test_an_oscillation_in_the_last_two_seconds_is_a_limit_cycle() -> None:
+    xy = reference_xy()
+    t = np.arange(N) * PERIOD_MS * 1e-3
+    xy[:, 0] += 1.5e-3 * np.sin(2 * np.pi * 11.0 * t) * (t > 18.0)  # 3 mm peak to peak, only at the very end
+    assert robustness.classify(spec(), log_of(xy)) == (False, True)
+    xy[:, 0] = reference_xy()[:, 0] + 0.9e-3 * np.sin(2 * np.pi * 11.0 * t)  # 1.8 mm: below the threshold
+    assert robustness.classify(spec(), log_of(xy)) == (False, False)
+
+
+def test_a_large_or_non_finite_error_is_unstable() -> None:
+    xy = reference_xy()
+    xy[N // 2 - 80:N // 2] += 0.05  # 70 mm off over the last 2 s of the first step
+    assert robustness.classify(spec(), log_of(xy)) == (True, False)
+    xy = reference_xy()
+    xy[-1, 0] = np.nan
+    assert robustness.classify(spec(), log_of(xy)) == (True, False)
+
+
+def test_plants_are_perturbed_within_the_range_and_reproducible() -> None:
+    base = load_params("fpu")
+    a, b = robustness.perturbed_plants(base, 8, 0.1, seed=3), robustness.perturbed_plants(base, 8, 0.1, seed=3)
+    assert np.array_equal(a.factors, b.factors) and np.array_equal(a.seeds, b.seeds)
+    assert np.all((a.factors >= 0.9) & (a.factors <= 1.1)) and np.ptp(a.factors) > 0.05
+    np.testing.assert_allclose(np.asarray(a.params.S_a_hat)[2], np.asarray(base.S_a_hat) * a.factors[2, 0])
+    np.testing.assert_allclose(np.asarray(a.params.C_eps)[5], np.asarray(base.C_eps) * a.factors[5, 1])
+    np.testing.assert_allclose(np.asarray(a.params.sigma_a_eq)[7], np.asarray(base.sigma_a_eq) * a.factors[7, 2])
+
+
+def test_bad_arguments_are_refused_in_one_line(capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--laws", "psatid,pdi"])
+    assert exc.value.code == 2 and "unknown law(s) ['pdi']" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--range", "1.5"])
+    assert exc.value.code == 2 and "--range must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_the_study_writes_its_table_and_figures(tmp_path, capsys) -> None:
+    assert robustness.main(["--n", "2", "--laws", "psatid", "--duration", "10", "--batch", "2",
+                            "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "robustness.json").read_text())["summary"]["psatid"]
+    assert summary["runs"] == 2 and 0.5 < summary["rmse_mm"]["median"] < 20.0
+    rows = (tmp_path / "robustness.csv").read_text().splitlines()
+    assert rows[0].startswith("law,plant,stiffness") and len(rows) == 3
+    for stem in ("rmse_by_law", "worst_psatid"):
+        assert (tmp_path / f"{stem}.pdf").stat().st_size > 0 and (tmp_path / f"{stem}.png").stat().st_size > 0
+    assert "psatid" in capsys.readouterr().out

@@ -380,3 +380,19 @@ def test_jit_vmap_and_grad_with_respect_to_parameters(fpu: HsaParams, model) -> 
     value, derivative = jax.jit(lambda p, t: jax.jvp(residual, (p,), (t,)))(fpu, tangent)
     assert np.all(np.isfinite(derivative)) and float(jnp.abs(derivative).max()) > 0.0
     np.testing.assert_allclose(value, jax.vmap(model.residual, in_axes=(None, 0, 0))(fpu, q, phi), rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("material", ["fpu", "epu"])
+def test_closed_form_3x3_solve_agrees_with_lapack_on_the_mass_matrix(material: str) -> None:
+    """forward dynamics solve M q_ddot = rhs by the adjugate: LU agrees to round-off over the workspace."""
+    p = load_params(material)
+    rng = np.random.default_rng(7)
+    for q in rng.uniform([-8.0, -0.1, -0.1], [8.0, 0.1, 0.3], size=(20, 3)):
+        M = np.asarray(dyn.dynamical_matrices(p, q, np.zeros(3), np.zeros(2)).M)
+        b = rng.normal(size=3)
+        expected = np.linalg.solve(M, b)
+        np.testing.assert_allclose(np.asarray(dyn.solve3(jnp.asarray(M), jnp.asarray(b))), expected,
+                                   rtol=1e-10, atol=1e-12 * np.max(np.abs(expected)))
+    A = np.array([[2.0, -1.0, 0.5], [0.3, 4.0, 1.0], [-1.0, 0.2, 3.0]])  # a general, non-symmetric matrix
+    np.testing.assert_allclose(np.asarray(dyn.solve3(jnp.asarray(A), jnp.array([1.0, 2.0, 3.0]))),
+                               np.linalg.solve(A, [1.0, 2.0, 3.0]), rtol=1e-13)

@@ -1,0 +1,81 @@
+"""Throughput of the batched JAX closed loop (hsa_core.closed_loop) on the 110 s FPU step experiment, P-satI-D.
+
+For batch sizes B (``--batches``, default 1 8 32): compile time, wall time of one call after compiling (noise seeds
+differ per run), runs per minute, and the process's peak resident memory. For comparison: one run of the Python
+experiment loop (``run_experiment``). Target (issue "batched closed loop"): ≥ 500 runs per minute on this machine.
+Writes benchmarks/results/closed_loop.json.
+
+    .venv/bin/python benchmarks/bench_closed_loop.py [--batches 1 8 32]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hsa_core.jaxsetup import configure_jax
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET_RUNS_PER_MIN = 500.0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 8, 32])
+    args = parser.parse_args()
+    configure_jax()
+    import jax
+
+    from hsa_core import closed_loop
+    from hsa_core.experiment import ExperimentConfig, run_experiment
+
+    config = ExperimentConfig("fpu", "psatid")
+    started = time.perf_counter()
+    offline = run_experiment(config)
+    python_loop_s = time.perf_counter() - started
+    spec, inputs, constants = closed_loop.prepare(config)
+    axes = closed_loop.LoopInputs(None, None, 0, None)
+    rows = []
+    for batch in args.batches:
+        noise = np.stack([closed_loop.noise(config.disturbance, spec, seed=s) for s in range(batch)])
+        batched = inputs._replace(noise=noise)
+        t0 = time.perf_counter()
+        jax.block_until_ready(closed_loop.batch_rollout(spec, batched, constants, axes))  # compiles, then runs
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        logs = jax.block_until_ready(closed_loop.batch_rollout(spec, batched, constants, axes))
+        wall = time.perf_counter() - t0
+        rmse0 = closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[0], logs)).rmse
+        rows.append({"batch": batch, "first_call_s": round(first, 1), "wall_s": round(wall, 2),
+                     "runs_per_min": round(batch / wall * 60.0, 1),
+                     "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 0),
+                     "seed0_rmse_mm": round(rmse0 * 1e3, 4)})
+        print(rows[-1], flush=True)
+    best = max(r["runs_per_min"] for r in rows)
+    result = {
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "jax": jax.__version__,
+                    "devices": [str(d) for d in jax.devices()]},
+        "experiment": "FPU steps, 110 s, P-satI-D, 40 Hz, default disturbance",
+        "python_loop": {"wall_s": round(python_loop_s, 1), "runs_per_min": round(60.0 / python_loop_s, 1),
+                        "rmse_mm": round(offline.metrics.rmse * 1e3, 4)},
+        "batched": rows,
+        "target_runs_per_min": TARGET_RUNS_PER_MIN,
+        "target_met": best >= TARGET_RUNS_PER_MIN,
+        "load_average_1min_after": round(os.getloadavg()[0], 1),
+    }
+    out = ROOT / "benchmarks" / "results" / "closed_loop.json"
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

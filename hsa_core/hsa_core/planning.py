@@ -19,7 +19,7 @@ recompile:
 
 Every result is checked: acceptance ||r|| <= 1e-3 (§2.4), phi^ss in [0, phi_max], and a stable equilibrium (all
 eigenvalues of the linearisation of [q, q_dot] with negative real part, model.md §9.4; an unstable one is UNREACHABLE).
-Targets farther than a margin outside the reachable workspace (hsa_core.workspace.ReachabilityRegion) are rejected
+Targets farther than a margin outside the reachable workspace (hsa_core.reachability.ReachabilityRegion) are rejected
 in microseconds. Failures are reported with a status, never as a silently wrong setpoint.
 """
 
@@ -38,7 +38,7 @@ from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics, simulation
 from hsa_core.params import HsaParams, phi_bounds
-from hsa_core.workspace import ReachabilityRegion, boundary_phis
+from hsa_core.reachability import ReachabilityRegion, boundary_phis
 
 PLANNER_KINDS = ("static", "equilibrium", "rollout")
 DEFAULT_PLANNER = {"fpu": "static", "epu": "static"}

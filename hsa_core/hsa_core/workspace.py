@@ -4,9 +4,7 @@
   mean actuation magnitude (|phi1| + |phi2|) / 2 of each; :func:`plot_workspace` draws them coloured by it, with three
   sample configurations (backbone, both virtual rods, platform). The paper does not list the phi of its three
   samples; ours are the two extreme bends and the half-twisted straight robot (SAMPLE_PHI_FRACTIONS).
-* :class:`ReachabilityRegion` is the fast test the planner uses: the forward map phi -> p_ee of the robot is one-to-one
-  on the box, so the reachable set is the polygon traced by the images of the box edges. A point is accepted when
-  it lies inside that polygon or within `margin` of it; a test costs tens of microseconds.
+* the planner's fast reachability test is :class:`hsa_core.reachability.ReachabilityRegion` (re-exported here).
 """
 
 from __future__ import annotations
@@ -21,58 +19,14 @@ from numpy.typing import ArrayLike
 
 from hsa_core import kinematics
 from hsa_core.params import HsaParams
+from hsa_core.planning import static_equilibrium
+from hsa_core.reachability import ReachabilityRegion, boundary_phis
+
+__all__ = ["ReachabilityRegion", "WorkspaceMap", "boundary_phis", "equilibrium_poses", "plot_workspace",
+           "workspace_map"]
 
 SAMPLE_PHI_FRACTIONS = ((1.0, 0.0), (0.5, 0.5), (0.0, 1.0))
 """Sample configurations drawn on the map, as fractions of phi_max: bent to +x, straight half-twisted, bent to -x."""
-
-
-def boundary_phis(phi_lo: ArrayLike, phi_hi: ArrayLike, n_per_edge: int = 32) -> np.ndarray:
-    """Points (4 n, 2) walking once around the edges of the box [phi_lo, phi_hi] (each corner once)."""
-    lo, hi = np.asarray(phi_lo, float), np.asarray(phi_hi, float)
-    s = np.linspace(0.0, 1.0, n_per_edge, endpoint=False)
-    corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
-    return np.concatenate([a + s[:, None] * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0))])
-
-
-class ReachabilityRegion:
-    """Polygon of reachable EE positions (boundary image of the phi box) inflated by `margin` [m]."""
-
-    def __init__(self, boundary: ArrayLike, margin: float) -> None:
-        """Keep the closed polygon `boundary` (M, 2) [m] and the margin [m]."""
-        self.boundary = np.asarray(boundary, dtype=float)
-        if self.boundary.ndim != 2 or self.boundary.shape[1] != 2 or len(self.boundary) < 3:
-            raise ValueError(f"boundary must be (M >= 3, 2) positions, got shape {self.boundary.shape}")
-        if not margin >= 0.0:
-            raise ValueError(f"margin must be >= 0, got {margin!r}")
-        self.margin = float(margin)
-        self._a = self.boundary
-        self._b = np.roll(self.boundary, -1, axis=0)
-        self._d = self._b - self._a
-        self._dd = np.maximum(np.sum(self._d**2, axis=1), 1e-300)
-        self._box_lo = self.boundary.min(axis=0) - self.margin
-        self._box_hi = self.boundary.max(axis=0) + self.margin
-
-    def inside(self, p: ArrayLike) -> bool:
-        """Inside the polygon (even-odd rule), without margin."""
-        x, y = np.asarray(p, dtype=float)
-        a, b = self._a, self._b
-        crosses = (a[:, 1] > y) != (b[:, 1] > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_cross = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-        return bool(np.count_nonzero(crosses & (x < x_cross)) % 2)
-
-    def distance(self, p: ArrayLike) -> float:
-        """Distance from p to the polygon's boundary [m]."""
-        p = np.asarray(p, dtype=float)
-        s = np.clip(np.sum((p - self._a) * self._d, axis=1) / self._dd, 0.0, 1.0)
-        return float(np.sqrt(np.min(np.sum((self._a + s[:, None] * self._d - p) ** 2, axis=1))))
-
-    def contains(self, p: ArrayLike) -> bool:
-        """True unless p is certainly unreachable: outside the polygon by more than the margin."""
-        x, y = np.asarray(p, dtype=float)
-        if not (self._box_lo[0] <= x <= self._box_hi[0] and self._box_lo[1] <= y <= self._box_hi[1]):
-            return False  # outside the inflated bounding box: no polygon arithmetic needed
-        return self.inside(p) or self.distance(p) <= self.margin
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +52,6 @@ class WorkspaceMap:
 @jax.jit
 def _equilibria(params: HsaParams, phis: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Static equilibria (q, EE pose, residual norm) for a batch of phi, each solved from q = 0."""
-    from hsa_core.planning import static_equilibrium  # planning imports this module for its reachability test
 
     q, res = jax.vmap(static_equilibrium, in_axes=(None, 0, None))(params, phis, jnp.zeros(3))
     return q, jax.vmap(lambda qq: kinematics.end_effector_pose(params, qq))(q), res

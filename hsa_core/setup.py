@@ -23,5 +23,6 @@ setup(
     description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
     license="Apache-2.0",
     entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main",
-                                      "hsa_robustness = hsa_core.robustness:main"]},
+                                      "hsa_robustness = hsa_core.robustness:main",
+                                      "hsa_tune = hsa_core.tune:main"]},
 )

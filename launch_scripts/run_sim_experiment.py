@@ -11,12 +11,14 @@ progress line per step; the nodes' output goes to ``<out>/graph.log`` unless ``-
 
 from __future__ import annotations
 
+import argparse
 import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from hsa_bag.analysis import analyze
 from hsa_common.launcher import Launcher, LaunchFile
@@ -93,6 +95,20 @@ class StepMonitor:
         self._thread.join(timeout=2.0)
 
 
+def _gains_file(text: str) -> Path:
+    """argparse type of --gains: an existing ROS parameter file (absolute path: the nodes run elsewhere)."""
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"no such file: {text}")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError(f"{text} is not YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(doc, dict) or not any(isinstance(v, dict) and "ros__parameters" in v for v in doc.values()):
+        raise argparse.ArgumentTypeError(f"{text} is not a ROS parameter file (no '<node>: ros__parameters:')")
+    return path.resolve()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the graph, then analyse its bag; exit code 0 only if both succeeded."""
     configure_jax()
@@ -107,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="lockstep: simulated time, deterministic and faster than real time (default); "
                              "wall: real time")
     parser.add_argument("--rate", type=cli.positive, default=40.0, help="[Hz] control rate")
+    parser.add_argument("--gains", type=_gains_file, default=None,
+                        help="controller parameter file given after the material's (e.g. hsa_tune's gains.yaml)")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output instead of logging it")
     parser.add_argument("--live", action="store_true",
                         help="serve the run to Foxglove on ws://127.0.0.1:8765 (hsa_live; docs/nodes/hsa_live.md)")
@@ -123,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
         "disturbance": args.disturbance, "setpoint_rate": str(args.setpoint_rate), "bag_dir": str(bag),
         "clock": args.clock, "rate": str(args.rate), "live": str(args.live).lower(),
     }
+    if args.gains is not None:
+        launch_args["gains"] = str(args.gains)
     log_path = args.out / "graph.log"
     print(f"[run] ROS_DOMAIN_ID={domain}; graph {GRAPH.name} with {launch_args}", flush=True)
     if not args.verbose:

@@ -29,6 +29,9 @@ PLAYER = find_executable("hsa_bag", "bag_player")
     ([PLAYER, str(REPO), "--rate", "0"], "must be > 0"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--controller", "pdi"], "invalid choice: 'pdi'"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--setpoint-rate", "-1"], "must be a finite number >= 0"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--gains", "no_such_gains.yaml"], "no such file: no_such_gains.yaml"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--gains", str(LAUNCH / "sim.launch.yaml")],
+     "is not a ROS parameter file"),
 ])
 def test_bad_arguments_are_refused_in_one_line(tmp_path: Path, cmd: list[str], message: str) -> None:
     """Each refusal is the only line on stderr and the exit status is 2 (argparse's usage block is not printed)."""

@@ -1,0 +1,224 @@
+"""Gain tuning over a Monte-Carlo batch of plants (``hsa_tune``), with the batched JAX loop of :mod:`closed_loop`.
+
+**Objective** of a gain set g, over the plants P of the batch (weights in ``WEIGHTS``, all per plant, then the mean):
+
+    J(g) = RMSE [mm] + 0.5 mm/s · t_r [s] + 0.1 · overshoot [mm] + 100 mm/rad · effort [rad] + 5 mm · bad
+
+with t_r the mean response time, overshoot the mean overshoot, effort the mean |φ_k − φ_{k−1}| of the command per
+tick (chatter the servos would have to follow), and bad = 1 for an unstable or limit-cycling run
+(:func:`hsa_core.robustness.classify`). RMSE dominates; the other terms break ties towards fast, calm responses and
+make an oscillating or diverging run lose against any settled one.
+
+**Optimiser: derivative-free** (the cross-entropy method on log-gains): sample a population from a Gaussian in
+log10(gain), evaluate all of it over all plants in one batched call, refit the Gaussian to the best fifth, repeat;
+the paper's gains are a member of the first population. Gradients through the loop are of little use here: the
+command is quantised to whole ticks and clipped, the servos move at a capped speed, and the objective counts events
+(limit cycles); ``benchmarks/bench_closed_loop.py`` measures how a smooth surrogate's gradient compares (not built).
+
+Output in ``--out``: ``gains.yaml`` (a controller_node parameter file with the tuned gains; given after the
+material's file it replaces the paper's gains: ``./run.sh --gains FILE``, launch argument ``gains:=FILE``), ``report.json`` (history, before/after on the batch and on the nominal plant)
+and ``before_after`` box plots (PDF, PNG).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import jax
+import numpy as np
+import yaml
+
+from hsa_core import cli, closed_loop, plotting, robustness
+from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.experiment import ExperimentConfig
+from hsa_core.jaxsetup import configure_jax
+from hsa_core.params import load_params
+from hsa_core.plotting import plt
+from hsa_core.trajectories import TimedReference, step_reference
+
+WEIGHTS = {"rmse_mm": 1.0, "t_r_s": 0.5, "overshoot_mm": 0.1, "effort_rad": 100.0, "bad": 5.0}
+"""Weights of the objective (module docstring), in mm per unit of each term."""
+MISSING = {"rmse_mm": 1e3, "t_r_s": 10.0, "overshoot_mm": 0.0, "effort_rad": 0.0, "bad": 1.0}
+"""A term a run cannot give (diverged; a step never reached: its whole 10 s count as response time)."""
+TUNED = {ControllerKind.PSATID: ("kp", "ki", "kd"), ControllerKind.PSATID_GC: ("kp", "ki", "kd"),
+         ControllerKind.PID: ("kp", "ki", "kd")}
+"""Gains the tuner varies (gamma of the collocated laws stays the paper's)."""
+LOG_SPAN = 1.0
+"""Initial standard deviation of log10(gain): a decade around the paper's value."""
+ELITE = 0.2
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Objective and per-plant terms of one gain set."""
+
+    objective: float
+    terms: dict[str, float]
+    rmse_mm: np.ndarray
+
+
+def to_gains(kind: ControllerKind, base: CollocatedGains | PidGains, log10: np.ndarray) -> CollocatedGains | PidGains:
+    """The gain set with the tuned gains at 10**log10."""
+    return replace(base, **{name: float(f"{10.0**v:.6g}") for name, v in zip(TUNED[kind], log10)})
+
+
+def effort(log: closed_loop.TickLog, spec: closed_loop.LoopSpec) -> float:
+    """Mean |Δφ| per tick of the command over the metrics window [rad]."""
+    ran = np.asarray(log.ran)
+    first = int(np.argmax(ran))
+    phi = np.asarray(log.phi_cmd)[first:first + spec.n_eval]
+    return float(np.mean(np.abs(np.diff(phi, axis=0)))) if len(phi) > 1 else 0.0
+
+
+def evaluate_population(kind: ControllerKind, population: list, spec: closed_loop.LoopSpec,
+                        inputs: closed_loop.LoopInputs, constants: closed_loop.LoopConstants, plants, noises: np.ndarray,
+                        batch: int) -> list[Evaluation]:
+    """Every gain set on every plant (one batched loop over the product), scored by the objective."""
+    n_plants = len(noises)
+    pairs = [(g, p) for g in range(len(population)) for p in range(n_plants)]
+    devices = len(jax.devices())
+    batch = max(devices, batch - batch % devices)
+    axes = closed_loop.LoopInputs(0, 0, 0, None)
+    rows: list[dict] = []
+    for lo in range(0, len(pairs), batch):
+        chunk = pairs[lo:lo + batch]
+        chunk = chunk + [chunk[-1]] * ((-len(chunk)) % devices)
+        gains = jax.tree_util.tree_map(lambda *v: np.stack(v), *[population[g] for g, _ in chunk])
+        params = jax.tree_util.tree_map(lambda a: a[np.array([p for _, p in chunk])], plants.params)
+        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, gains=gains,
+                                                               noise=noises[[p for _, p in chunk]]), constants, axes)
+        for j in range(min(batch, len(pairs) - lo)):
+            one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)
+            unstable, cycling = robustness.classify(spec, one)
+            try:
+                m = closed_loop.evaluate(spec, one)
+                row = {"rmse_mm": m.rmse * 1e3, "t_r_s": m.response_time_mean, "overshoot_mm": m.overshoot_mean * 1e3}
+            except ValueError:
+                row = {"rmse_mm": math.nan, "t_r_s": math.nan, "overshoot_mm": math.nan}
+            row |= {"effort_rad": effort(one, spec), "bad": float(unstable or cycling)}
+            rows.append(row)
+    out = []
+    for g in range(len(population)):
+        mine = rows[g * n_plants:(g + 1) * n_plants]
+        terms = {}
+        for key in WEIGHTS:
+            v = np.array([r[key] for r in mine], dtype=float)
+            terms[key] = float(np.mean(np.where(np.isfinite(v), v, MISSING[key])))
+        objective = sum(WEIGHTS[k] * terms[k] for k in WEIGHTS)
+        out.append(Evaluation(objective, terms, np.array([r["rmse_mm"] for r in mine])))
+    return out
+
+
+def gains_yaml(kind: ControllerKind, gains: CollocatedGains | PidGains, note: str) -> str:
+    """A controller_node parameter file with the gains of ``kind`` (names as in its config/<material>.yaml): given
+    after the material's file it replaces the paper's gains (``./run.sh --gains FILE``)."""
+    suffix = "_pid" if kind is ControllerKind.PID else ""
+    names = TUNED[kind] + (("gamma",) if kind is not ControllerKind.PID else ())
+    params = {f"{name}{suffix}": float(getattr(gains, name)) for name in names}
+    return f"# {note}\n" + yaml.safe_dump({"/**": {"ros__parameters": params}}, sort_keys=False)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI ``hsa_tune``: tune, write gains.yaml, report.json and figures, print before/after."""
+    parser = cli.ArgumentParser(prog="hsa_tune", description="Tune a control law's gains over perturbed plants (JAX).")
+    parser.add_argument("--material", choices=["fpu", "epu"], default="fpu")
+    parser.add_argument("--law", choices=["psatid", "psatid_gc", "pid"], default="psatid")
+    parser.add_argument("--plants", type=cli.positive_int, default=8, help="perturbed plants per evaluation")
+    parser.add_argument("--range", type=float, default=0.10, dest="spread", help="± range of the perturbations")
+    parser.add_argument("--duration", type=cli.positive, default=40.0, help="steps of the reference used [s]")
+    parser.add_argument("--population", type=cli.positive_int, default=10)
+    parser.add_argument("--generations", type=cli.positive_int, default=6)
+    parser.add_argument("--batch", type=cli.positive_int, default=40, help="runs per compiled batch")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("out/tune"))
+    args = parser.parse_args(argv)
+    if not 0.0 <= args.spread < 1.0:
+        parser.error(f"--range must be in [0, 1), got {args.spread}")
+    if args.population < 2:
+        parser.error("--population must be at least 2")
+    if args.duration < 20.0:
+        parser.error("--duration must cover at least two steps (20 s): the response time needs a step change")
+    configure_jax()
+    kind = ControllerKind(args.law)
+    paper = default_gains(kind, args.material)
+    disturbance = DisturbanceModel(seed=args.seed)
+    reference = step_reference(args.material)
+    keep = reference.t < args.duration
+    reference = TimedReference(reference.t[keep], reference.p_des[keep], reference.name,
+                               min(args.duration, reference.duration))
+    spec, inputs, constants = closed_loop.prepare(ExperimentConfig(args.material, kind.value, reference=reference,
+                                                                   disturbance=disturbance))
+    plants = robustness.perturbed_plants(disturbance.plant_params(load_params(args.material)), args.plants,
+                                         args.spread, args.seed)
+    noises = np.stack([closed_loop.noise(disturbance, spec, seed=int(s)) for s in plants.seeds])
+    rng = np.random.default_rng(args.seed)
+    mean = np.log10([getattr(paper, n) for n in TUNED[kind]])
+    std = np.full(mean.shape, LOG_SPAN)
+    best: tuple[float, np.ndarray, Evaluation] | None = None
+    history = []
+    started = time.perf_counter()
+    for generation in range(args.generations):
+        samples = mean + std * rng.normal(size=(args.population, mean.size))
+        if generation == 0:
+            samples[0] = mean  # the paper's gains compete from the start
+        population = [to_gains(kind, paper, s) for s in samples]
+        scores = evaluate_population(kind, population, spec, inputs, constants, plants, noises, args.batch)
+        order = np.argsort([e.objective for e in scores])
+        if best is None or scores[order[0]].objective < best[0]:
+            best = (scores[order[0]].objective, samples[order[0]], scores[order[0]])
+        elite = samples[order[:max(2, round(ELITE * args.population))]]
+        mean, std = elite.mean(axis=0), np.maximum(elite.std(axis=0), 0.02)
+        history.append({"generation": generation, "best_objective": round(best[0], 4),
+                        "best_gains": {n: getattr(to_gains(kind, paper, best[1]), n) for n in TUNED[kind]},
+                        "wall_s": round(time.perf_counter() - started, 1)})
+        print(f"[tune] generation {generation + 1}/{args.generations}: best J = {best[0]:.3f} "
+              f"{history[-1]['best_gains']}", file=sys.stderr, flush=True)
+    assert best is not None
+    tuned = to_gains(kind, paper, best[1])
+    before, after = evaluate_population(kind, [paper, tuned], spec, inputs, constants, plants, noises, args.batch)
+    nominal_plants = robustness.Plants(np.ones((1, 3)), jax.tree_util.tree_map(lambda a: np.asarray(a)[None],
+                                                                                 inputs.plant), np.array([args.seed]))
+    nominal = evaluate_population(kind, [paper, tuned], spec, inputs, constants, nominal_plants,
+                                  np.asarray(inputs.noise)[None], args.batch)
+    args.out.mkdir(parents=True, exist_ok=True)
+    note = (f"hsa_tune --material {args.material} --law {args.law}: median RMSE over {args.plants} plants "
+            f"{np.nanmedian(before.rmse_mm):.3f} -> {np.nanmedian(after.rmse_mm):.3f} mm on {args.duration:g} s of steps")
+    (args.out / "gains.yaml").write_text(gains_yaml(kind, tuned, note))
+    report = {
+        "material": args.material, "law": args.law, "plants": args.plants, "range": args.spread,
+        "duration_s": reference.duration, "weights": WEIGHTS, "population": args.population,
+        "generations": args.generations, "wall_s": round(time.perf_counter() - started, 1), "history": history,
+        "paper_gains": {n: getattr(paper, n) for n in TUNED[kind]},
+        "tuned_gains": {n: getattr(tuned, n) for n in TUNED[kind]},
+        "batch": {"paper": {"objective": before.objective, "median_rmse_mm": float(np.nanmedian(before.rmse_mm)),
+                            **before.terms},
+                  "tuned": {"objective": after.objective, "median_rmse_mm": float(np.nanmedian(after.rmse_mm)),
+                            **after.terms}},
+        "nominal": {"paper_rmse_mm": float(nominal[0].rmse_mm[0]), "tuned_rmse_mm": float(nominal[1].rmse_mm[0])},
+    }
+    (args.out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    with plt.rc_context(plotting.STYLE):
+        fig, ax = plt.subplots(figsize=(3.6, 3.2))
+        ax.boxplot([before.rmse_mm[np.isfinite(before.rmse_mm)], after.rmse_mm[np.isfinite(after.rmse_mm)]])
+        ax.set_xticks([1, 2], ["paper gains", "tuned"])
+        ax.set_ylabel("RMSE [mm]")
+        ax.set_title(f"{plotting.law_name(kind.value)}, {args.material.upper()}, {args.plants} plants (sim)")
+        plotting.save_all_formats(fig, args.out / "before_after")
+        plt.close(fig)
+    print(f"{'':<14} {'J':>8} {'median RMSE [mm]':>17} {'t_r [s]':>8} {'bad':>5} {'nominal RMSE':>13}")
+    for name, e, nom in (("paper gains", before, nominal[0]), ("tuned", after, nominal[1])):
+        print(f"{name:<14} {e.objective:8.3f} {np.nanmedian(e.rmse_mm):17.3f} {e.terms['t_r_s']:8.3f} "
+              f"{e.terms['bad']:5.2f} {nom.rmse_mm[0]:13.3f}")
+    print(f"\ngains.yaml, report.json and figures in {args.out.resolve()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,6 +1,7 @@
 """Throughput of the batched JAX closed loop (hsa_core.closed_loop) on the 110 s FPU step experiment, P-satI-D.
 
-For batch sizes B (``--batches``, default 1 8 32): compile time, wall time of one call after compiling (noise seeds
+The batch is split over one XLA host device per core (``--host-devices``), as ``batch_rollout`` splits it over GPUs.
+For batch sizes B (``--batches``, default 2 8 32): compile time, wall time of one call after compiling (noise seeds
 differ per run), runs per minute, and the process's peak resident memory. For comparison: one run of the Python
 experiment loop (``run_experiment``). Target (issue "batched closed loop"): ≥ 500 runs per minute on this machine.
 Writes benchmarks/results/closed_loop.json.
@@ -29,8 +30,13 @@ TARGET_RUNS_PER_MIN = 500.0
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batches", type=int, nargs="+", default=[1, 8, 32])
+    parser.add_argument("--batches", type=int, nargs="+", default=[2, 8, 32])
+    parser.add_argument("--host-devices", type=int, default=os.cpu_count() or 1,
+                        help="XLA host devices the batch is split over (default: one per core)")
     args = parser.parse_args()
+    if args.host_devices > 1:  # before JAX is imported: one XLA CPU device per core, each runs its shard
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                                   f" --xla_force_host_platform_device_count={args.host_devices}").strip()
     configure_jax()
     import jax
 

@@ -153,7 +153,9 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     # While unplugged the servos lose power and servo 21 comes back turned by 2 revolutions (multi-turn count lost):
     # the reconnect succeeds but torque stays off with the reason; back in range, set_torque(true) works.
     emulator.unplug()
-    assert wait_until(lambda: len(driver.log("bus lost")) == 2, 2.0), driver.output()
+    # "bus lost (<cause>)" once per loss; the torque-off attempt of a loss may add "torque off (bus lost) not
+    # confirmed", depending on whether the port failed before or during that write (seen beside two busy processes)
+    assert wait_until(lambda: len(driver.log("bus lost (")) == 2, 2.0), driver.output()
     for dxl_id in IDS:
         emulator.poke(dxl_id, ADDR_TORQUE, 0)
     emulator.set_present_ticks(21, NEUTRAL[21] + 8192)

@@ -24,7 +24,6 @@ and ``before_after`` box plots (PDF, PNG).
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys

@@ -17,6 +17,7 @@ tests/core/test_closed_loop.py).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from functools import partial
 from typing import NamedTuple
 
@@ -248,8 +249,13 @@ def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, 
     split, shared = NamedSharding(mesh, PartitionSpec("batch")), NamedSharding(mesh, PartitionSpec())
     placed = jax.tree_util.tree_map(lambda axis, leaf: jax.device_put(leaf, shared if axis is None else split),
                                     axes, inputs, is_leaf=_none)
-    fn = jax.jit(jax.vmap(partial(rollout, spec), in_axes=(axes, None)))
-    return fn(placed, jax.device_put(constants, shared))
+    return _batched(spec, axes)(placed, jax.device_put(constants, shared))
+
+
+@functools.lru_cache(maxsize=16)
+def _batched(spec: LoopSpec, axes: LoopInputs):
+    """The vmapped loop compiled once per spec and batch layout (a new jit per call would compile every batch)."""
+    return jax.jit(jax.vmap(partial(rollout, spec), in_axes=(axes, None)))
 
 
 def _none(a: object) -> bool:

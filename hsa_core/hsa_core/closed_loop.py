@@ -234,22 +234,28 @@ def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, 
     """Many runs at once: ``jax.vmap`` over the leaves of ``inputs`` whose entry in ``axes`` is 0 (None: shared).
 
     The batch axis is split over every JAX device (``jax.sharding``: one shard per device, constants replicated), so
-    the same call uses all GPUs of a workstation, or the host devices XLA is told to make; the batch size must be a
-    multiple of the device count."""
+    the same call uses all GPUs of a workstation, or the host devices XLA is told to make. A batch that does not
+    divide among the devices is padded with copies of its last run, which are dropped from the result."""
     def sizes(axis: int | None, sub: object) -> set[int]:
         return {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(sub)} if axis == 0 else set()
 
     batch = set().union(*jax.tree_util.tree_leaves(jax.tree_util.tree_map(sizes, axes, inputs, is_leaf=_none)))
     if len(batch) != 1:
         raise ValueError(f"the batched inputs must share one batch size, got {sorted(batch)}")
+    n = batch.pop()
     devices = jax.devices()
-    if batch.pop() % len(devices):
-        raise ValueError(f"the batch size must be a multiple of the {len(devices)} devices")
+    index = np.minimum(np.arange(n + (-n) % len(devices)), n - 1)  # a whole number of runs per device
     mesh = Mesh(np.array(devices), ("batch",))
     split, shared = NamedSharding(mesh, PartitionSpec("batch")), NamedSharding(mesh, PartitionSpec())
-    placed = jax.tree_util.tree_map(lambda axis, leaf: jax.device_put(leaf, shared if axis is None else split),
-                                    axes, inputs, is_leaf=_none)
-    return _batched(spec, axes)(placed, jax.device_put(constants, shared))
+
+    def place(axis: int | None, sub: object) -> object:
+        if axis is None:
+            return jax.device_put(sub, shared)
+        return jax.device_put(jax.tree_util.tree_map(lambda leaf: np.asarray(leaf)[index], sub), split)
+
+    placed = jax.tree_util.tree_map(place, axes, inputs, is_leaf=_none)
+    logs = _batched(spec, axes)(placed, jax.device_put(constants, shared))
+    return logs if len(index) == n else jax.tree_util.tree_map(lambda a: a[:n], logs)
 
 
 @functools.lru_cache(maxsize=16)

@@ -107,16 +107,13 @@ def run_law(law: str, material: str, plants: Plants, disturbance: DisturbanceMod
     config = ExperimentConfig(material, kind, ee, reference=reference, disturbance=disturbance)
     spec, inputs, constants = closed_loop.prepare(config)
     n = len(plants.seeds)
-    devices = len(jax.devices())
-    batch = max(devices, batch - batch % devices)
     axes = closed_loop.LoopInputs(0, None, 0, None)
     records: list[dict] = []
     worst: Worst | None = None
     for lo in range(0, n, batch):
         idx = np.arange(lo, min(lo + batch, n))
-        pad = np.concatenate([idx, np.full((-len(idx)) % devices, idx[-1])])  # a whole number per device
-        noise = np.stack([closed_loop.noise(disturbance, spec, seed=int(plants.seeds[i])) for i in pad])
-        params = jax.tree_util.tree_map(lambda a: a[pad], plants.params)
+        noise = np.stack([closed_loop.noise(disturbance, spec, seed=int(plants.seeds[i])) for i in idx])
+        params = jax.tree_util.tree_map(lambda a: a[idx], plants.params)
         logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, noise=noise), constants, axes)
         for j, i in enumerate(idx):
             one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)

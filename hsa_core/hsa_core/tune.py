@@ -84,18 +84,15 @@ def evaluate_population(kind: ControllerKind, population: list, spec: closed_loo
     """Every gain set on every plant (one batched loop over the product), scored by the objective."""
     n_plants = len(noises)
     pairs = [(g, p) for g in range(len(population)) for p in range(n_plants)]
-    devices = len(jax.devices())
-    batch = max(devices, batch - batch % devices)
     axes = closed_loop.LoopInputs(0, 0, 0, None)
     rows: list[dict] = []
     for lo in range(0, len(pairs), batch):
         chunk = pairs[lo:lo + batch]
-        chunk = chunk + [chunk[-1]] * ((-len(chunk)) % devices)
         gains = jax.tree_util.tree_map(lambda *v: np.stack(v), *[population[g] for g, _ in chunk])
         params = jax.tree_util.tree_map(lambda a: a[np.array([p for _, p in chunk])], plants.params)
         logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, gains=gains,
                                                                noise=noises[[p for _, p in chunk]]), constants, axes)
-        for j in range(min(batch, len(pairs) - lo)):
+        for j in range(len(chunk)):
             one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)
             unstable, cycling = robustness.classify(spec, one)
             try:

@@ -159,22 +159,22 @@ class Participant:
 
 def heard(node: Node) -> dict[str, int]:
     """Publishers matched per subscribed topic (the fewest of the node's subscriptions on it), /clock included."""
-    counts: dict[str, int] = {}
-    for sub in node.subscriptions:
-        if sub.topic_name not in UNWATCHED:
-            n = sub.get_publisher_count()
-            counts[sub.topic_name] = min(n, counts.get(sub.topic_name, n))
-    return counts
+    return _fewest((sub.topic_name, sub.get_publisher_count) for sub in node.subscriptions)
 
 
 def matched_of(node: Node) -> dict[str, int]:
     """Subscriptions matched per published topic (the fewest of the node's publishers on it), /clock included: a
     coordinator's own side of discovery."""
+    return _fewest((pub.topic_name, pub.get_subscription_count) for pub in node.publishers)
+
+
+def _fewest(ends: Any) -> dict[str, int]:
+    """Per topic (barrier topics aside), the smallest match count of the (topic, count function) pairs."""
     counts: dict[str, int] = {}
-    for pub in node.publishers:
-        if pub.topic_name not in UNWATCHED:
-            n = pub.get_subscription_count()
-            counts[pub.topic_name] = min(n, counts.get(pub.topic_name, n))
+    for topic, count in ends:
+        if topic not in UNWATCHED:
+            n = count()
+            counts[topic] = min(n, counts.get(topic, n))
     return counts
 
 

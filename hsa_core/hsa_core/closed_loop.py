@@ -269,11 +269,15 @@ def _none(a: object) -> bool:
     return a is None
 
 
+def metrics_window(spec: LoopSpec, log: TickLog) -> slice:
+    """The ticks the metrics cover in one run's TickLog: from the first command, ``n_eval`` of them."""
+    first = int(np.argmax(np.asarray(log.ran)))
+    return slice(first, first + spec.n_eval)
+
+
 def evaluate(spec: LoopSpec, log: TickLog, name: str = "") -> metrics.RunMetrics:
-    """The experiment's metrics of one run's TickLog (ticks from the first command, ``n_eval`` of them)."""
-    ran = np.asarray(log.ran)
-    first = int(np.argmax(ran))
-    window = slice(first, first + spec.n_eval)
+    """The experiment's metrics of one run's TickLog (over :func:`metrics_window`)."""
+    window = metrics_window(spec, log)
     t = np.arange(spec.n_eval) * spec.period_ms * 1e-3
     chiee, chiee_des = np.asarray(log.chiee)[window], np.asarray(log.chiee_des)[window]
     return metrics.evaluate_run(t[: len(chiee)], chiee_des[:, :2], chiee[:, :2], np.asarray(log.saturated)[window],

@@ -83,10 +83,9 @@ def perturbed_plants(base: HsaParams, n: int, spread: float, seed: int) -> Plant
 
 def classify(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> tuple[bool, bool]:
     """(unstable, limit cycle) of one run, from the noise-free EE position in each step's last 2 s."""
-    ran = np.asarray(log.ran)
-    first = int(np.argmax(ran))
-    true = np.asarray(log.true_chiee)[first:first + spec.n_eval, :2]
-    desired = np.asarray(log.chiee_des)[first:first + spec.n_eval, :2]
+    window = closed_loop.metrics_window(spec, log)
+    true = np.asarray(log.true_chiee)[window, :2]
+    desired = np.asarray(log.chiee_des)[window, :2]
     if not np.all(np.isfinite(true)):
         return True, False
     changes = [0, *np.flatnonzero(np.any(np.diff(desired, axis=0) != 0.0, axis=1)) + 1, len(desired)]

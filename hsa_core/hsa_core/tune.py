@@ -72,9 +72,7 @@ def to_gains(kind: ControllerKind, base: CollocatedGains | PidGains, log10: np.n
 
 def effort(log: closed_loop.TickLog, spec: closed_loop.LoopSpec) -> float:
     """Mean |Δφ| per tick of the command over the metrics window [rad]."""
-    ran = np.asarray(log.ran)
-    first = int(np.argmax(ran))
-    phi = np.asarray(log.phi_cmd)[first:first + spec.n_eval]
+    phi = np.asarray(log.phi_cmd)[closed_loop.metrics_window(spec, log)]
     return float(np.mean(np.abs(np.diff(phi, axis=0)))) if len(phi) > 1 else 0.0
 
 

@@ -10,11 +10,12 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={PACKAGE: ["config/*.yaml"]},
+    package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("hsa_core/config/*.yaml")),
+        (f"share/{PACKAGE}/config/robots", glob("hsa_core/config/robots/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

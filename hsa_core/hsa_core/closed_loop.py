@@ -31,11 +31,11 @@ from hsa_core import control, kinematics, metrics, simulation
 from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap, _TRUNC_GUARD
 from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
 from hsa_core.estimation import derivative_coefficients
-from hsa_core.experiment import (ESTIMATOR_ORDER, ESTIMATOR_WINDOW, NEUTRAL_TICKS, ExperimentConfig,
-                                 first_point_ns)
+from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig, first_point_ns
 from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner
 from hsa_core.trajectories import step_reference
+from hsa_core.wiring import load_wiring
 from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, PLANT_SUBSTEPS, seconds_to_ns
 
 MS = GRID_NS
@@ -55,7 +55,7 @@ class LoopSpec:
     n_ticks: int
     first_tick: int  # index of the first tick that sends a command (t = 0 of the metrics)
     n_eval: int  # ticks in the metrics window (reference.duration)
-    phi_max: float  # command clip, the driver's [0, phi_max]
+    motor_map: MotorMap  # the robot's wiring; its phi_max is the command clip, the driver's [0, phi_max]
     dt: float  # [s] the law's nominal period, 1/rate
 
 
@@ -133,9 +133,8 @@ def prepare(config: ExperimentConfig) -> tuple[LoopSpec, LoopInputs, LoopConstan
     kind = ControllerKind(config.controller)
     gains = config.gains or control.default_gains(kind, config.material)
     ee = control.EeIntegralGains() if config.ee_integral else None
-    phi_max = float(np.min(np.asarray(model.phi_max)))
     spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
-                    lat_a // GRID_NS, n_ticks, first, n_eval, phi_max, 1.0 / config.rate)
+                    lat_a // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model), 1.0 / config.rate)
     inputs = LoopInputs(dist.plant_params(model), gains, jnp.asarray(noise(dist, spec)),
                         jnp.asarray(dist.servo_max_speed * TICKS_PER_RAD * GRID_NS * 1e-9))
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
@@ -153,9 +152,9 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
     """Run the closed loop; one TickLog row per control tick (see the module docstring). Pure; jit with ``spec``
     static (:func:`compiled`)."""
     plant, model = inputs.plant, constants.model
-    motor_map = MotorMap(NEUTRAL_TICKS, phi_max=spec.phi_max)
-    neutral = jnp.asarray(NEUTRAL_TICKS, dtype=jnp.float64)
-    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(NEUTRAL_TICKS)))) * RAD_PER_TICK
+    motor_map = spec.motor_map
+    neutral = jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64)
+    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK
     motor_sign = jnp.asarray(motor_map.sign, dtype=jnp.float64)
     rod_index = jnp.asarray(motor_map._rod_index)
     coeffs = jnp.asarray(derivative_coefficients(np.arange(ESTIMATOR_WINDOW) - (ESTIMATOR_WINDOW - 1.0),
@@ -208,7 +207,7 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
                                                   gravity_cancellation=spec.gravity_cancellation,
                                                   ee_integral=spec.ee_integral)
         ctrl = jnp.clip(jnp.concatenate([new.e_int, new.z_ee]), -control.INTEGRAL_LIMIT, control.INTEGRAL_LIMIT)
-        phi = jnp.clip(phi_cmd, 0.0, spec.phi_max)
+        phi = jnp.clip(phi_cmd, 0.0, spec.motor_map.phi_max)
         raw = phi[rod_index] * motor_sign * TICKS_PER_RAD
         goal = neutral + jnp.trunc(raw + jnp.copysign(_TRUNC_GUARD, raw))
         log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, pose(c.x))

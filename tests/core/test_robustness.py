@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hsa_core import closed_loop, robustness
+from hsa_core.actuation import MotorMap
 from hsa_core.control import ControllerKind
 from hsa_core.params import load_params
 
@@ -16,7 +17,7 @@ N = 800  # 20 s at 40 Hz: two steps of 10 s
 
 
 def spec() -> closed_loop.LoopSpec:
-    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, 2, N + 5, 5, N, 1.0, 0.025)
+    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, 2, N + 5, 5, N, MotorMap(phi_max=1.0), 0.025)
 
 
 def log_of(true_xy: np.ndarray) -> closed_loop.TickLog:

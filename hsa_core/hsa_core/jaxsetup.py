@@ -22,10 +22,16 @@ def configure_jax() -> None:
 
     jax.config.update("jax_enable_x64", True)
     jax.config.update("jax_cpu_enable_async_dispatch", False)
-    cache = os.environ.get("HSA_JAX_CACHE_DIR", str(Path.home() / ".cache" / "hsa_ros" / "jax"))
-    if cache:
-        jax.config.update("jax_compilation_cache_dir", cache)
+    cache = cache_dir()
+    if cache is not None:
+        jax.config.update("jax_compilation_cache_dir", str(cache))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+
+
+def cache_dir() -> Path | None:
+    """The persistent cache directory (``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``), None if disabled."""
+    cache = os.environ.get("HSA_JAX_CACHE_DIR", str(Path.home() / ".cache" / "hsa_ros" / "jax"))
+    return Path(cache) if cache else None
 
 
 def require() -> None:

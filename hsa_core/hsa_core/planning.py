@@ -36,7 +36,7 @@ import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
 
-from hsa_core import dynamics, kinematics, simulation
+from hsa_core import dynamics, kinematics, resultcache, simulation
 from hsa_core.params import HsaParams, phi_bounds
 from hsa_core.reachability import ReachabilityRegion, boundary_phis
 
@@ -380,7 +380,13 @@ class Planner:
         """
         phis = boundary_phis(self._phi_lo, self._phi_hi, _BOUNDARY_POINTS)
         exact = self.params if self.params.kappa_rule == "exact" else self.params.replace(kappa_rule="exact")
-        p, res = (np.asarray(a) for a in _equilibrium_positions(exact, phis))
+
+        def compute() -> dict[str, np.ndarray]:
+            p, res = _equilibrium_positions(exact, phis)
+            return {"p": np.asarray(p), "res": np.asarray(res)}
+
+        found = resultcache.cached("reachability", (exact, phis), compute)  # the same values, kept from a last start
+        p, res = found["p"], found["res"]
         if not np.all(np.isfinite(p)) or not np.all(res <= self.max_optimality_error):
             raise RuntimeError("static equilibria on the edges of the phi box did not converge; cannot bound the "
                                "workspace")

@@ -1,5 +1,6 @@
 """The common model parameters of the nodes that need the robot model (docs/ros_interfaces.md): material, params_file,
-sigma_a_eq; and loading the HsaParams they select. Shared by every node that needs the robot model."""
+sigma_a_eq; and loading the HsaParams they select. Shared by every node that needs the robot model. Also the robot's
+wiring file (``wiring_file``) of the nodes that map φ to motors."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from hsa_common.parameters import ParameterValidationError, ParamSpec
 
 if TYPE_CHECKING:
     from hsa_core.params import HsaParams
+    from hsa_core.wiring import Wiring
 
 MATERIALS = ("fpu", "epu")
 
@@ -34,6 +36,21 @@ MODEL_SPECS = (
               "[-] calibrated axial rest strains of virtual rods 1 and 2 (unset or empty = from the parameter set)",
               read_only=True, validator=_check_sigma_a_eq),
 )
+
+
+WIRING_SPEC = ParamSpec("wiring_file", "", "robot wiring YAML: motor IDs, rod and rod sign per motor, nominal neutral "
+                        "ticks (empty = the packaged lab robot, hsa_core/config/robots/lab.yaml)", read_only=True)
+"""The robot's wiring, shared by every node that maps φ to motors (driver, simulator, controller)."""
+
+
+def load_wiring_param(value: str) -> Wiring:
+    """The Wiring named by the ``wiring_file`` parameter (raises ParameterValidationError naming it)."""
+    from hsa_core.wiring import WiringError, load_wiring
+
+    try:
+        return load_wiring(value)
+    except WiringError as exc:
+        raise ParameterValidationError(f"parameter 'wiring_file': {exc}") from exc
 
 
 def load_model(values: dict[str, Any]) -> HsaParams:

@@ -7,6 +7,8 @@ saturation, goal ticks truncated towards zero — as ``lax.scan`` over the contr
 instants inside). At each instant, as in the experiment: the tick (if one is due) runs first, then the samples that
 became available reach the estimator, then the world runs one interval. The setpoints come from the planner before
 the loop (:func:`prepare`); a tick uses the newest one planned strictly before it.
+Of controller_node's supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
+path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays below stale_timeout).
 
 What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters, the gains, the
 noise sequence, the servo speed. What shapes the loop is static (:class:`LoopSpec`): law, rate, latencies, length.

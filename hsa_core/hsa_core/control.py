@@ -21,8 +21,9 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+from collections.abc import Mapping
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -98,6 +99,28 @@ PAPER_GAINS: dict[str, dict[ControllerKind, CollocatedGains | PidGains]] = {
 def default_gains(kind: ControllerKind | str, material: str = "fpu") -> CollocatedGains | PidGains:
     """The paper's gains for a law and material (§3.6); materials not in the table use the FPU values."""
     return PAPER_GAINS.get(material, PAPER_GAINS["fpu"])[ControllerKind(kind)]
+
+
+def gains_from_parameters(kind: ControllerKind | str, values: Mapping[str, Any]) -> CollocatedGains | PidGains:
+    """The law's gains from flat parameter values: kp, ki, kd, gamma (collocated laws) or kp_pid, ki_pid, kd_pid."""
+    if ControllerKind(kind) is ControllerKind.PID:
+        return PidGains(kp=values["kp_pid"], ki=values["ki_pid"], kd=values["kd_pid"])
+    return CollocatedGains(kp=values["kp"], ki=values["ki"], kd=values["kd"], gamma=values["gamma"])
+
+
+def ee_gains_from_parameters(values: Mapping[str, Any]) -> EeIntegralGains:
+    """EE-integral gains from flat parameter values: ee_ki, ee_e_on, ee_z_max, ee_reset_on_setpoint_change."""
+    return EeIntegralGains(ki_ee=values["ee_ki"], e_on=values["ee_e_on"], z_max=values["ee_z_max"],
+                           reset_on_setpoint_change=values["ee_reset_on_setpoint_change"])
+
+
+def retune(controller: Controller, values: Mapping[str, Any]) -> None:
+    """Give a running controller the gains (EE gains if enabled) and the e_int reset flag of flat parameter values;
+    the integrator state is kept and nothing is recompiled."""
+    controller.gains = gains_from_parameters(controller.kind, values)
+    if controller.ee_integral is not None:
+        controller.ee_integral = ee_gains_from_parameters(values)
+    controller.reset_integral_on_setpoint_change = bool(values["reset_integral_on_setpoint_change"])
 
 
 def validate_gains(gains: CollocatedGains | PidGains | EeIntegralGains) -> None:

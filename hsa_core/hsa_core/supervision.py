@@ -23,6 +23,9 @@ from __future__ import annotations
 import dataclasses
 import enum
 
+STALE_TIMEOUT, HOLD_TIMEOUT, DRIVER_TIMEOUT = 0.1, 0.25, 0.25
+"""Default bounds [s] of controller_node's `stale_timeout`, `hold_timeout` and `driver_timeout` (docs/nodes)."""
+
 
 class Mode(str, enum.Enum):
     """Supervision mode; values are the names shown on /diagnostics."""

@@ -1,0 +1,75 @@
+"""controller_node's parameters (docs/nodes/hsa_controller_node.md): the declared specs and the checks across them."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC
+from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_core.control import ControllerKind, EeIntegralGains, default_gains
+from hsa_core.planning import MAX_OPTIMALITY_ERROR
+from hsa_core.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
+from hsa_core.validation import POSE_TOLERANCE
+
+_COLLOCATED = default_gains(ControllerKind.PSATID)
+_PID = default_gains(ControllerKind.PID)
+_EE = EeIntegralGains()
+
+
+def _positive(value: Any) -> str | None:
+    """Strictly positive (ranges only give >= 0)."""
+    return None if value > 0.0 else f"must be > 0, got {value!r}"
+
+
+SPECS = (
+    *MODEL_SPECS,
+    WIRING_SPEC,
+    ParamSpec("controller", ControllerKind.PSATID.value, "control law: P-satI-D, P-satI-D + gravity cancellation or "
+              "the task-space PID baseline", choices=tuple(k.value for k in ControllerKind), read_only=True),
+    ParamSpec("rate", 40.0, "[Hz] control rate; the integrators use dt = 1/rate", low=1.0, high=1000.0,
+              read_only=True),
+    ParamSpec("kp", _COLLOCATED.kp, "[rad^2/(N m)] P-satI-D(+GC) proportional gain", low=0.0, high=100.0),
+    ParamSpec("ki", _COLLOCATED.ki, "[rad/s] P-satI-D(+GC) integral gain", low=0.0, high=100.0),
+    ParamSpec("kd", _COLLOCATED.kd, "[rad^2 s/(N m)] P-satI-D(+GC) derivative gain", low=0.0, high=100.0),
+    ParamSpec("gamma", _COLLOCATED.gamma, "[rad/(N m)] P-satI-D(+GC) tanh compression of the integrand (> 0)",
+              low=0.0, high=1e5, validator=_positive),
+    ParamSpec("kp_pid", _PID.kp, "[rad/m] task-space PID proportional gain", low=0.0, high=1e4),
+    ParamSpec("ki_pid", _PID.ki, "[rad/(m s)] task-space PID integral gain", low=0.0, high=1e5),
+    ParamSpec("kd_pid", _PID.kd, "[rad s/m] task-space PID derivative gain", low=0.0, high=1e3),
+    ParamSpec("reset_integral_on_setpoint_change", False, "zero e_int when a new setpoint is accepted"),
+    ParamSpec("ee_integral", False, "EE-position integral extension (§3.8; collocated laws only)", read_only=True),
+    ParamSpec("ee_ki", _EE.ki_ee, "[1/s] EE-integral gain K_I,ee (time constant >= 3 s recommended)",
+              low=0.0, high=100.0),
+    ParamSpec("ee_e_on", _EE.e_on, "[m] EE integral runs only while |p^d - p_ee| is below this (> 0)",
+              low=0.0, high=0.1, validator=_positive),
+    ParamSpec("ee_z_max", _EE.z_max, "[m s] clamp of each EE integral state", low=0.0, high=1.0),
+    ParamSpec("ee_reset_on_setpoint_change", _EE.reset_on_setpoint_change,
+              "zero the EE integral state when a new setpoint is accepted", read_only=True),
+    ParamSpec("stale_timeout", STALE_TIMEOUT, "[s] a state whose stamp is older than this (node clock) is stale: hold "
+              "the last command; states stamped more than this in the future are refused", low=0.001, high=10.0,
+              read_only=True),
+    ParamSpec("hold_timeout", HOLD_TIMEOUT, "[s] stop re-publishing the held command once the newest state is this "
+              "old (>= stale_timeout)", low=0.001, high=60.0, read_only=True),
+    ParamSpec("stamp_clock", True, "state stamps are on the node clock (age judged by stamp); false only where they "
+              "are not, e.g. replayed recorded stamps (age then judged by arrival)", read_only=True),
+    ParamSpec("driver_timeout", DRIVER_TIMEOUT, "[s] no phi_present from the driver for this long: driver lost, "
+              "nothing is sent, integrators frozen; 0 = no driver in this graph (replay, controller-only tests)",
+              low=0.0, high=10.0, read_only=True),
+    ParamSpec("setpoint_residual_tol", MAX_OPTIMALITY_ERROR, "[N m, N] largest ||G + K - alpha|| at (q_des, phi_ss) "
+              "of an accepted setpoint (the planner's acceptance threshold)", low=1e-12, high=1.0, read_only=True),
+    ParamSpec("setpoint_pose_tol", POSE_TOLERANCE, "[m, rad] largest |chiee_des - FK(q_des)| of an accepted "
+              "setpoint", low=1e-12, high=0.1, read_only=True),
+    ParamSpec("rejection_log_period", 5.0, "[s] refused setpoints and states are logged at most once per period "
+              "(all are counted on /diagnostics)", low=0.0, high=3600.0, read_only=True),
+    ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
+              read_only=True),
+)
+
+
+def check_combination(p: dict[str, Any]) -> None:
+    """Refuse what no single spec can: hold_timeout below stale_timeout, the EE integral with the PID."""
+    if p["hold_timeout"] < p["stale_timeout"]:
+        raise ParameterValidationError(
+            f"parameter 'hold_timeout' ({p['hold_timeout']} s) must be >= stale_timeout ({p['stale_timeout']} s)")
+    if p["ee_integral"] and ControllerKind(p["controller"]) is ControllerKind.PID:
+        raise ParameterValidationError("parameter 'ee_integral' applies to the collocated laws only, not 'pid'")

@@ -17,13 +17,20 @@ both paths hit the same instants exactly):
 * **Motion capture** — a sample every 5 ms (200 Hz), stamped with the instant the plant was at that pose, carrying
   the declared white noise, available ``measurement_latency`` after its stamp. Noise comes from one seeded generator,
   drawn sample by sample, so a seed fixes the whole run.
+* **Payload** — the point mass m_pl at the parameters' CoG_pl (model.md), as in the identification campaign's
+  staircases (docs/identification.md): :meth:`World.set_payload` changes it at an exact grid instant, the motors
+  holding whatever they hold. It is the plant's m_pl until the first change (the parameter sets' 0 kg).
 
 Events are integer nanoseconds; a time that is not on the grid is rounded up to the next grid point.
 """
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
+import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import jax
@@ -54,6 +61,24 @@ def seconds_to_ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
+def payload_schedule(flat: Sequence[float]) -> tuple[tuple[int, float], ...]:
+    """Flat pairs [t0, m0, t1, m1, ...] (from t_k [s] the payload is m_k [kg]) → ((t_k [ns], m_k), ...).
+
+    Raises ValueError with a one-line reason unless the length is even, the times finite, >= 0 and increasing and
+    the masses finite and >= 0."""
+    values = [float(v) for v in flat]
+    if len(values) % 2:
+        raise ValueError(f"needs pairs [t0, m0, t1, m1, ...], got {len(values)} values")
+    times, masses = values[0::2], values[1::2]
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError("times and masses must be finite")
+    if any(t < 0.0 for t in times) or any(b <= a for a, b in zip(times, times[1:])):
+        raise ValueError(f"times must be >= 0 s and increasing, got {times}")
+    if any(m < 0.0 for m in masses):
+        raise ValueError(f"masses must be >= 0 kg, got {masses}")
+    return tuple((seconds_to_ns(t), m) for t, m in zip(times, masses))
+
+
 @dataclass(frozen=True)
 class MocapSample:
     """One motion-capture sample: stamp [ns], the instant it becomes available [ns], noisy planar pose (x, y, θ)."""
@@ -67,7 +92,8 @@ class World:
     """Plant + servos + motion capture on the 1 ms grid; state in, events in, samples out (see the module docstring).
 
     ``advance_to(t)`` runs the grid up to t; ``write_goals`` / ``set_torque`` are what a bus client does at the current
-    instant; ``take_samples(t)`` hands over the mocap samples available by t, in stamp order.
+    instant; ``set_payload`` is the experimenter's hand; ``take_samples(t)`` hands over the mocap samples available
+    by t, in stamp order. ``plant`` is the plant in force now (its m_pl the payload of the current instant).
     """
 
     def __init__(self, model: HsaParams, disturbance: DisturbanceModel, motor_map: MotorMap) -> None:
@@ -90,6 +116,8 @@ class World:
         self._latency_ns = seconds_to_ns(disturbance.actuation_latency)
         self._sample_latency_ns = seconds_to_ns(disturbance.measurement_latency)
         self._goals: deque[tuple[int, np.ndarray]] = deque()  # (effective at [ns], goal ticks)
+        self._payloads: list[tuple[int, int, float]] = []  # (effective at [ns], order set, mass [kg]), sorted
+        self._payload_seq = 0
         self._samples: deque[MocapSample] = deque()
         self._sample()
 
@@ -104,21 +132,35 @@ class World:
         """Torque Enable of every motor, from now on (off: the shaft stays where it is)."""
         self.torque = np.asarray(on, dtype=bool).copy()
 
+    def set_payload(self, mass_kg: float, at_ns: int | None = None) -> None:
+        """From grid instant ``at_ns`` on (default: now; rounded up to the grid) the payload is ``mass_kg`` [kg].
+
+        Events may be set ahead in any order; of two at the same instant the later set wins. The mass is a traced
+        input of the jitted plant, so changing it does not recompile."""
+        if not (math.isfinite(mass_kg) and mass_kg >= 0.0):
+            raise ValueError(f"payload mass must be finite and >= 0 kg, got {mass_kg}")
+        at = to_grid(self.t_ns if at_ns is None else at_ns)
+        bisect.insort(self._payloads, (at, self._payload_seq, float(mass_kg)))
+        self._payload_seq += 1
+
     # ---------------------------------------------------------------- time
     def advance_to(self, t_ns: int) -> None:
         """Run the grid up to ``t_ns`` (rounded up to the grid); the state is then that of instant t.
 
-        Per grid interval: apply the goals due, move the shafts, integrate the plant; on reaching an instant on the
-        5 ms grid, sample the pose. Intervals without an event in between run as one jitted segment."""
+        Per grid interval: apply the goals and payload due, move the shafts, integrate the plant; on reaching an
+        instant on the 5 ms grid, sample the pose. Intervals without an event in between run as one jitted segment."""
         end = to_grid(t_ns)
         while self.t_ns < end:
             t = self.t_ns
             while self._goals and self._goals[0][0] <= t:
                 self.goal = self._goals.popleft()[1]
+            while self._payloads and self._payloads[0][0] <= t:
+                self.plant = self.plant.replace(m_pl=self._payloads.pop(0)[2])
             stop = min(end, (t // MOCAP_PERIOD_NS + 1) * MOCAP_PERIOD_NS)
-            if self._goals:
-                stop = min(stop, max(self._goals[0][0], t + GRID_NS))
-            x, position, velocity = self._segment(self.x, self.position, self.goal, self.torque,
+            for events in (self._goals, self._payloads):
+                if events:
+                    stop = min(stop, max(events[0][0], t + GRID_NS))
+            x, position, velocity = self._segment(self.x, self.position, self.goal, self.torque, self.plant.m_pl,
                                                   (stop - t) // GRID_NS)
             self.x = x
             self.position, self.velocity = np.array(position), np.array(velocity) / (GRID_NS * 1e-9)
@@ -161,21 +203,24 @@ class World:
 
 
 def _segment_fn(plant: HsaParams, motor_map: MotorMap, neutral: np.ndarray, speed: float):
-    """Jitted run of n grid intervals with the goal held: (x, shaft ticks, goal, torque, n) → (x, ticks, last step).
+    """Jitted run of n grid intervals with goal and payload held: (x, shaft ticks, goal, torque, m_pl, n) → (x, ticks,
+    last step).
 
-    Per interval the shafts move towards the goal by at most ``speed`` ticks (torque on), then the plant is
-    integrated with the twists they realise held (zero-order hold)."""
+    Per interval the shafts move towards the goal by at most ``speed`` ticks (torque on), then the plant (with payload
+    m_pl, a traced input: a new mass does not recompile) is integrated with the twists they realise held."""
     dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
     to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(neutral)))) * RAD_PER_TICK  # (rods, motors)
     neutral = jnp.asarray(neutral)
 
     @jax.jit
-    def segment(x, position, goal, torque, n):
+    def segment(x, position, goal, torque, m_pl, n):
+        loaded = dataclasses.replace(plant, m_pl=m_pl)
+
         def interval(_, carry):
             x, position, _step = carry
             moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
             phi = to_rods @ (moved - neutral)
-            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4_step(plant, xk, phi, dt), x)
+            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4_step(loaded, xk, phi, dt), x)
             return x, moved, moved - position
 
         return jax.lax.fori_loop(0, n, interval, (x, position, jnp.zeros_like(position)))

@@ -6,9 +6,11 @@ Position reads report the world's shafts. Two clocks (docs/simulation.md):
 
 * ``lockstep`` (parameter ``lockstep: true``): the node owns /clock. Simulated time starts when every expected
   participant is ready, and moves from instant to instant only when the barrier (:mod:`hsa_core.lockstep`) says the
-  graph has finished with the current one; mocap samples are published at the instants they become available. A
-  barrier that does not finish within ``barrier_timeout`` seconds of wall time is an ERROR, and the node exits 1.
+  graph has finished with the current one (decisions: :mod:`hsa_core.sim_lockstep`); mocap samples are published
+  at the instants they become available. A barrier that does not finish within ``barrier_timeout`` seconds of wall
+  time is an ERROR, and the node exits 1.
 * ``wall``: the world follows the node clock; a timer at the mocap rate publishes every sample that became available.
+A ``payload_schedule`` changes the plant's payload at given instants of simulated time (:meth:`World.set_payload`).
 See docs/nodes/hsa_sim_node.md.
 """
 
@@ -22,12 +24,13 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
 from hsa_common import lockstep, qos
-from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_common.diagnostics import Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
@@ -35,24 +38,35 @@ from hsa_core.actuation import MotorMap
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
-from hsa_core.world import MOCAP_PERIOD_NS, World
+from hsa_core.playback import Step
+from hsa_core.sim_lockstep import SimLockstep
+from hsa_core.world import MOCAP_PERIOD_NS, World, payload_schedule
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import LockstepAck
 from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
+from hsa_sim_node.reports import emulator_report, torque_at_exit, world_report
 
 SHUTDOWN_GRACE = 0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
 CLOCK_RESEND = 0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
-SYNC_NS = 50_000_000  # lockstep: wait for the graph to take every sample at least every 50 ms of simulated time
 GIL_SWITCH_INTERVAL = 5e-4
 """[s] Python thread switch interval of this process (default 5 ms): the emulator's serving thread must answer within
 the Dynamixel SDK's wall-clock packet timeout (≈ 34 ms) while the main thread handles the barrier's reports; with
 the default, reads timed out on a busy machine (4 of 4484 in a lockstep run beside two busy processes)."""
-START_TIMEOUT = 180.0  # s of wall time simulated time may wait to start (planner compilation on a busy machine)
 MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
 
 def _signs(value: list[int]) -> str | None:
+    """Refusal of a handedness list that is not all ±1."""
     return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
+
+
+def _payload_problem(value: list[float] | None) -> str | None:
+    """Refusal of a malformed payload schedule (unset or empty: no payload)."""
+    try:
+        payload_schedule(value or [])
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 SPECS = (
@@ -84,6 +98,9 @@ SPECS = (
               "it starts (others join when they first report)", read_only=True),
     ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails",
               low=0.1, high=3600.0, read_only=True),
+    ParamSpec("payload_schedule", Parameter.Type.DOUBLE_ARRAY, "[s, kg] flat pairs [t0, m0, t1, m1, ...]: from "
+              "simulated time t_k the payload (at the params' CoG_pl) is m_k; unset or empty = none", read_only=True,
+              validator=_payload_problem),
 )
 
 
@@ -105,6 +122,8 @@ class SimNode(Node):
         os.makedirs(os.path.dirname(port), exist_ok=True)
         self._world = World(model, disturbance, self._map)  # compiles: the bus appears only when it can answer in time
         self._world.set_torque([False] * len(ids))
+        for t_ns, mass in payload_schedule(self._p["payload_schedule"] or []):
+            self._world.set_payload(mass, t_ns)
         self._world.advance_to(0)
         self._emulator = MX28Emulator(ids, baudrate=self._p["baudrate"], initial_ticks=dict(zip(ids, ticks)),
                                       model=None, link_path=port)
@@ -129,15 +148,10 @@ class SimNode(Node):
             self._own = lockstep.Participant(self, publish_acks=False)
             self._barrier = Barrier(n for n in self._p["participants"] if n)
             self._barrier.own = self._own.published  # live: the samples it publishes count at once
+            self._coordinator = SimLockstep(self._barrier, self._p["barrier_timeout"], resend=CLOCK_RESEND)
             self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.RELIABLE))
             self.create_subscription(LockstepAck, lockstep.ACK_TOPIC, self._on_ack, lockstep.ACK_READER_QOS)
-            self._instant = 0  # [ns] the instant the graph is working on (a timer instant)
-            self._phase = "start"
-            self._waiting_since = time.monotonic()
-            self._clock_sent = 0.0
-            self._synced = 0
-            self._halted = False
             lockstep.wall_timer(self, 0.01, self._pump)
             self.get_logger().info(f"lockstep: waiting for {list(self._barrier.expected)}")
         else:
@@ -201,153 +215,73 @@ class SimNode(Node):
         self._pump()
 
     def _pump(self) -> None:
-        """Move simulated time as far as the barrier allows (see the module docstring and docs/simulation.md)."""
-        if self._failure or self._stopped():
+        """Move simulated time as far as the barrier allows (decisions: :class:`hsa_core.sim_lockstep.SimLockstep`)."""
+        if self._failure:
             return
         for _ in range(MAX_INSTANTS_PER_PUMP):
-            if self._phase == "start":
-                self._barrier.own_matched = lockstep.matched_of(self)
-                problem = self._barrier.start_problem()
-                if problem is not None:
-                    return self._still_waiting(problem, send_clock=True)
-                self._barrier.start()
+            step = self._coordinator.step(time.monotonic(), self._world.t_ns, self._world.next_sample_ns(),
+                                          self._emulator.idle, lambda: lockstep.matched_of(self))
+            if step.action == "clock":
+                self._send_clock(step.t_ns)
+                if step.reason:  # resent while the barrier waits
+                    self._stats["resends"] += 1
+                    return self._waiting(step)
+            elif step.action == "start":
                 self.get_logger().info(f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)")
-                self._phase = "advance"
-            elif self._phase == "settle":  # every sample taken before the clock moves on
-                problem = self._barrier.settle_problem()
-                if problem is not None:
-                    return self._still_waiting(problem)
-                if self._world.t_ns == self._instant and self._instant == self._barrier.next_due_ns():
-                    self._send_clock()
-                    self._phase = "finish"
-                else:
-                    self._phase = "advance"
-                self._waiting_since = time.monotonic()
-            elif self._phase == "finish":
-                problem = self._barrier.finish_problem(self._instant)
-                if problem is None and not self._emulator.idle():
-                    problem = "the emulated bus has not executed every packet it received"
-                if problem is not None:
-                    return self._still_waiting(problem, send_clock=True)
-                self._collect_bus(self._instant)
+            elif step.action == "finish":
+                self._collect_bus(step.t_ns)
                 self._stats["instants"] += 1
-                self._publish_samples(self._instant)
-                self._phase = "advance"
-            else:  # "advance"
-                self._advance()
+                self._publish_samples(step.t_ns)
+            elif step.action in ("run", "instant"):
+                self._world.advance_to(step.t_ns)
+                self._sync_shafts()
+                if step.action == "run":
+                    self._publish_samples(step.t_ns)  # no /clock: data callbacks keep the clock of the last instant
+            else:
+                return self._waiting(step)
 
-    def _stopped(self) -> bool:
-        """Once an expected participant has left, the graph is ending: simulated time stops (once logged)."""
-        if self._barrier.left and not self._halted:
-            self._halted = True
-            self.get_logger().info(f"lockstep: {self._barrier.left[0]} left; simulated time stops at "
-                                   f"{self._instant * 1e-9:.3f} s")
-        return self._halted
-
-    def _advance(self) -> None:
-        """Run the world to the next event: samples become available (published at once), or a timer instant
-        (the graph must settle first, then gets the clock)."""
-        due = self._barrier.next_due_ns()
-        event = self._world.next_sample_ns() if due is None else min(due, self._world.next_sample_ns())
-        if event - self._synced >= SYNC_NS or (due is not None and event == due):
-            self._synced = event
-            self._instant = event
-            self._world.advance_to(event)
-            self._sync_shafts()
-            self._phase = "settle"
-            self._waiting_since = time.monotonic()
-            return
-        self._world.advance_to(event)
-        self._sync_shafts()
-        self._publish_samples(event)  # no /clock: data callbacks keep the clock of the last timer instant
-
-    def _send_clock(self) -> None:
-        """Publish /clock at the current instant."""
-        msg = Clock()
-        msg.clock = Time(nanoseconds=self._instant).to_msg()
-        self._clock_pub.publish(msg)
-        self._clock_sent = time.monotonic()
-
-    def _still_waiting(self, problem: str, send_clock: bool = False) -> None:
-        """Resend /clock if it may have been lost; fail loudly once the barrier has waited too long."""
-        now = time.monotonic()
-        if send_clock and now - self._clock_sent > CLOCK_RESEND:
-            self._send_clock()
-            self._stats["resends"] += 1
-        waited = now - self._waiting_since
-        if self._phase == "start":
-            self.get_logger().info(f"lockstep: simulated time has not started: {problem}", throttle_duration_sec=5.0)
-        limit = self._p["barrier_timeout"] if self._phase != "start" else max(START_TIMEOUT, self._p["barrier_timeout"])
-        if waited > limit:
-            self._failure = (f"lockstep barrier at t = {self._instant * 1e-9:.3f} s not finished after "
-                             f"{waited:.1f} s of wall time: {problem}")
+    def _waiting(self, step: Step) -> None:
+        """Log why simulated time does not move (not started, stopped), or fail loudly (``fail``: exit code 1)."""
+        if step.action == "stop":
+            self.get_logger().info(f"lockstep: {step.reason}; simulated time stops at {step.t_ns * 1e-9:.3f} s")
+        elif step.action == "fail":
+            self._failure = step.reason
             self.get_logger().error(self._failure)
             self.exit_code = 1
             self.context.try_shutdown()
+        elif not self._barrier.started:
+            self.get_logger().info(f"lockstep: simulated time has not started: {step.reason}",
+                                   throttle_duration_sec=5.0)
+
+    def _send_clock(self, t_ns: int) -> None:
+        """Publish /clock at instant ``t_ns``."""
+        msg = Clock()
+        msg.clock = Time(nanoseconds=t_ns).to_msg()
+        self._clock_pub.publish(msg)
 
     # ---------------------------------------------------------------- diagnostics
     def _world_report(self) -> Report:
+        """``sim_node: world`` (real-time factor over the period since the previous report)."""
         now = time.monotonic()
         since, base = self._report_base
         self._report_base = (now, dict(self._stats))
-        wall = max(now - since, 1e-9)
-        rtf = (self._stats["sim_time"] - base["sim_time"]) / wall
-        values = {"clock": "lockstep" if self._lockstep else "wall", "real_time_factor": round(rtf, 3),
-                  "samples": self._stats["samples"], "instants": self._stats["instants"],
-                  "clock_resends": self._stats["resends"], "sim_time": round(self._stats["sim_time"], 3),
-                  "phi": np.round(self._world.twists(), 4).tolist(),
-                  "chiee": np.round(self._world.true_pose(), 5).tolist(), "disturbance": self._p["disturbance"]}
-        if self._failure:
-            return Report(ERROR, self._failure, values)
-        if not np.all(np.isfinite(self._world.x)):
-            return Report(ERROR, "plant diverged", values)
-        if not self._lockstep and rtf < 0.95:
-            return Report(WARN, f"slower than real time (factor {rtf:.2f})", values)
-        return Report(OK, "running", values)
+        rtf = (self._stats["sim_time"] - base["sim_time"]) / max(now - since, 1e-9)
+        return world_report(self._world, self._stats, rtf, self._lockstep, self._p["disturbance"], self._failure)
 
     def _emulator_report(self) -> Report:
-        stats = self._emulator.stats()
-        now = time.monotonic()
+        """``sim_node: emulator`` (rates over the period since the previous report)."""
+        stats, now = self._emulator.stats(), time.monotonic()
         since, base = self._emulator_base
         self._emulator_base = (now, stats)
-        elapsed = max(now - since, 1e-9)
-        silent, hw_errors = self._emulator.unresponsive(), self._emulator.hardware_errors()
-        values = {"port": self._emulator.port, "device": self._emulator.device, **vars(stats),
-                  "sync_writes_per_s": round((stats.sync_writes - base.sync_writes) / elapsed, 1),
-                  "sync_reads_per_s": round((stats.sync_reads - base.sync_reads) / elapsed, 1),
-                  "unresponsive_ids": list(silent),
-                  **{f"torque_{i}": self._emulator.torque_enabled(i) for i in self._map.ids},
-                  **{f"hardware_error_{i}": bits for i, bits in hw_errors.items()}}
-        if not self._emulator.plugged:
-            return Report(ERROR, "unplugged", values)
-        if silent or any(hw_errors.values()):
-            return Report(WARN, f"faults: unresponsive {list(silent)}, hardware errors "
-                                f"{ {i: b for i, b in hw_errors.items() if b} }", values)
-        return Report(OK if stats.crc_errors == 0 else WARN, "serving", values)
+        return emulator_report(self._emulator, self._map.ids, stats, base, max(now - since, 1e-9))
 
     def on_shutdown(self) -> None:
         """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off,
         then report whether it did and remove the bus."""
         time.sleep(SHUTDOWN_GRACE)
-        self.get_logger().info(self._torque_at_exit())
-        self._emulator.stop()
-
-    def _torque_at_exit(self) -> str:
-        """Which servos still have torque on; else since when every servo is off (CLOCK_MONOTONIC of the first
-        torque-off write after each servo's last torque-on write, latest over the servos)."""
         on = [i for i in self._map.ids if self._emulator.torque_enabled(i)]
-        if on:
-            return f"emulated bus removed with torque on for IDs {on}"
-        off_since: dict[int, float] = {}
-        for write in self._emulator.writes(ADDR_TORQUE_ENABLE):
-            if write.value == 1:
-                off_since.pop(write.dxl_id, None)
-            else:
-                off_since.setdefault(write.dxl_id, write.time)
-        if len(off_since) < len(self._map.ids):
-            return "emulated bus removed with torque off on every servo (not every torque-off write is logged)"
-        return (f"emulated bus removed with torque off on every servo (off since monotonic "
-                f"{max(off_since.values()):.6f} s)")
+        self.get_logger().info(torque_at_exit(self._map.ids, on, self._emulator.writes(ADDR_TORQUE_ENABLE)))
+        self._emulator.stop()
 
 
 def main() -> None:

@@ -1,5 +1,6 @@
-"""The simulated world (hsa_core.world): servo speed and latency, mocap timing and noise, torque, and that the state
-does not depend on how a caller chops time into calls (the offline experiment and the simulator chop it differently)."""
+"""The simulated world (hsa_core.world): servo speed and latency, mocap timing and noise, torque, the payload, and that
+the state does not depend on how a caller chops time into calls (the offline experiment and the simulator chop it
+differently)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import pytest
 from hsa_core.actuation import TICKS_PER_RAD, MotorMap, ServoModel
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.params import load_params
-from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, to_grid
+from hsa_core import kinematics
+from hsa_core.planning import static_equilibrium
+from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, payload_schedule, to_grid
 
 MS = 1_000_000
 NEUTRAL = (2048, 2048, 2048, 2048)
@@ -121,3 +124,63 @@ def test_without_latency_a_sample_is_available_at_its_own_instant(model) -> None
     assert w.next_sample_ns() == 5 * MS
     w.advance_to(5 * MS)
     assert [s.stamp_ns for s in w.take_samples(5 * MS)] == [5 * MS]
+
+
+PAYLOAD = 0.437  # kg, a mass of the identification campaign (hsa_identification/config/campaign_example.yaml)
+
+
+def test_a_payload_lowers_the_resting_platform_to_its_static_equilibrium_and_removing_it_restores_the_pose(
+        model) -> None:
+    """At rest with φ = 0: the loaded world settles where the statics of the loaded model say (an independent Newton
+    solve of G + K − α = 0), lower than the unloaded pose; taking the payload off returns to the unloaded pose."""
+    w = world(model, DisturbanceModel.none())
+    rest = w.true_pose()
+    assert float(w.plant.m_pl) == 0.0  # the packaged set carries no payload
+    w.set_payload(PAYLOAD, 100 * MS)
+    w.advance_to(6000 * MS)
+    assert float(w.plant.m_pl) == PAYLOAD
+    loaded = model.replace(m_pl=PAYLOAD)
+    q_eq, residual = static_equilibrium(loaded, np.zeros(2), np.asarray(w.x[:3]))
+    assert float(residual) < 1e-9
+    expected = np.asarray(kinematics.end_effector_pose(loaded, q_eq))
+    np.testing.assert_allclose(w.true_pose(), expected, atol=1e-6)
+    assert expected[1] > rest[1] + 1e-4, "a payload must lower the platform (the robot hangs: +y is down)"
+    w.set_payload(0.0)
+    w.advance_to(12000 * MS)
+    np.testing.assert_allclose(w.true_pose(), rest, atol=1e-6)
+
+
+def test_a_payload_takes_effect_at_its_grid_instant_without_recompiling(model) -> None:
+    """Set for 7 ms + 1 ns, the mass acts from the 8 ms grid instant on: bit for bit unloaded until then; later
+    changes of the mass reuse the one compiled plant segment."""
+    loaded, free = world(model, DisturbanceModel.none()), world(model, DisturbanceModel.none())
+    loaded.set_payload(PAYLOAD, 7 * MS + 1)
+    for w in (loaded, free):
+        w.advance_to(8 * MS)
+    np.testing.assert_array_equal(np.asarray(loaded.x), np.asarray(free.x))
+    for w in (loaded, free):
+        w.advance_to(9 * MS)
+    assert np.asarray(loaded.x)[4] != np.asarray(free.x)[4]  # the axial strain rate reacts first
+    for k, mass in enumerate((0.2, 0.0, 0.637, 0.1)):
+        loaded.set_payload(mass, (20 + 3 * k) * MS)
+    loaded.advance_to(40 * MS)
+    assert loaded._segment._cache_size() == 1
+
+
+def test_later_of_two_payload_events_at_one_instant_wins(model) -> None:
+    w = world(model, DisturbanceModel.none())
+    w.set_payload(0.5, 10 * MS)
+    w.set_payload(0.2, 9 * MS + 1)  # the same grid instant, set later
+    w.advance_to(11 * MS)
+    assert float(w.plant.m_pl) == 0.2
+    with pytest.raises(ValueError, match=">= 0 kg"):
+        w.set_payload(-0.1)
+
+
+def test_payload_schedule_parses_flat_pairs_and_refuses_malformed_ones() -> None:
+    assert payload_schedule([]) == ()
+    assert payload_schedule([0.0, 0.0, 1.5, 0.437, 2.0, 0.0]) == ((0, 0.0), (1_500_000_000, 0.437), (2 * 10**9, 0.0))
+    for bad, reason in (([1.0], "pairs"), ([1.0, 0.1, 1.0, 0.2], "increasing"), ([2.0, 0.1, 1.0, 0.2], "increasing"),
+                        ([-1.0, 0.1], ">= 0 s"), ([1.0, -0.1], ">= 0 kg"), ([1.0, math.nan], "finite")):
+        with pytest.raises(ValueError, match=reason):
+            payload_schedule(bad)

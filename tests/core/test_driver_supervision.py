@@ -1,5 +1,5 @@
-"""Tests of hsa_dynamixel_driver.supervision: the instant-wise goal-rate limiter and the reboot admission (issues 11,
-12).
+"""Tests of hsa_core.servo_supervision's instant-wise goal-rate limiter and reboot admission (issues 11, 12), and of the
+driver's goal pipeline (hsa_dynamixel_driver.goals); the supervisor state machine is in test_servo_supervision.py.
 
 Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by the code under
 test: max_rate · dt · 2048/π ticks, rounded down.
@@ -12,7 +12,9 @@ import random
 import numpy as np
 import pytest
 
-from hsa_dynamixel_driver.supervision import GoalRateLimiter, reboot_refusal
+from hsa_core.actuation import MotorLimits, MotorMap
+from hsa_core.servo_supervision import GoalRateLimiter, reboot_refusal
+from hsa_dynamixel_driver.goals import GoalPipeline
 
 TICKS_PER_RAD = 2048 / math.pi
 RATE = 10.0  # rad/s
@@ -127,3 +129,56 @@ def test_reboot_refused_only_while_tracking_with_torque_on() -> None:
     assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=False) is None
     assert reboot_refusal(active=False, link_up=True, torque_on=False, tracking=False) == "node is not active"
     assert reboot_refusal(active=True, link_up=False, torque_on=False, tracking=False) == "bus not connected"
+
+
+MAP = MotorMap(tuple(HELD.tolist()), (21, 22, 23, 24), phi_max=math.radians(200.0), margin=0.02)
+LIMITS = MotorLimits.from_map(MAP)
+
+
+class Command:
+    """Stand-in for a PlanarActuation: phi and source_stamp."""
+
+    def __init__(self, phi: list[float]) -> None:
+        self.phi, self.source_stamp = phi, "stamp"
+
+
+def pipeline_holding() -> GoalPipeline:
+    """A pipeline whose servos hold HELD since torque-on."""
+    goals = GoalPipeline()
+    goals.limiter.reset(HELD)
+    return goals
+
+
+def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
+    # φ = (0.1, 0.2) rad -> ψ = [+φ₂, −φ₂, +φ₁, −φ₁] -> ⌊0.2·2048/π⌋ = 130, ⌊0.1·2048/π⌋ = 65 ticks from neutral
+    goals = pipeline_holding()
+    goals.take(Command([0.1, 0.2]))
+    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD)
+    np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
+    assert not step.rate_limited and step.clipped is None and goals.target_source == "stamp"
+    goals = pipeline_holding()
+    goals.take(Command([0.1, 0.2]))
+    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, RATE, PERIOD)
+    np.testing.assert_array_equal(step.ticks, HELD + [STEP, -STEP, 65, -65])  # 130 ticks shortened to 65
+    assert step.rate_limited
+
+
+def test_pipeline_ramp_continues_then_stops_when_reached() -> None:
+    goals = pipeline_holding()
+    goals.take(Command([0.1, 0.2]))
+    goals.written(goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, RATE, PERIOD).ticks, 1.0)
+    step = goals.next_goal(1.01, MAP, LIMITS, MAP.phi_max, RATE, PERIOD)  # the ramp's next step: not a new command
+    np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
+    assert not step.rate_limited
+    goals.written(step.ticks, 1.01)
+    assert goals.next_goal(1.02, MAP, LIMITS, MAP.phi_max, RATE, PERIOD) is None  # reached: nothing to write
+
+
+def test_pipeline_clips_phi_and_drops_a_stale_target() -> None:
+    goals = pipeline_holding()
+    goals.take(Command([-1.0, 10.0]))
+    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD)
+    assert step.clipped is not None and "outside [0, 3.4907]" in step.clipped
+    np.testing.assert_array_equal(step.ticks, HELD + [2275, -2275, 0, 0])  # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
+    goals.drop_target()
+    assert goals.next_goal(1.01, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD) is None

@@ -17,11 +17,10 @@ import numpy as np
 import pytest
 
 from hsa_common import qos
-from hsa_dynamixel_driver.node import FAULT_FILE_ENV
 from hsa_msgs.msg import PlanarActuation
-from tests.ros.conftest import start_process, stop_process, wait_for_line
-from tests.ros.driver_harness import (IDS, NEUTRAL, command, drivers, make_emulator, start_drivers, torque,
-                                     torque_off_time, wait_until)
+from tests.ros.conftest import PEERS, CollectedProcess, start_process, stop_process, wait_for_line
+from tests.ros.driver_harness import (IDS, NEUTRAL, NEUTRAL_PARAM, DriverProcess, command, drivers, make_emulator,
+                                     torque, torque_off_time, wait_until)
 from tests.ros.faults import BEST_EFFORT, fault
 
 pytestmark = pytest.mark.ros
@@ -29,6 +28,14 @@ __all__ = ["drivers"]  # fixture used by the tests below
 
 BOUND = 0.1  # s: the requirement
 REPO = Path(__file__).resolve().parents[2]
+
+
+def faulty_driver(name: str, port: str, fault_file: Path) -> CollectedProcess:
+    """The driver of peers/faulty_driver.py (its control cycle raises InjectedFault while ``fault_file`` exists), with
+    the arguments DriverProcess gives the production executable."""
+    return CollectedProcess(start_process([
+        sys.executable, str(PEERS / "faulty_driver.py"), str(fault_file), "--ros-args", "-r", f"__node:={name}",
+        "-p", f"port:={port}", "-p", "reconnect_period:=0.2", "-p", NEUTRAL_PARAM]))
 
 
 class CommandStream:
@@ -55,11 +62,11 @@ def test_sigint_sigterm_and_an_uncaught_exception_turn_torque_off_within_100_ms(
     emulators = {case: make_emulator(tmp_path, f"tty_{case}") for case in ("sigint", "sigterm", "exception")}
     fault_file = tmp_path / "raise"
     try:
-        drivers += start_drivers([
-            ("driver_sigint", emulators["sigint"].port, None),
-            ("driver_sigterm", emulators["sigterm"].port, None),
-            ("driver_exception", emulators["exception"].port, {FAULT_FILE_ENV: str(fault_file)}),
-        ])
+        drivers += [DriverProcess(emulators["sigint"].port, name="driver_sigint"),
+                    DriverProcess(emulators["sigterm"].port, name="driver_sigterm"),
+                    faulty_driver("driver_exception", emulators["exception"].port, fault_file)]  # start in parallel
+        for driver in drivers:
+            driver.wait_ready(90.0)
         for emulator in emulators.values():
             assert wait_until(lambda emu=emulator: torque(emu) == {True}, timeout=10.0), [d.output() for d in drivers]
         stream = CommandStream(ros_node)

@@ -1,0 +1,437 @@
+"""Servo supervision of the dynamixel_driver (issues 6, 10-12) as a pure state machine: events in, decisions out.
+
+The driver node does the I/O (bus, timers, services, logging) and reports what happened, with the node-clock time in
+seconds passed in explicitly; `ServoSupervisor` keeps the state and answers what to do:
+
+* torque is *wanted* from activation until ``set_torque(false)``, a hardware error, a reboot or deactivation; it may
+  come on only while active, connected, not E-stopped, free of hardware errors and at sane present positions;
+* command watchdog: no ``phi_cmd`` for more than ``command_timeout`` -> hold the last goal, or relax (torque off,
+  ``relaxed``) until the next command, which switches torque on again if safe; it arms with the first command;
+* E-stop: latched with its reason until ``clear_estop``, which needs an active node, a connected bus and a successful
+  torque-on; commands are ignored and ``set_torque(true)`` refused meanwhile;
+* link: a port error or ``error_limit`` consecutive failed cycles lose the bus; a reconnect reports the outage and
+  re-enables torque only if it is wanted, not relaxed and not E-stopped;
+* start-up positions: the first torque-on after configure with a configured neutral needs every motor within
+  ``neutral_tolerance`` of it unless the servos were still held (``neutral_check``); every torque-on needs the present
+  positions inside the goal limits widened by ``neutral_tolerance``; a first calibration is refused on held servos;
+* reboot: refused while tracking fresh commands with torque on (`reboot_refusal`); afterwards the hardware errors and
+  positions are checked again and torque stays off until asked for.
+
+`GoalRateLimiter` bounds the goal speed on the same clock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from hsa_core.actuation import MotorLimits, MotorMap, limit_goal_rate, neutral_check, ticks_to_angles
+
+MULTI_TURN_NOTE = "a reboot resets the multi-turn count (present position within one turn)"
+
+
+class Watchdog(str, enum.Enum):
+    """State of the command watchdog; values are the names shown on /diagnostics."""
+
+    WAITING = "waiting for the first command"
+    FRESH = "fresh"
+    EXPIRED = "expired"
+
+
+class WatchdogEvent(enum.Enum):
+    """What one control cycle's watchdog check found."""
+
+    NONE = "none"  # no command yet, or still fresh
+    STALE = "stale"  # still expired: write nothing
+    HOLD = "hold"  # just expired, action 'hold': keep the last goal
+    RELAX = "relax"  # just expired, action 'relax'
+    RESUMED = "resumed"  # fresh again after an expiry
+
+
+@dataclasses.dataclass(frozen=True)
+class WatchdogDecision:
+    """The watchdog event of a cycle; torque_off: switch torque off now (relax with torque on)."""
+
+    event: WatchdogEvent
+    torque_off: bool = False
+
+    @property
+    def stale(self) -> bool:
+        """No fresh command: drop the target, write nothing."""
+        return self.event in (WatchdogEvent.STALE, WatchdogEvent.HOLD, WatchdogEvent.RELAX)
+
+
+class Verdict(enum.Enum):
+    """What to do with an arriving phi_cmd."""
+
+    REJECT = "reject"  # non-finite
+    IGNORE = "ignore"  # E-stop engaged
+    ACCEPT = "accept"
+    WAKE = "wake"  # accept after switching torque on again (relaxed by the watchdog)
+
+
+class Alert(enum.Enum):
+    """Outcome of a changed set of hardware errors."""
+
+    NONE = "none"
+    FAULT = "fault"  # a new error: torque off for every servo
+    CLEARED = "cleared"
+
+
+@dataclasses.dataclass(frozen=True)
+class Answer:
+    """A service answer: success and message."""
+
+    success: bool
+    message: str
+
+
+@dataclasses.dataclass
+class ServoSupervisor:
+    """Torque, watchdog, E-stop, link and start-up state of the driver; times are node-clock seconds."""
+
+    ids: tuple[int, ...]
+    error_limit: int  # consecutive failed cycles that lose the bus
+    tolerance: float  # neutral_tolerance [rad]
+    describe_error: Callable[[int], str]  # Hardware Error Status bits -> text
+    active: bool = False
+    link_up: bool = False
+    torque_on: bool = False
+    torque_wanted: bool = False
+    relaxed: bool = False  # torque off by the watchdog's relax until the next phi_cmd
+    note: str = "not configured"  # torque state and why, for diagnostics
+    estop: str | None = None  # why the E-stop is engaged, None while released
+    estop_since: float = 0.0
+    watchdog: Watchdog = Watchdog.WAITING
+    command_time: float | None = None
+    consecutive_failures: int = 0
+    bus_problem: str = ""
+    lost_at: float | None = None
+    last_outage_s: float | None = None
+    hw_errors: dict[int, int] = dataclasses.field(default_factory=dict)
+    alerts: frozenset[int] = frozenset()
+    neutral: np.ndarray | None = None  # configured neutral ticks: the limits' reference
+    sane: MotorLimits | None = None  # goal limits widened by the tolerance: where torque may come on
+    held: bool = False  # every servo still had torque on at the first connection (a driver restart)
+    startup_checked: bool = False
+    uncalibrated: str | None = None  # why there is no trustworthy neutral (torque stays off), or None
+
+    # ---------------------------------------------------------------- lifecycle and link
+    def configured(self, neutral_known: bool) -> None:
+        """Configure: a configured neutral is checked at the first torque-on; without one the present positions
+        become the calibration (nothing to check)."""
+        self.neutral = self.sane = None
+        self.startup_checked, self.held, self.uncalibrated = not neutral_known, False, None
+        self.note = "inactive"
+
+    def activate(self) -> bool:
+        """Activate: torque wanted, the command discarded; True when torque should be switched on now."""
+        self.active, self.torque_wanted, self.relaxed = True, True, False
+        self.clear_command()
+        return self.torque_due()
+
+    def deactivate(self) -> None:
+        """Deactivate (also cleanup, shutdown, error): torque no longer wanted."""
+        self.active = self.torque_wanted = self.relaxed = False
+
+    def released(self) -> None:
+        """The bus was closed and the node deactivated."""
+        self.link_up = False
+        self.deactivate()
+
+    def torque_due(self) -> bool:
+        """Torque should be on and may be tried: active, connected, wanted, not relaxed, no E-stop."""
+        return self.active and self.link_up and self.torque_wanted and not self.relaxed and self.estop is None
+
+    def needs_held_check(self) -> bool:
+        """Whether a connection must read Torque Enable (before configure switches it off): until the start-up check
+        passed, or before a first calibration."""
+        return self.neutral is None or not self.startup_checked
+
+    def connect_failed(self, problem: str) -> bool:
+        """Opening the bus failed; True when the problem is new (log it once)."""
+        new = problem != self.bus_problem
+        self.bus_problem = problem
+        return new
+
+    def connected(self, now: float) -> float | None:
+        """The bus is open and configured; returns the outage [s] when this ends a loss, else None."""
+        self.link_up, self.bus_problem, self.consecutive_failures = True, "", 0
+        if self.lost_at is None:
+            return None
+        self.last_outage_s, self.lost_at = now - self.lost_at, None
+        return self.last_outage_s
+
+    def cycle_failed(self, port_error: bool) -> bool:
+        """A cycle's bus exchange failed; True when the bus counts as lost (port error or error_limit in a row)."""
+        self.consecutive_failures += 1
+        return port_error or self.consecutive_failures >= self.error_limit
+
+    def cycle_succeeded(self) -> None:
+        """A cycle's write and read succeeded."""
+        self.consecutive_failures = 0
+
+    def link_lost(self, problem: str, now: float) -> None:
+        """The bus was lost (torque already switched off where possible): reconnect until it answers."""
+        self.link_up, self.bus_problem, self.lost_at = False, problem, now
+
+    # ---------------------------------------------------------------- torque
+    def torque_enabled(self) -> None:
+        """Torque came on holding the present positions."""
+        self.torque_on, self.relaxed, self.note = True, False, "on"
+
+    def torque_disabled(self, reason: str) -> bool:
+        """Torque was switched off for ``reason``; True when it had been on."""
+        was_on, self.torque_on, self.note = self.torque_on, False, f"off ({reason})"
+        return was_on
+
+    def torque_refused(self, problem: str) -> bool:
+        """Torque stays off for ``problem``; True when the reason changed (log it once)."""
+        changed, self.note = problem != self.note, problem
+        return changed
+
+    def torque_unwanted(self) -> None:
+        """Torque off on request (set_torque(false)): it stays off, also across reconnects, until asked again."""
+        self.torque_wanted = False
+
+    def set_torque_refusal(self) -> Answer | None:
+        """set_torque(true): the answer without trying (refused, or already on), or None: try torque on now."""
+        if self.estop is not None:
+            return Answer(False, f"E-stop engaged ({self.estop}): call clear_estop")
+        if not self.active:
+            return Answer(False, "node is not active")
+        if self.torque_on:
+            return Answer(True, "torque already on")
+        if not self.link_up:
+            return Answer(False, f"bus not connected: {self.bus_problem}")
+        return None
+
+    def set_torque_result(self, problem: str | None) -> Answer:
+        """set_torque(true) tried torque on: wanted only if it came on; a relax is over either way."""
+        self.torque_wanted, self.relaxed = problem is None, False
+        return Answer(problem is None, problem or "torque on")
+
+    def torque_on_problem(self, ticks: ArrayLike, alerts: frozenset[int], errors: dict[int, int] | None) -> str | None:
+        """Why torque must not come on at these present ticks (in ``ids`` order), or None; ``errors`` are the
+        Hardware Error Status bits read with the positions (None: not read, nothing was alerting)."""
+        if errors is not None:
+            self.hw_errors = errors
+        self.alerts = alerts
+        return self.hardware_problem() or self._position_problem(np.asarray(ticks, dtype=np.int64))
+
+    def hardware_problem(self) -> str | None:
+        """The servos' hardware errors as a refusal, or None."""
+        if not self.hw_errors:
+            return None
+        described = {i: self.describe_error(b) for i, b in self.hw_errors.items()}
+        return f"hardware error {described}: call reboot (or reboot_<id>), or power-cycle the servo"
+
+    def alerts_changed(self, alerts: frozenset[int]) -> bool:
+        """Whether a read's set of alerting servos differs from the known one (read Hardware Error Status then)."""
+        return alerts != self.alerts
+
+    def hardware_errors(self, alerts: frozenset[int], errors: dict[int, int]) -> Alert:
+        """The set of alerting servos changed, with these nonzero errors: a new error stops wanting torque."""
+        self.alerts = alerts
+        if errors == self.hw_errors:
+            return Alert.NONE
+        self.hw_errors = errors
+        if errors:
+            self.torque_wanted = False
+            return Alert.FAULT
+        return Alert.CLEARED
+
+    # ---------------------------------------------------------------- start-up positions
+    def calibrate(self, motor_map: MotorMap) -> None:
+        """The configured neutral of ``motor_map`` fixes the sane range: its goal limits widened by the tolerance."""
+        self.neutral = np.asarray(motor_map.neutral_ticks, dtype=np.int64)
+        wider = dataclasses.replace(motor_map, margin=motor_map.margin + self.tolerance)
+        self.sane = MotorLimits.from_map(wider)
+
+    def first_calibration(self, path: str) -> str | None:
+        """No neutral file yet: why the present positions must not be stored as the calibration (servos held at
+        start, a commanded pose rather than the rest pose: torque then stays off), or None."""
+        if self.held:
+            self.uncalibrated = (f"no neutral file {path} and the servos were held at start (not necessarily at "
+                                 "rest): switch their torque off or power-cycle them at rest, then restart")
+        return self.uncalibrated
+
+    def _position_problem(self, ticks: np.ndarray) -> str | None:
+        """Why torque must not come on at these present positions: uncalibrated, start-up check, sane range."""
+        assert self.neutral is not None and self.sane is not None
+        if self.uncalibrated is not None:
+            return self.uncalibrated
+        if not self.startup_checked:
+            problem = neutral_check(ticks_to_angles(ticks, self.neutral), self.tolerance, self.held)
+            if problem is not None:
+                return problem
+            self.startup_checked = True
+        inside = self.sane.contains(ticks)
+        if not np.all(inside):
+            outside = [i for i, ok in zip(self.ids, inside) if not ok]
+            return f"present positions of IDs {outside} are outside the goal limits (servo power-cycled or turned?)"
+        return None
+
+    # ---------------------------------------------------------------- commands and watchdog
+    def command(self, finite: bool) -> Verdict:
+        """How to treat an arriving phi_cmd; after an ACCEPT (or a WAKE, whatever its torque-on gave) the caller
+        reports `command_taken`."""
+        if not finite:
+            return Verdict.REJECT
+        if self.estop is not None:
+            return Verdict.IGNORE
+        if self.relaxed and self.torque_wanted and self.active and self.link_up:
+            return Verdict.WAKE
+        return Verdict.ACCEPT
+
+    def command_taken(self, now: float) -> None:
+        """The newest command arrived at ``now``: the watchdog measures its age."""
+        self.command_time = now
+
+    def clear_command(self) -> None:
+        """The command was discarded (torque-on, E-stop, reboot, activation): the watchdog waits for a new one."""
+        self.command_time, self.watchdog = None, Watchdog.WAITING
+
+    def check_watchdog(self, now: float, timeout: float, action: str) -> WatchdogDecision:
+        """Watchdog check of one cycle: command older than ``timeout`` [s] (0 = off) -> ``action`` hold | relax."""
+        if self.command_time is None:
+            return WatchdogDecision(WatchdogEvent.NONE)
+        if timeout > 0.0 and now - self.command_time > timeout:
+            if self.watchdog is Watchdog.EXPIRED:
+                return WatchdogDecision(WatchdogEvent.STALE)
+            self.watchdog = Watchdog.EXPIRED
+            if action != "relax":
+                return WatchdogDecision(WatchdogEvent.HOLD)
+            if self.torque_on:
+                self.relaxed = True
+            return WatchdogDecision(WatchdogEvent.RELAX, torque_off=self.torque_on)
+        resumed, self.watchdog = self.watchdog is Watchdog.EXPIRED, Watchdog.FRESH
+        return WatchdogDecision(WatchdogEvent.RESUMED if resumed else WatchdogEvent.NONE)
+
+    def watchdog_status(self, action: str) -> str:
+        """Watchdog state for diagnostics: expired with 'relaxed' or the action, else the state's name."""
+        if self.watchdog is not Watchdog.EXPIRED:
+            return self.watchdog.value
+        return f"{self.watchdog.value} ({'relaxed' if self.relaxed else action})"
+
+    # ---------------------------------------------------------------- E-stop
+    def engage_estop(self, reason: str, now: float) -> bool:
+        """Latch the E-stop (torque already switched off); True when it was released before (publish, log)."""
+        if self.estop is not None:
+            return False
+        self.estop, self.estop_since = reason, now
+        return True
+
+    def torque_off_outcome(self, unconfirmed: frozenset[int]) -> str:
+        """What a torque-off achieved, given the IDs that did not confirm it."""
+        if not unconfirmed:
+            return "torque off confirmed"
+        if self.link_up:
+            return f"torque off not confirmed by IDs {sorted(unconfirmed)}"
+        return f"bus not connected ({self.bus_problem}): torque off not possible"
+
+    def clear_estop_refusal(self) -> Answer | None:
+        """clear_estop: the answer without trying (nothing engaged, inactive, disconnected), or None: try torque on."""
+        if self.estop is None:
+            return Answer(True, "E-stop was not engaged")
+        if not self.active:
+            return Answer(False, "E-stop stays engaged: node is not active")
+        if not self.link_up:
+            return Answer(False, f"E-stop stays engaged: bus not connected: {self.bus_problem}")
+        return None
+
+    def clear_estop_result(self, problem: str | None) -> Answer:
+        """clear_estop tried torque on: released (torque wanted again) only if it came on."""
+        if problem is not None:
+            return Answer(False, f"E-stop stays engaged: {problem}")
+        self.estop, self.torque_wanted, self.relaxed = None, True, False
+        return Answer(True, "E-stop cleared, torque on")
+
+    # ---------------------------------------------------------------- reboot
+    def reboot_refusal(self) -> str | None:
+        """Why a reboot must be refused now (see `reboot_refusal`), or None."""
+        return reboot_refusal(self.active, self.link_up, self.torque_on, self.watchdog is Watchdog.FRESH)
+
+    def reboot_started(self) -> None:
+        """A reboot begins (torque is switched off for every servo): torque stays off until set_torque(true)."""
+        self.torque_wanted = self.relaxed = False
+
+    def rebooted(self, ticks: ArrayLike, alerts: frozenset[int], errors: dict[int, int]) -> str | None:
+        """The servos answered after a reboot with these positions and nonzero errors: why torque must stay off (a
+        position problem without hardware errors names the lost multi-turn count), or None."""
+        problem = self.torque_on_problem(ticks, alerts, errors)
+        if problem is not None and not errors:
+            problem = f"{problem}; {MULTI_TURN_NOTE}"
+        return problem
+
+
+def reboot_refusal(active: bool, link_up: bool, torque_on: bool, tracking: bool) -> str | None:
+    """Why a servo reboot must be refused now, or None.
+
+    A reboot drops the servo's torque at once (the instruction resets its RAM), so it is refused while the robot is
+    tracking fresh commands with torque on; holding or idle servos may be rebooted (the driver switches every servo's
+    torque off first, so a rod pair is never left half held).
+    """
+    if not active:
+        return "node is not active"
+    if not link_up:
+        return "bus not connected"
+    if torque_on and tracking:
+        return ("torque is on and the robot is tracking fresh phi_cmd: stop the commands (or call set_torque(false)) "
+                "before a reboot")
+    return None
+
+
+@dataclasses.dataclass
+class GoalRateLimiter:
+    """Goal-rate limit that is order-independent within one clock instant.
+
+    A write at time ``now`` may move the goal at most ``max_rate · min(now − t_a, period)`` from the goal in force at
+    ``t_a``, the last EARLIER instant at which a goal was written. Several writes at the same instant (the cycle
+    timer and a ``phi_cmd`` arriving in the same simulated instant, in either order) are all measured from that same
+    goal, so the last target of the instant alone decides the final goal. On the wall clock every write has its own
+    instant and this is the plain "time since the last write" limit.
+    """
+
+    _anchor_time: float = 0.0  # t_a: the last instant before the current one at which a goal was written
+    _anchor_goal: np.ndarray | None = None  # the goal in force at the end of t_a
+    _time: float = 0.0  # the instant of the latest write
+    _goal: np.ndarray | None = None  # the latest goal written
+
+    def reset(self, goal: ArrayLike) -> None:
+        """Torque came on holding ``goal``: it counts as in force since long ago, so the first write may move it by a
+        full period's step (the held goal needs no ramp-in)."""
+        held = np.asarray(goal, dtype=np.int64)
+        self._anchor_time, self._anchor_goal, self._time, self._goal = -math.inf, held, -math.inf, held
+
+    @property
+    def goal(self) -> np.ndarray | None:
+        """The latest goal written (or held since ``reset``), None before the first reset."""
+        return self._goal
+
+    def limited(self, target: ArrayLike, now: float, max_rate: float, period: float,
+                clamp: Callable[[np.ndarray], np.ndarray] = lambda g: g) -> np.ndarray:
+        """The goal a write of ``target`` at ``now`` may set ([ticks]); ``max_rate`` [rad/s] 0 = no limit.
+
+        ``clamp`` maps the rate-limited goal back into the absolute goal limits.
+        """
+        if self._goal is None:
+            raise RuntimeError("GoalRateLimiter.limited before reset: no goal in force")
+        target = np.asarray(target, dtype=np.int64)
+        if max_rate <= 0.0:
+            return target
+        base_time, base_goal = (self._anchor_time, self._anchor_goal) if now == self._time else (self._time,
+                                                                                                 self._goal)
+        dt = min(max(now - base_time, 0.0), period)  # a clock that jumped back allows no motion at that instant
+        return np.asarray(clamp(limit_goal_rate(base_goal, target, dt, max_rate)), dtype=np.int64)
+
+    def written(self, goal: ArrayLike, now: float) -> None:
+        """Record that ``goal`` was written at ``now`` (a new instant makes the previous one the anchor)."""
+        if now != self._time:
+            self._anchor_time, self._anchor_goal = self._time, self._goal
+        self._time, self._goal = now, np.asarray(goal, dtype=np.int64)

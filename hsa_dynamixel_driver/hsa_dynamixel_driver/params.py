@@ -1,0 +1,88 @@
+"""Parameters of the dynamixel_driver: the one list of declarations (SPECS) and the twist limit they give.
+
+Names, units and ranges: docs/nodes/hsa_dynamixel_driver.md. Only ``max_goal_rate``, ``command_timeout`` and
+``watchdog_action`` change at run time; every other parameter is read-only.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_core.actuation import DEFAULT_MAX_GOAL_RATE
+from hsa_core.params import ParameterError, load_params
+from hsa_dynamixel_driver.bus import SDK_BAUDRATES
+
+
+def _signs(value: list[int]) -> str | None:
+    """Validator: every entry is +1 or -1."""
+    return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
+
+
+def _ids(value: list[int]) -> str | None:
+    """Validator: the servo IDs are distinct."""
+    return None if len(set(value)) == len(value) else "IDs must be distinct"
+
+
+SPECS = (
+    ParamSpec("autostart", True, "configure and activate at start (no lifecycle manager needed)", read_only=True),
+    ParamSpec("port", "/dev/ttyUSB0", "serial device of the U2D2 (a stable udev symlink is best)", read_only=True),
+    ParamSpec("baudrate", 4_000_000, "bus speed [bit/s]; must equal the servos' Baud Rate register", read_only=True,
+              validator=lambda v: None if v in SDK_BAUDRATES else f"must be one of {SDK_BAUDRATES}"),
+    ParamSpec("motor_ids", [21, 22, 23, 24], "Dynamixel IDs; motors 1-2 drive rod 2 (+24 mm), 3-4 rod 1",
+              low=0, high=252, length=4, read_only=True, validator=_ids),
+    ParamSpec("rho", [1, -1, 1, -1], "rod handedness of each motor [+1|-1]", length=4, read_only=True,
+              validator=_signs),
+    ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
+              validator=_signs),
+    ParamSpec("material", "fpu", "parameter set giving phi_max", choices=("fpu", "epu"), read_only=True),
+    ParamSpec("params_file", "", "parameter YAML overriding the packaged set (empty = packaged)", read_only=True),
+    ParamSpec("phi_max", 0.0, "twist limit [rad]; 0 = the smaller phi_max of the parameter set", low=0.0,
+              high=2.0 * math.pi, read_only=True),
+    ParamSpec("goal_margin", 0.02, "goal clamp widening beyond [0, phi_max] on both ends [rad]", low=0.0, high=0.5,
+              read_only=True),
+    ParamSpec("neutral_source", "param", "neutral ticks (and so the absolute goal limits): the neutral_ticks list, "
+              "neutral_file, or read (the φ map only, accepted within neutral_tolerance of neutral_ticks; the limits "
+              "stay on neutral_ticks)", choices=("param", "file", "read"), read_only=True),
+    ParamSpec("neutral_ticks", [2048, 2048, 2048, 2048], "configured neutral positions [ticks] (neutral_source "
+              "'param' or 'read'); the default is the emulated servos' power-on position", length=4,
+              low=-1_000_000, high=1_000_000, read_only=True),
+    ParamSpec("neutral_file", "", "YAML of stored neutral ticks; written from the present positions if absent",
+              read_only=True),
+    ParamSpec("neutral_tolerance", 0.1, "largest |present - stored neutral| at start-up for torque-on [rad]",
+              low=0.0, high=math.pi, read_only=True),
+    ParamSpec("return_delay", 0, "Return Delay Time written at configure [2 us units]", low=0, high=254,
+              read_only=True),
+    ParamSpec("rate", 100.0, "control cycle rate: one sync write + one sync read [Hz]", low=1.0, high=500.0,
+              read_only=True),
+    ParamSpec("max_goal_rate", DEFAULT_MAX_GOAL_RATE, "largest goal speed of a motor [rad/s] (default: twice the "
+              "MX-28 no-load speed); 0 = no rate limit", low=0.0, high=100.0),
+    ParamSpec("write_on_command", True, "sync-write a goal as soon as a phi_cmd arrives (else only in the cycle); "
+              "the read cycle, watchdog and rate limit are unchanged", read_only=True),
+    ParamSpec("command_timeout", 0.1, "command watchdog: phi_cmd older than this [s] -> watchdog_action; 0 = off",
+              low=0.0, high=10.0),
+    ParamSpec("watchdog_action", "hold", "when the watchdog expires: hold the last goal, or relax (torque off until "
+              "the next phi_cmd, which re-enables torque if safe)", choices=("hold", "relax")),
+    ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
+              read_only=True),
+    ParamSpec("packet_timeout", 0.0, "[ms] least time to wait for a status packet; 0 = the SDK's (about 34 ms). "
+              "The simulated graph raises it: there a late reply is the machine's load, not the servo",
+              low=0.0, high=10_000.0, read_only=True),
+    ParamSpec("error_limit", 10, "consecutive failed cycles before the bus counts as lost", low=1, high=10_000,
+              read_only=True),
+)
+
+
+def twist_limit(p: dict[str, Any]) -> float:
+    """φ_max [rad]: the parameter, or the smaller rod limit of the parameter set (a bad set names its parameter)."""
+    if p["phi_max"] > 0.0:
+        return float(p["phi_max"])
+    name = "params_file" if p["params_file"] else "material"
+    try:
+        params = load_params(p["params_file"] or p["material"])
+    except ParameterError as exc:
+        raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
+    return float(np.min(np.asarray(params.phi_max)))

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_core import rosenv
+from hsa_common import rosenv
 from hsa_core.jaxsetup import configure_jax
 
 RESULTS = Path(__file__).resolve().parent / "results" / "bag.json"

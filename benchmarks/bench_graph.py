@@ -36,7 +36,7 @@ import yaml
 from rosbags.rosbag2 import Reader
 
 from hsa_bag.msgtypes import TypeRegistry
-from hsa_core import rosenv
+from hsa_common import rosenv
 from hsa_core.trajectories import step_reference
 from hsa_core.jaxsetup import configure_jax
 

@@ -20,18 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent / "results" / "planning_control.json"
+from hsa_core.trajectories import STEP_LISTS
 
-FPU_STEPS = [
-    [0.0, 0.120], [0.00479247, 0.12781018], [-0.035, 0.122], [-0.00782133, 0.13024847], [0.00823294, 0.114643],
-    [-0.01417039, 0.12388105], [0.0, 0.140], [0.02524261, 0.1304036], [-0.0059703, 0.13986947],
-    [0.0073023, 0.11479653], [0.00567301, 0.1271345],
-]
-EPU_STEPS = [
-    [0.01567931, 0.13496604], [-0.01137064, 0.13488599], [-0.00210567, 0.12011204], [-0.00869464, 0.13911694],
-    [-0.00929787, 0.12710664], [-0.00304799, 0.12364617], [0.00478033, 0.12777372], [-0.02880408, 0.12547507],
-    [0.02296768, 0.12596894], [0.01681273, 0.1245412], [-0.00122529, 0.14039634],
-]
+RESULTS = Path(__file__).resolve().parent / "results" / "planning_control.json"
+EPU_STEPS = STEP_LISTS["epu"]  # experiments.md §2
 
 # reference_performance.md, FPU/EPU run 1 and run 2 (p50 / p95 / max unless stated)
 ORIGINAL = {
@@ -69,12 +61,25 @@ def stats(samples: list[float], scale: float = 1.0) -> dict[str, float]:
     return percentiles | {"max": float(a.max()), "n": len(a)}
 
 
+def timed_plans(planner, points, warm_start: bool, passes: int) -> tuple[list[float], list]:
+    """Plan every point, ``passes`` times over: wall time per plan [s] and the results (each must succeed)."""
+    walls, results = [], []
+    for _ in range(passes):
+        for p in points:
+            t = time.perf_counter()
+            r = planner.plan(p, warm_start=warm_start)
+            walls.append(time.perf_counter() - t)
+            assert r.success, r.message
+            results.append(r)
+    return walls, results
+
+
 def section_static(material: str) -> dict:
     """Static inversion: cold (construction incl. compile + first plan), warm fresh and warm-started over 5 passes."""
     from hsa_core.params import load_params
     from hsa_core.planning import Planner
 
-    steps = FPU_STEPS if material == "fpu" else EPU_STEPS
+    steps = STEP_LISTS[material]
     t0 = time.perf_counter()
     planner = Planner(load_params(material), "static")
     t_construct = time.perf_counter() - t0
@@ -82,18 +87,11 @@ def section_static(material: str) -> dict:
     cold = time.perf_counter() - t0
     out: dict = {"cold_s": cold, "construct_s": t_construct, "cold_first_plan_status": first.status.name}
     for mode, warm in (("fresh_start", False), ("warm_start", True)):
-        walls, iters, errs = [], [], []
         planner.reset_warm_start()
-        for _ in range(5):
-            for p in steps:
-                t = time.perf_counter()
-                r = planner.plan(p, warm_start=warm)
-                walls.append(time.perf_counter() - t)
-                assert r.success, r.message
-                iters.append(r.iterations)
-                errs.append(r.optimality_error)
+        walls, results = timed_plans(planner, steps, warm, passes=5)
+        iters = [r.iterations for r in results]
         out[mode] = {"per_setpoint_ms": stats(walls, 1e3), "iterations_min_max": [min(iters), max(iters)],
-                     "max_optimality_error": max(errs)}
+                     "max_optimality_error": max(r.optimality_error for r in results)}
     return out
 
 
@@ -149,13 +147,7 @@ def section_default_epu() -> dict:
     from hsa_core.planning import Planner
 
     planner = Planner(load_params("epu"))
-    walls = []
-    for _ in range(5):
-        for p in EPU_STEPS:
-            t = time.perf_counter()
-            r = planner.plan(p, warm_start=False)
-            walls.append(time.perf_counter() - t)
-            assert r.success, r.message
+    walls, _ = timed_plans(planner, EPU_STEPS, warm_start=False, passes=5)
     return {"planner": planner.kind, "warm_per_setpoint_s": stats(walls)}
 
 
@@ -166,8 +158,7 @@ def section_control(material: str) -> dict:
     from hsa_core.planning import Planner
 
     params = load_params(material)
-    steps = FPU_STEPS if material == "fpu" else EPU_STEPS
-    setpoint = Planner(params).plan(steps[1]).setpoint
+    setpoint = Planner(params).plan(STEP_LISTS[material][1]).setpoint
     rng = np.random.default_rng(0)
     n = 5000
     q = setpoint.q_des + rng.normal(scale=[0.3, 0.002, 0.005], size=(n, 3))

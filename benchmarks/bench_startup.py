@@ -31,8 +31,8 @@ import threading
 import time
 from pathlib import Path
 
+from hsa_common import rosenv
 from hsa_common.launcher import LaunchFile
-from hsa_core import rosenv
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"

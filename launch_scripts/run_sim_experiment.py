@@ -21,8 +21,9 @@ import numpy as np
 import yaml
 
 from hsa_bag.analysis import analyze
+from hsa_common import convert, rosenv
 from hsa_common.launcher import Launcher, LaunchFile
-from hsa_core import cli, metrics, rosenv
+from hsa_core import cli, metrics
 from hsa_core.jaxsetup import configure_jax
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
@@ -66,7 +67,7 @@ class StepMonitor:
     def _on_info(self, msg) -> None:
         if msg.state != self._tracking:
             return
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        t = convert.stamp_s(msg.header.stamp)
         self._t0 = t if self._t0 is None else self._t0
         if msg.setpoint.trajectory_index != self._index:
             self._report()

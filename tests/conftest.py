@@ -2,7 +2,7 @@
 
 import os
 
-from hsa_core import rosenv
+from hsa_common import rosenv
 from hsa_core.jaxsetup import configure_jax
 
 # Tests run every generated message setter with its type/size checks (off by default in Jazzy for speed), so a

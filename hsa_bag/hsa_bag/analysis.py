@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hsa_bag.bagio import Bag, BagError
+from hsa_bag.bagio import Bag, BagError, stamp_ns
 from hsa_bag.storage import read_metadata
 from hsa_core import cli
 from hsa_core.metrics import RunMetrics, evaluate_run, format_steps, format_summary
@@ -75,11 +75,6 @@ def _config(q: object) -> tuple[float, float, float]:
     return (q.kappa_be, q.sigma_sh, q.sigma_ax)  # type: ignore[attr-defined]
 
 
-def _ns(stamp: object) -> int:
-    """builtin_interfaces/Time → ns."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec  # type: ignore[attr-defined]
-
-
 def _measured_phi(bag: Bag) -> tuple[np.ndarray, np.ndarray] | None:
     """(stamps [ns], φ (M, 2) [rad]) of ``/hsa/phi_present`` in stamp order; None if the bag lacks the topic."""
     info = bag.topics.get(PHI_TOPIC)
@@ -87,7 +82,7 @@ def _measured_phi(bag: Bag) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     store = bag.typestore(PHI_TOPIC)
     samples = sorted(
-        (_ns(msg.header.stamp), tuple(msg.phi))
+        (stamp_ns(msg.header.stamp), tuple(msg.phi))
         for msg in (store.deserialize_cdr(raw, PLANAR_ACTUATION) for _, _, raw in bag.messages([PHI_TOPIC]))
     )
     return np.array([s for s, _ in samples], dtype=np.int64), np.array([p for _, p in samples], dtype=np.float64)
@@ -141,7 +136,7 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
             msg = store.deserialize_cdr(raw, CONTROLLER_INFO)
             if msg.state != tracking:
                 continue
-            rows.setdefault(_ns(msg.header.stamp), (
+            rows.setdefault(stamp_ns(msg.header.stamp), (
                 _pose(msg.chiee), _pose(msg.chiee_des), _config(msg.q), _config(msg.q_des), msg.varphi,
                 msg.varphi_des, msg.phi_ss, msg.phi_des_unsat, msg.phi_des_sat, msg.e_int, msg.saturated,
             ))  # fmt: skip

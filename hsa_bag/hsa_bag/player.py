@@ -55,9 +55,9 @@ from rosgraph_msgs.msg import Clock
 from hsa_bag.bagio import Bag, BagError
 from hsa_bag.msgtypes import message_class
 from hsa_bag.qos import publisher_profile
-from hsa_common import lockstep
+from hsa_common import convert, lockstep, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
-from hsa_core import cli, rosenv
+from hsa_core import cli
 from hsa_core.lockstep import Barrier
 from hsa_core.playback import LockstepPlayback
 from hsa_msgs.msg import LockstepAck
@@ -170,10 +170,7 @@ class Player:
     def _publish_clock(self, when: float) -> None:
         """Publish the playback time of monotonic time ``when`` on /clock."""
         assert self.clock is not None
-        ns = self._playback_ns(when)
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = divmod(ns, 1_000_000_000)
-        self.clock.publish(msg)
+        self.clock.publish(convert.clock_msg(self._playback_ns(when)))
 
     def _sleep_until(self, due: float) -> bool:
         """Wait for ``due``, publishing the /clock ticks that fall before it; False if stopped."""
@@ -270,9 +267,7 @@ class Player:
                 upcoming = next(timeline, None)
             elif step.action == "clock":
                 assert step.t_ns is not None
-                msg = Clock()
-                msg.clock.sec, msg.clock.nanosec = divmod(step.t_ns, 1_000_000_000)
-                self.clock.publish(msg)
+                self.clock.publish(convert.clock_msg(step.t_ns))
             elif step.action == "done":
                 break
             elif step.action == "fail":
@@ -298,22 +293,6 @@ def _remap(text: str) -> tuple[str, str]:
     return source, target
 
 
-def _positive(text: str) -> float:
-    """argparse type for a finite number > 0."""
-    value = float(text)
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    """argparse type for a finite number >= 0."""
-    value = float(text)
-    if not 0.0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
 def parse_args(argv: list[str]) -> tuple[Path, Options]:
     """Bag path and options from the command line (without ROS arguments)."""
     parser = cli.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
@@ -322,19 +301,20 @@ def parse_args(argv: list[str]) -> tuple[Path, Options]:
                         help="recorded topics to play (default all)")
     parser.add_argument("--remap", action="append", type=_remap, default=[], metavar="FROM:=TO",
                         help="publish recorded topic FROM as TO (repeatable)")
-    parser.add_argument("--rate", type=_positive, default=1.0, help="playback speed factor (2 = twice as fast)")
-    parser.add_argument("--start-offset", type=_non_negative, default=0.0, metavar="S",
+    parser.add_argument("--rate", type=cli.positive, default=1.0, help="playback speed factor (2 = twice as fast)")
+    parser.add_argument("--start-offset", type=cli.non_negative, default=0.0, metavar="S",
                         help="skip the first S seconds of the bag")
     parser.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
                         help="play N passes; without N, repeat until stopped")
-    parser.add_argument("--clock", type=_positive, nargs="?", const=40.0, default=0.0, metavar="HZ",
+    parser.add_argument("--clock", type=cli.positive, nargs="?", const=40.0, default=0.0, metavar="HZ",
                         help="publish the playback time on /clock at HZ (default 40)")
-    parser.add_argument("--delay", type=_non_negative, default=0.0, metavar="S", help="wait S seconds before playing")
-    parser.add_argument("--wait-for-subscribers", type=_positive, nargs="?", const=30.0, default=0.0,
+    parser.add_argument("--delay", type=cli.non_negative, default=0.0, metavar="S",
+                        help="wait S seconds before playing")
+    parser.add_argument("--wait-for-subscribers", type=cli.positive, nargs="?", const=30.0, default=0.0,
                         metavar="TIMEOUT", help="first wait up to TIMEOUT s (default 30) for a subscriber per topic")
     parser.add_argument("--wait-topics", nargs="+", default=[], metavar="T",
                         help="wait for subscribers on these recorded topics only (default: every played topic)")
-    parser.add_argument("--busy-wait-ms", type=_non_negative, default=1.0, metavar="MS",
+    parser.add_argument("--busy-wait-ms", type=cli.non_negative, default=1.0, metavar="MS",
                         help="busy-wait this long before each message instead of sleeping (default 1)")
     args = parser.parse_args(argv)
     if args.loop < 0:

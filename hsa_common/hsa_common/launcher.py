@@ -40,7 +40,8 @@ from typing import Any, BinaryIO
 
 import yaml
 
-from hsa_core import cli, rosenv
+from hsa_common import rosenv
+from hsa_core import cli
 
 _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
 

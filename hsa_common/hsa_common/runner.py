@@ -42,9 +42,8 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from hsa_common import lockstep
+from hsa_common import lockstep, rosenv
 from hsa_common.parameters import ParameterValidationError
-from hsa_core import rosenv
 
 TEARDOWN_NICE = 5
 """Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a graph stop, but

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
@@ -80,12 +80,11 @@ class CalibrationNode(Node):
 
     def _on_state(self, msg: PlanarState) -> None:
         """Keep the sample (mocap stamp, receive time, EE pose)."""
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self._states.append((stamp, self._now(), np.array([msg.chiee.x, msg.chiee.y, msg.chiee.theta])))
+        self._states.append((convert.stamp_s(msg.header.stamp), self._now(), convert.planar_pose(msg.chiee)))
 
     def _on_phi(self, msg: PlanarActuation) -> None:
         """Keep the present twist with its receive time."""
-        self._phis.append((self._now(), np.asarray(msg.phi, dtype=float)))
+        self._phis.append((self._now(), convert.actuation(msg)))
 
     def _serve(self, request: CalibrateRestStrain.Request,
                response: CalibrateRestStrain.Response) -> CalibrateRestStrain.Response:

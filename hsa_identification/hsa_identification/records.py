@@ -15,18 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_bag.bagio import Bag, BagError
+from hsa_bag.bagio import Bag, BagError, stamp_ns
 from hsa_core.excitation import zero_order_hold
 from hsa_core.identification import Record
 
 POSE_TYPES = {"hsa_msgs/msg/PlanarPoseStamped": "pose", "hsa_msgs/msg/PlanarState": "chiee"}
 ACTUATION = "hsa_msgs/msg/PlanarActuation"
-
-
-def _stamp(msg: object) -> int:
-    """header.stamp in integer nanoseconds (a float of epoch seconds resolves only ~0.2 us)."""
-    stamp = msg.header.stamp  # type: ignore[attr-defined]
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def _find_topic(bag: Bag, types: tuple[str, ...], suffix: str) -> str:
@@ -62,10 +56,10 @@ def read_bag(path: Path | str, pose_topic: str | None = None, phi_topic: str | N
         for topic, _, raw in bag.messages([pose_topic, phi_topic]):
             msg = stores[topic].deserialize_cdr(raw, types[topic])
             if topic == phi_topic:
-                phis.append((_stamp(msg), np.asarray(msg.phi, dtype=float)))
+                phis.append((stamp_ns(msg.header.stamp), np.asarray(msg.phi, dtype=float)))
             else:
                 pose = getattr(msg, POSE_TYPES[info.msgtype])
-                poses.setdefault(_stamp(msg), (pose.x, pose.y, pose.theta))
+                poses.setdefault(stamp_ns(msg.header.stamp), (pose.x, pose.y, pose.theta))
     if len(poses) < 3 or not phis:
         raise BagError(f"{path}: {len(poses)} poses on {pose_topic} and {len(phis)} on {phi_topic}; need >= 3 and >= 1")
     stamps = sorted(poses)

@@ -14,17 +14,17 @@ from typing import Any
 
 import jax
 import numpy as np
-from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.time import Time
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
-from hsa_common.runner import run, seconds
+from hsa_common.runner import run
+from hsa_core.rate_meter import RateMeter
 from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import CsConfiguration, PlanarState, Setpoint
@@ -70,7 +70,7 @@ class MarkerNode(Node):
         self._goal: list[Marker] = []  # setpoint sphere and ghost of q^d, rebuilt on a new setpoint or parameter
         self._published_at: Time | None = None
         self._counts = {"states": 0, "setpoints": 0, "published": 0}
-        self._reported = (self.get_clock().now(), 0)
+        self._rates = RateMeter(self.get_clock().now().nanoseconds)
         self._pub = self.create_publisher(MarkerArray, "markers", qos.INFO, qos_overriding_options=qos.overridable())
         self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,
                                  qos_overriding_options=qos.overridable())
@@ -87,7 +87,7 @@ class MarkerNode(Node):
 
     def _compute(self, q: CsConfiguration) -> RobotGeometry:
         """Geometry of configuration q as NumPy arrays."""
-        return jax.device_get(self._geometry(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])))
+        return jax.device_get(self._geometry(convert.configuration(q)))
 
     def _on_state(self, msg: PlanarState) -> None:
         """Keep the newest state; draw it unless the last MarkerArray went out less than 1/rate ago."""
@@ -123,7 +123,7 @@ class MarkerNode(Node):
         """SPHERE at the desired EE position and the translucent ghost of q^d."""
         goal = setpoint.chiee_des
         sphere = _marker("setpoint", 0, Marker.SPHERE, SETPOINT, 1.0)
-        sphere.pose.position = Point(x=goal.x, y=goal.y, z=0.0)
+        sphere.pose.position = convert.planar_point(goal.x, goal.y)
         sphere.scale.x = sphere.scale.y = sphere.scale.z = self._p["setpoint_diameter"]
         return [sphere, *self._robot_markers("ghost", self._compute(setpoint.q_des), ghost=True)]
 
@@ -134,7 +134,7 @@ class MarkerNode(Node):
         def strip(name: str, marker_id: int, points: np.ndarray, color: tuple[float, ...], width: float) -> Marker:
             marker = _marker(ns or name, marker_id, Marker.LINE_STRIP, GHOST if ghost else color, alpha)
             marker.scale.x = width
-            marker.points = [Point(x=float(x), y=float(y), z=0.0) for x, y in points]
+            marker.points = [convert.planar_point(x, y) for x, y in points]
             return marker
 
         backbone_width = self._p["backbone_width"]
@@ -147,8 +147,7 @@ class MarkerNode(Node):
             markers.append(strip("platform", 3, g.platform, PLATFORM, backbone_width))
             return markers
         cube = _marker("platform", 0, Marker.CUBE, PLATFORM, 1.0)
-        x, y, _ = (float(v) for v in g.platform_pose)
-        cube.pose.position = Point(x=x, y=y, z=0.0)
+        cube.pose.position = convert.planar_point(*g.platform_pose[:2])
         orientation = cube.pose.orientation
         orientation.x, orientation.y, orientation.z, orientation.w = (float(v) for v in g.platform_orientation)
         cube.scale.x, cube.scale.y, cube.scale.z = (float(v) for v in self._plate_size)
@@ -157,9 +156,7 @@ class MarkerNode(Node):
     def _report(self) -> Report:
         """Counts and output rate since the last report; WARN while no state has arrived."""
         now = self.get_clock().now()
-        then, published = self._reported
-        rate = (self._counts["published"] - published) / max(seconds(now - then), 1e-9)
-        self._reported = (now, self._counts["published"])
+        rate = self._rates.rates(now.nanoseconds, {"published": self._counts["published"]})["published"]
         values: dict[str, Any] = {**self._counts, "output_rate_hz": round(rate, 1), "rate_limit_hz": self._p["rate"]}
         if self._state is None:
             return Report(WARN, "waiting for state", values)

@@ -19,16 +19,17 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.time import Time
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
 from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
+from hsa_core.rate_meter import RateMeter
 from hsa_core.validation import DelayGate
 from hsa_core.jaxsetup import configure_jax
-from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarPoseStamped, PlanarState
+from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
 NOT_AVAILABLE = (math.nan,) * 6  # rates [q̇, χ̇_ee] while the estimator is not ready
 
@@ -70,12 +71,11 @@ class KinematicsNode(Node):
         self._received = self._published = self._restarts = 0
         self._rejected: Counter[str] = Counter()
         self._origin_ns: int | None = None  # first stamp; estimator times are seconds since it (float precision)
-        self._last_stamp: Time | None = None
+        self._last_stamp_ns: int | None = None
         self._last_received_at: Time | None = None
         self._mode = "no data"
         self._level: bytes | None = None  # diagnostics level last reported
-        self._report_at = self.get_clock().now()
-        self._reported = (0, 0)
+        self._rates = RateMeter(self.get_clock().now().nanoseconds)
         self._pub = self.create_publisher(PlanarState, "state", qos.SENSOR, qos_overriding_options=qos.overridable())
         self.create_subscription(PlanarPoseStamped, "ee_pose", self._on_pose, qos.SENSOR,
                                  qos_overriding_options=qos.overridable())
@@ -103,10 +103,10 @@ class KinematicsNode(Node):
         """IK and rate estimate for one pose sample; publish the state unless the estimator rejects the sample."""
         self._received += 1
         self._last_received_at = self.get_clock().now()
-        stamp_ns = Time.from_msg(msg.header.stamp).nanoseconds
+        stamp_ns = convert.stamp_ns(msg.header.stamp)
         if self._origin_ns is None:
             self._origin_ns = stamp_ns
-        chiee = (msg.pose.x, msg.pose.y, msg.pose.theta)
+        chiee = convert.planar_pose(msg.pose)
         q = configuration_from_pose(self._params, chiee)
         estimate = self._estimator.update((stamp_ns - self._origin_ns) * 1e-9, np.concatenate([q, chiee]))
         self._mode = estimate.mode
@@ -122,14 +122,14 @@ class KinematicsNode(Node):
             self.get_logger().warning(f"dropped ee_pose sample: its state would go out > {self._p['max_lag']:g} s "
                                       "late (queued or in flight while this node stalled)", throttle_duration_sec=5.0)
             return
-        self._last_stamp = Time.from_msg(msg.header.stamp)
+        self._last_stamp_ns = stamp_ns
         rates = estimate.derivative if estimate.derivative is not None else NOT_AVAILABLE
         out = PlanarState()
         out.header = msg.header
         out.chiee = msg.pose
-        out.chiee_dot = PlanarPose(x=float(rates[3]), y=float(rates[4]), theta=float(rates[5]))
-        out.q = _configuration(estimate.value)
-        out.q_dot = _configuration(rates)
+        out.chiee_dot = convert.planar_pose_msg(rates[3:])
+        out.q = convert.configuration_msg(estimate.value)
+        out.q_dot = convert.configuration_msg(rates)
         out.velocity_valid = estimate.ready
         out.window_samples = self._estimator.n_samples
         self._pub.publish(out)
@@ -138,20 +138,18 @@ class KinematicsNode(Node):
     def _report(self) -> Report:
         """Input silence level, estimator mode and window fill, counts of rejected samples and window restarts."""
         now = self.get_clock().now()
-        elapsed = max(seconds(now - self._report_at), 1e-9)
-        counts = (self._received, self._published)
-        rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
-        self._report_at, self._reported = now, counts
+        counts = {"received": self._received, "published": self._published}
+        rates = self._rates.rates(now.nanoseconds, counts)
         values: dict[str, object] = {
-            "received": counts[0], "published": counts[1], "rejected": sum(self._rejected.values()),
+            **counts, "rejected": sum(self._rejected.values()),
             **{f"rejected: {reason}": n for reason, n in sorted(self._rejected.items())},
             "window_restarts": self._restarts, "mode": self._mode,
             "window_samples": f"{self._estimator.n_samples}/{self._estimator.window}",
-            "input_rate_hz": round(rates[0], 1), "output_rate_hz": round(rates[1], 1),
+            "input_rate_hz": round(rates["received"], 1), "output_rate_hz": round(rates["published"], 1),
             "material": self._params.material, "sigma_a_eq": np.asarray(self._params.sigma_a_eq).tolist(),
         }
-        if self._last_stamp is not None:
-            values["last_sample_age_s"] = round(seconds(now - self._last_stamp), 4)
+        if self._last_stamp_ns is not None:
+            values["last_sample_age_s"] = round((now.nanoseconds - self._last_stamp_ns) * 1e-9, 4)
         if self._last_received_at is None:
             level, message = WARN, "waiting for ee_pose"
         elif (silence := seconds(now - self._last_received_at)) > self._p["stale_timeout"]:
@@ -162,11 +160,6 @@ class KinematicsNode(Node):
             level, message = OK, f"estimating ({self._mode})"
         self._level = log_level_change(self.get_logger(), self._level, level, message)
         return Report(level, message, values)
-
-
-def _configuration(values: Any) -> CsConfiguration:
-    """CsConfiguration from the first three entries [kappa_be, sigma_sh, sigma_ax]."""
-    return CsConfiguration(kappa_be=float(values[0]), sigma_sh=float(values[1]), sigma_ax=float(values[2]))
 
 
 def main() -> None:

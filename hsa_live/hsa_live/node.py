@@ -35,7 +35,7 @@ from foxglove.websocket import ChannelView, Client
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hsa_common import lockstep, qos
+from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
@@ -172,19 +172,16 @@ class LiveNode(Node):
         self._counts["states"] += 1
         if not self._scene.has_sinks() or not self._throttle.due(time.monotonic_ns()):
             return
-        q = msg.q
-        robot = scene.robot_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])),
-                                   _stamp(msg.header.stamp), self._style)
-        self._log_scene([robot, *([self._goal] if self._goal is not None else [])], _ns(msg.header.stamp))
+        robot = scene.robot_entity(self._compute(convert.configuration(msg.q)), _stamp(msg.header.stamp), self._style)
+        self._log_scene([robot, *([self._goal] if self._goal is not None else [])], convert.stamp_ns(msg.header.stamp))
 
     def _on_setpoint(self, msg: Setpoint) -> None:
         """Rebuild the goal entity and send it at once."""
         self._setpoint = msg
-        q = msg.q_des
-        self._goal = scene.goal_entity(self._compute(np.array([q.kappa_be, q.sigma_sh, q.sigma_ax])),
-                                       (msg.chiee_des.x, msg.chiee_des.y), _stamp(msg.header.stamp), self._style)
+        self._goal = scene.goal_entity(self._compute(convert.configuration(msg.q_des)),
+                                       convert.planar_pose(msg.chiee_des)[:2], _stamp(msg.header.stamp), self._style)
         if self._scene.has_sinks():
-            self._log_scene([self._goal], _ns(msg.header.stamp))
+            self._log_scene([self._goal], convert.stamp_ns(msg.header.stamp))
 
     def _log_scene(self, entities: list[SceneEntity], log_time: int) -> None:
         """One SceneUpdate with the given entities."""
@@ -197,20 +194,19 @@ class LiveNode(Node):
         """One tracking, actuation and configuration message per controller tick."""
         self._counts["ticks"] += 1
         self._controller_state = int(msg.state)
-        sample = live.tracking_sample([msg.chiee.x, msg.chiee.y], [msg.chiee_des.x, msg.chiee_des.y])
+        sample = live.tracking_sample(convert.planar_pose(msg.chiee)[:2], convert.planar_pose(msg.chiee_des)[:2])
         self._e_norm = sample["e_norm"]
-        t = _ns(msg.header.stamp)
+        t = convert.stamp_ns(msg.header.stamp)
         self._log("/live/tracking", sample, t)
         self._log("/live/actuation", lambda: live.actuation_sample(
             msg.phi_des_sat, msg.phi_des_unsat, msg.phi_ss, *self._phi_box, msg.saturated), t)
         self._log("/live/configuration", lambda: live.configuration_sample(
-            [msg.q.kappa_be, msg.q.sigma_sh, msg.q.sigma_ax],
-            [msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax]), t)
+            convert.configuration(msg.q), convert.configuration(msg.q_des)), t)
 
     def _on_phi_present(self, msg: PlanarActuation) -> None:
         """The measured twist from the driver."""
         self._counts["phi_present"] += 1
-        self._log("/live/phi_present", lambda: {"phi": live.numbers(msg.phi)}, _ns(msg.header.stamp))
+        self._log("/live/phi_present", lambda: {"phi": live.numbers(msg.phi)}, convert.stamp_ns(msg.header.stamp))
 
     def _log(self, topic: str, payload: Any, log_time: int) -> None:
         """Log a JSON payload (or a function making it, called only when a viewer subscribes) on ``topic``."""
@@ -275,11 +271,6 @@ def _schemas() -> dict[str, dict[str, Any]]:
 def _level(level: bytes | int) -> int:
     """DiagnosticStatus level as an int (rclpy gives a one-byte bytes)."""
     return level if isinstance(level, int) else level[0]
-
-
-def _ns(stamp: Any) -> int:
-    """Nanoseconds of a builtin_interfaces Time."""
-    return int(stamp.sec) * 10**9 + int(stamp.nanosec)
 
 
 def _stamp(stamp: Any) -> Timestamp:

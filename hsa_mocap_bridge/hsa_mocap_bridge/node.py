@@ -16,12 +16,13 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core import mocap
 from hsa_core.mocap_gate import MAX_FUTURE, REASONS, GateConfig, MocapGate, Sample
+from hsa_core.rate_meter import RateMeter
 from hsa_msgs.msg import PlanarPoseStamped
 
 FRAME_ID = "hsa_base"
@@ -117,8 +118,7 @@ class MocapBridge(Node):
         self._last_accepted_at: int | None = None  # node-clock time [ns] the newest accepted sample arrived
         self._rest: str | None = None  # rest-check result: None = pending, "" = fine, else the problem
         self._level: bytes | None = None  # diagnostics level last reported
-        self._report_at = self.get_clock().now().nanoseconds
-        self._reported = (0, 0)
+        self._rates = RateMeter(self.get_clock().now().nanoseconds)
         self._pub = self.create_publisher(
             PlanarPoseStamped, "ee_pose", qos.SENSOR, qos_overriding_options=qos.overridable())
         self.create_subscription(PoseStamped, self._p["platform_topic"], self._on_platform, qos.SENSOR,
@@ -186,7 +186,7 @@ class MocapBridge(Node):
         out = PlanarPoseStamped()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = FRAME_ID
-        out.pose.x, out.pose.y, out.pose.theta = (float(v) for v in verdict.chiee)
+        out.pose = convert.planar_pose_msg(verdict.chiee)
         self._pub.publish(out)
         self._counts["published"] += 1
 
@@ -202,14 +202,11 @@ class MocapBridge(Node):
     def _report(self) -> Report:
         """Staleness level, counts per drop reason, rates and the age of the newest accepted sample."""
         now = self.get_clock().now().nanoseconds
-        elapsed = max((now - self._report_at) * 1e-9, 1e-9)
-        counts = (self._counts["received"], self._counts["published"])
-        rates = [(n - n0) / elapsed for n, n0 in zip(counts, self._reported)]
-        self._report_at, self._reported = now, counts
+        counts = {name: self._counts[name] for name in ("received", "published")}
+        rates = self._rates.rates(now, counts)
         values: dict[str, object] = {
-            "received": counts[0], "published": counts[1],
-            **{f"rejected_{reason}": self._counts[reason] for reason in REASONS},
-            "input_rate_hz": round(rates[0], 1), "output_rate_hz": round(rates[1], 1),
+            **counts, **{f"rejected_{reason}": self._counts[reason] for reason in REASONS},
+            "input_rate_hz": round(rates["received"], 1), "output_rate_hz": round(rates["published"], 1),
             "last_rejection": self._last_rejection, "clock_resets": self._gate.time_resets,
         }
         if self._p["use_base_pose"]:
@@ -239,10 +236,7 @@ class MocapBridge(Node):
 
 def _sample(msg: PoseStamped) -> Sample:
     """The check-chain sample of a PoseStamped: stamp [ns], frame_id, position (x, y, z), quaternion (x, y, z, w)."""
-    p, o = msg.pose.position, msg.pose.orientation
-    stamp = msg.header.stamp
-    return Sample(stamp.sec * 1_000_000_000 + stamp.nanosec, msg.header.frame_id, (p.x, p.y, p.z),
-                  (o.x, o.y, o.z, o.w))
+    return Sample(convert.stamp_ns(msg.header.stamp), msg.header.frame_id, *convert.position_quaternion(msg))
 
 
 def main() -> None:

@@ -17,7 +17,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
@@ -130,8 +130,8 @@ class PlannerNode(Node):
         msg = Setpoint()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = FRAME_ID
-        msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta = (float(v) for v in sp.chiee_des)
-        msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax = (float(v) for v in sp.q_des)
+        msg.chiee_des = convert.planar_pose_msg(sp.chiee_des)
+        msg.q_des = convert.configuration_msg(sp.q_des)
         msg.phi_ss = np.asarray(sp.phi_ss, dtype=np.float64)
         msg.optimality_error = float(sp.optimality_error)
         return msg

@@ -25,6 +25,7 @@ from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core import trajectories
+from hsa_core.sequencer_timing import SUPERVISION_PERIOD_NS
 from hsa_core.trajectories import TimedReference
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
@@ -36,8 +37,6 @@ PLANNER_CODES = {
     "static": PlanSetpoint.Request.PLANNER_STATIC,
     "rollout": PlanSetpoint.Request.PLANNER_ROLLOUT,
 }
-SUPERVISION_PERIOD = 0.05
-"""[s] period of the supervision timer: service discovery, start delay, plan timeouts, finish hold."""
 
 
 def _check_points(value: Any) -> str | None:
@@ -145,7 +144,7 @@ class SetpointSequencer(Node):
         self._last_failure: dict[str, Any] | None = None
         self._max_latency = 0.0
         self._tick_timer: Timer | None = None
-        self.create_timer(SUPERVISION_PERIOD, self._supervise)
+        self.create_timer(SUPERVISION_PERIOD_NS / 1e9, self._supervise)
         diagnostics = Diagnostics(self)
         diagnostics.add("sequence", self._report)
         self._publish_status()

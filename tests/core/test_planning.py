@@ -10,18 +10,9 @@ import pytest
 from hsa_core import dynamics, kinematics, planning
 from hsa_core.params import load_params
 from hsa_core.planning import Planner, PlanStatus
+from hsa_core.trajectories import STEP_LISTS
 
-# experiments.md §2 (FPU 2023-09-25 and EPU 2023-10-19 step lists)
-FPU_STEPS = [
-    [0.0, 0.120], [0.00479247, 0.12781018], [-0.035, 0.122], [-0.00782133, 0.13024847], [0.00823294, 0.114643],
-    [-0.01417039, 0.12388105], [0.0, 0.140], [0.02524261, 0.1304036], [-0.0059703, 0.13986947],
-    [0.0073023, 0.11479653], [0.00567301, 0.1271345],
-]
-EPU_STEPS = [
-    [0.01567931, 0.13496604], [-0.01137064, 0.13488599], [-0.00210567, 0.12011204], [-0.00869464, 0.13911694],
-    [-0.00929787, 0.12710664], [-0.00304799, 0.12364617], [0.00478033, 0.12777372], [-0.02880408, 0.12547507],
-    [0.02296768, 0.12596894], [0.01681273, 0.1245412], [-0.00122529, 0.14039634],
-]
+FPU_STEPS, EPU_STEPS = STEP_LISTS["fpu"], STEP_LISTS["epu"]  # experiments.md §2 (2023-09-25 and 2023-10-19)
 FPU_PHI_MAX, EPU_PHI_MAX = np.radians(200.0), np.radians(270.0)
 SPEC_RTOL = 5e-8  # the spec prints 8 significant digits: rounding error <= 5e-8 relative
 

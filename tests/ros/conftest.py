@@ -19,7 +19,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
-from hsa_core import rosenv
+from hsa_common import rosenv
 
 PEERS = Path(__file__).parent / "peers"
 

@@ -15,10 +15,10 @@ import pytest
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
+from hsa_common import rosenv
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
-from hsa_core import rosenv
 from tests.ros.conftest import CollectedProcess, wait_until
 
 __all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX", "TICKS_PER_RAD",

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from hsa_common import rosenv
 from hsa_common.launcher import find_executable
-from hsa_core import rosenv
 
 REPO = Path(__file__).parents[2]
 LAUNCH = REPO / "launch_scripts"
@@ -26,7 +26,7 @@ PLAYER = find_executable("hsa_bag", "bag_player")
     ([ANALYZE, "/nonexistent/bag"], "does not exist"),
     ([ANALYZE, str(REPO), "--duration", "-1"], "must be a finite number >= 0"),
     ([PLAYER, "/nonexistent/bag"], "no such bag"),
-    ([PLAYER, str(REPO), "--rate", "0"], "must be > 0"),
+    ([PLAYER, str(REPO), "--rate", "0"], "must be a finite number > 0"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--controller", "pdi"], "invalid choice: 'pdi'"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--setpoint-rate", "-1"], "must be a finite number >= 0"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--gains", "no_such_gains.yaml"], "no such file: no_such_gains.yaml"),

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from hsa_common import rosenv
 from hsa_common.launcher import LaunchFile
-from hsa_core import rosenv
 from tests.ros.conftest import start_process, stop_process, wait_until
 from tests.ros.test_launch_files import GRAPHS, OPTIONAL_ON, REQUIRED
 

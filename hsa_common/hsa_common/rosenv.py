@@ -1,4 +1,5 @@
-"""The one place that sets the ROS 2 process environment of every hsa-ros entry point (no rclpy import here).
+"""The one place that sets the ROS 2 process environment of every hsa-ros entry point (standard library only: no rclpy,
+no JAX, so the launcher and test sessions load it cheaply).
 
 Project rule (toolchain.md, top): every ROS process runs with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, a
 run-specific ``ROS_DOMAIN_ID`` and ``RMW_IMPLEMENTATION`` unset, so that no DDS discovery traffic ever leaves the

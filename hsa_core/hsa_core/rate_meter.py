@@ -1,0 +1,33 @@
+"""Event rates per reporting period, from cumulative counters (the ``*_rate_hz``/``*_per_s`` values on /diagnostics).
+
+A node keeps its counters cumulative (received, published, cycles, …: they never reset, so nothing is lost between
+reports) and, once per diagnostics period, asks a :class:`RateMeter` for the rate of each counter since the previous
+report. Time is passed in explicitly as integer nanoseconds of one clock (the node clock: wall time, or simulated time
+with ``use_sim_time``), so the meter is pure and the same for every node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+MIN_PERIOD_NS = 1
+"""[ns] shortest period a rate is divided by: a report at the same instant (or after the clock went back) gives a
+finite rate instead of a division by zero."""
+
+
+class RateMeter:
+    """Rate [1/s] of each cumulative counter over the period since the previous reading (or the start)."""
+
+    def __init__(self, start_ns: int) -> None:
+        self._since_ns = start_ns
+        self._base: dict[str, int] = {}
+
+    def rates(self, now_ns: int, counts: Mapping[str, int]) -> dict[str, float]:
+        """Per-second increase of each counter since the previous call, which ends the period at ``now_ns``.
+
+        A counter not seen before counts from 0; the period is at least :data:`MIN_PERIOD_NS` long.
+        """
+        period = max(now_ns - self._since_ns, MIN_PERIOD_NS) * 1e-9
+        rates = {name: (n - self._base.get(name, 0)) / period for name, n in counts.items()}
+        self._since_ns, self._base = now_ns, dict(counts)
+        return rates

@@ -69,6 +69,8 @@ if ! fresh pkgs "$pkg_hash"; then
     for d in config launch; do
       if [ -d "$ROOT/$p/$d" ]; then ln -sfn "$ROOT/$p/$d" "$V/share/$p/$d"; fi
     done
+    # hsa_core keeps its data inside the Python package (parameter sets, robot wiring, gains): share/hsa_core/config
+    if [ -d "$ROOT/$p/$p/config" ]; then ln -sfn "$ROOT/$p/$p/config" "$V/share/$p/config"; fi
   done
   "$V/bin/python" - "$V" "${PACKAGES[@]}" <<'PY'
 import sys

@@ -33,7 +33,8 @@ from hsa_core import control, kinematics, metrics, simulation
 from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap, _TRUNC_GUARD
 from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
 from hsa_core.estimation import derivative_coefficients
-from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig, first_point_ns
+from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
+from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner
 from hsa_core.trajectories import step_reference
@@ -104,6 +105,8 @@ class _Carry(NamedTuple):
 
 def prepare(config: ExperimentConfig) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
     """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants."""
+    if config.mocap_outages:
+        raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
     model = load_params(config.material)
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)

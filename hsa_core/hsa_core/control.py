@@ -22,17 +22,19 @@ import dataclasses
 import enum
 import math
 from collections.abc import Mapping
-from functools import partial
+from functools import lru_cache, partial
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import yaml
 from jax import Array
 from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics
-from hsa_core.params import HsaParams, phi_bounds
+from hsa_core.params import CONFIG_DIR, HsaParams, phi_bounds
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
 from hsa_core.validation import configuration_problem, q_bounds
 
@@ -56,19 +58,19 @@ class ControllerKind(str, enum.Enum):
 class CollocatedGains:
     """P-satI-D gains (§3.3): kp [rad^2/(N m)], ki [rad/s], kd [rad^2 s/(N m)], gamma [rad/(N m)]."""
 
-    kp: float = 0.3
-    ki: float = 0.05
-    kd: float = 0.02
-    gamma: float = 100.0
+    kp: float
+    ki: float
+    kd: float
+    gamma: float
 
 
 @dataclasses.dataclass(frozen=True)
 class PidGains:
     """Task-space PID gains (§3.5): kp [rad/m], ki [rad/(m s)], kd [rad s/m]."""
 
-    kp: float = 10.0
-    ki: float = 110.0
-    kd: float = 0.25
+    kp: float
+    ki: float
+    kd: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,20 +87,34 @@ for _cls, _meta in ((CollocatedGains, []), (PidGains, []), (EeIntegralGains, ["r
     _data = [f.name for f in dataclasses.fields(_cls) if f.name not in _meta]
     jax.tree_util.register_dataclass(_cls, data_fields=_data, meta_fields=_meta)
 
-PAPER_GAINS: dict[str, dict[ControllerKind, CollocatedGains | PidGains]] = {
-    material: {
-        ControllerKind.PSATID: CollocatedGains(kp=0.3, ki=0.05, kd=0.02, gamma=100.0),
-        ControllerKind.PSATID_GC: CollocatedGains(kp=0.3, ki=0.05, kd=0.02, gamma=100.0),
-        ControllerKind.PID: PidGains(kp=10.0, ki=110.0, kd=0.25),
-    }
-    for material in ("fpu", "epu")
-}
-"""Gains of the paper's step and contour experiments per material (§3.6)."""
+GAINS_DIR = CONFIG_DIR / "gains"
+"""The paper's gains, one controller_node parameter file per material and law: ``<material>_<law>.yaml`` (§3.6)."""
 
 
+def gains_file(kind: ControllerKind | str, material: str = "fpu") -> Path:
+    """The packaged gains file of a law and material; materials without one use the FPU file."""
+    kind = ControllerKind(kind)
+    path = GAINS_DIR / f"{material}_{kind.value}.yaml"
+    return path if path.is_file() else GAINS_DIR / f"fpu_{kind.value}.yaml"
+
+
+def load_gains(path: str | Path, kind: ControllerKind | str) -> CollocatedGains | PidGains:
+    """A law's gains from a controller_node parameter file (``/**: ros__parameters: {kp: …}``, as hsa_tune writes);
+    ValueError names the file and what is missing."""
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+        values = next(iter(document.values()))["ros__parameters"]
+        gains = gains_from_parameters(kind, {k: float(v) for k, v in values.items() if not isinstance(v, str)})
+    except (OSError, yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a gains file for {ControllerKind(kind).value} ({exc!r})") from exc
+    validate_gains(gains)
+    return gains
+
+
+@lru_cache(maxsize=None)
 def default_gains(kind: ControllerKind | str, material: str = "fpu") -> CollocatedGains | PidGains:
-    """The paper's gains for a law and material (§3.6); materials not in the table use the FPU values."""
-    return PAPER_GAINS.get(material, PAPER_GAINS["fpu"])[ControllerKind(kind)]
+    """The paper's gains for a law and material (§3.6), from the packaged gains file (:func:`gains_file`)."""
+    return load_gains(gains_file(kind, material), kind)
 
 
 def gains_from_parameters(kind: ControllerKind | str, values: Mapping[str, Any]) -> CollocatedGains | PidGains:

@@ -10,13 +10,18 @@ seed both produce the same ticks to float round-off:
 * the setpoint sequencer plans point k at S_k = S_0 + t_k (t_k: the reference's point times); S_0 is its first
   supervision tick after the start delay (:func:`first_point_ns`, the sequencer's rule); a failed plan keeps the
   previous setpoint and is reported;
-* the controller ticks every 1/``rate`` s from t = 0; a tick uses the newest state and the newest setpoint planned
-  strictly before it, and sends nothing before it has both;
+* the controller ticks every 1/``rate`` s from t = 0 through controller_node's own tick (hsa_core.control_loop: the
+  same Supervisor, with the node's default bounds and no driver watch, :data:`CONTROLLER_SUPERVISION`): a tick
+  activates the setpoints planned strictly before it and sends nothing before it has a setpoint and a state; it
+  steps the law on the newest state while that is at most ``stale_timeout`` old, re-sends the last command (the law
+  not stepped) while it is at most ``hold_timeout`` old, and sends nothing after that. In a fault-free run every tick
+  with a setpoint and a state tracks; ``mocap_outages`` withholds samples to show the rest;
 * its command goes to the motors as the driver writes it (clipped to [0, φ_max], goal ticks truncated towards zero)
-  and takes effect after the world's actuation latency.
+  and takes effect after the world's actuation latency; a re-sent command is written again, and with nothing sent
+  the motors keep the goals of the last write (the driver's watchdog hold).
 
 t = 0 of the metrics is the first tick that sends a command (experiments.md §4); the run ends ``reference.duration``
-later.
+later. The log holds the tracking ticks (as hsa_bag.analysis reads a bag); ``ExperimentResult.ticks`` every tick.
 """
 
 from __future__ import annotations
@@ -32,31 +37,24 @@ from pathlib import Path
 import numpy as np
 
 from hsa_core import cli, metrics, plotting
-from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, Controller, ControllerKind, EeIntegralGains, PidGains, default_gains
+from hsa_core.control_loop import ControlLoop
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.params import HsaParams, load_params
-from hsa_core.planning import Planner, PlanResult, Setpoint
+from hsa_core.planning import Planner, PlanResult
 from hsa_core.runlog import RunLog
+from hsa_core.sequencer_timing import first_point_ns
+from hsa_core.supervision import HOLD_TIMEOUT, STALE_TIMEOUT, Action, Mode, Supervisor, SupervisorConfig
 from hsa_core.trajectories import TimedReference, circle_reference, contour_reference, star_reference, step_reference
+from hsa_core.wiring import load_wiring
 from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
 from hsa_core.jaxsetup import configure_jax
 
-SUPERVISION_PERIOD_NS = 50_000_000
-"""[ns] the setpoint sequencer's supervision timer (service check, start delay)."""
-NEUTRAL_TICKS = (2048, 2048, 2048, 2048)
-"""Neutral ticks of the simulated motors: the emulator's power-on positions, the driver's default neutral."""
 ESTIMATOR_WINDOW, ESTIMATOR_ORDER, GAP_FACTOR = 20, 3, 5.0
 """The kinematics node's estimator settings (hsa_kinematics_node/config/<material>.yaml)."""
-
-
-def first_point_ns(start_delay: float) -> int:
-    """When the sequencer requests point 0 [ns]: at its first supervision tick (50 ms) it finds the planner and waits
-    ``start_delay``; the request goes out at the first later supervision tick at or after that."""
-    start_at = SUPERVISION_PERIOD_NS + seconds_to_ns(start_delay)
-    ticks = max(2, -(-start_at // SUPERVISION_PERIOD_NS))
-    return ticks * SUPERVISION_PERIOD_NS
+CONTROLLER_SUPERVISION = SupervisorConfig(STALE_TIMEOUT, HOLD_TIMEOUT, driver_timeout=0.0)
+"""controller_node's default bounds; no driver watch: offline the driver is modelled inline and cannot be lost."""
 
 
 @dataclass(frozen=True)
@@ -72,11 +70,24 @@ class ExperimentConfig:
     start_delay: float = 0.0
     planner: str | None = None  # default planner of the material
     gains: CollocatedGains | PidGains | None = None  # default: the paper's gains for the law and material
+    mocap_outages: tuple[tuple[float, float], ...] = ()  # [s] world-time windows [start, end): samples stamped in
+    # them never reach the estimator (a fault for the supervision; hsa_core.closed_loop models fault-free runs only)
 
     @property
     def name(self) -> str:
         """Run label used in tables and file names."""
         return f"{self.material}_{self.controller}{'_eei' if self.ee_integral else ''}"
+
+
+@dataclass(frozen=True)
+class TickRecord:
+    """One controller tick: world time [ns], mode, what it sent, φ sent [rad] (NaN: nothing) and e_int after it."""
+
+    t_ns: int
+    mode: Mode
+    sent: Action
+    phi: np.ndarray
+    e_int: np.ndarray
 
 
 @dataclass
@@ -89,6 +100,7 @@ class ExperimentResult:
     true_chiee: np.ndarray  # plant EE pose at each tick (no noise, no latency)
     plan_failures: list[tuple[float, PlanResult]]
     wall_time: float
+    ticks: list[TickRecord] = field(default_factory=list)  # every controller tick, tracking or not
 
     def true_steady_state_error(self) -> float:
         """Mean over steps after the first of ‖p^d − p_true‖ in each step's last 2 s [m] (noise-free e_ss)."""
@@ -108,22 +120,23 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
-    phi_max = float(np.min(np.asarray(model.phi_max)))
-    motor_map = MotorMap(NEUTRAL_TICKS, phi_max=phi_max)
+    motor_map = load_wiring().motor_map(model)  # the robot's wiring at its nominal neutral, as sim_node's servos
+    phi_max = motor_map.phi_max
     world = World(model, config.disturbance, motor_map)
     planner = Planner(model, config.planner)
     controller = Controller(
         ControllerKind(config.controller), model, config.gains, dt=1.0 / config.rate,
         ee_integral=EeIntegralGains() if config.ee_integral else None,
     )
+    loop = ControlLoop(controller, Supervisor(CONTROLLER_SUPERVISION))
     estimator = SavitzkyGolayDifferentiator(window=ESTIMATOR_WINDOW, order=ESTIMATOR_ORDER, dim=6,
                                             nominal_period=MOCAP_PERIOD_NS * 1e-9, gap_factor=GAP_FACTOR)
     s0 = first_point_ns(config.start_delay)
     points = [s0 + seconds_to_ns(float(t)) for t in reference.t]
+    outages = [(seconds_to_ns(a), seconds_to_ns(b)) for a, b in config.mocap_outages]
     warm = len(reference) > 20
-    planned: list[tuple[int, Setpoint]] = []  # (planned at [ns], setpoint) not yet active
     failures: list[tuple[int, PlanResult]] = []
-    state = None
+    ticks: list[TickRecord] = []
     origin: int | None = None
     t0: int | None = None
     end: int | None = None
@@ -139,31 +152,33 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         if k < len(points) and points[k] == instant:
             result = planner.plan(reference.p_des[k], warm_start=warm)
             if result.success:
-                planned.append((instant, result.setpoint))
+                loop.receive_setpoint(instant, result.setpoint)
             else:
                 failures.append((instant, result))
             k += 1
         if tick == instant:
-            while planned and planned[0][0] < instant:
-                controller.set_setpoint(planned.pop(0)[1])
-            if state is not None and controller.setpoint is not None:
+            out = loop.tick(instant)
+            if out.sent is not Action.NONE:  # a new or a re-sent command, written as the driver writes it
+                world.write_goals(motor_map.goal_ticks(np.clip(out.command.phi, 0.0, phi_max)), instant)
+            if out.sent is Action.STEP:
                 if t0 is None:
                     t0, end = instant, instant + seconds_to_ns(reference.duration)
-                phi, info = controller.step(*state)
-                ticks = motor_map.goal_ticks(np.clip(np.asarray(phi), 0.0, phi_max))
-                world.write_goals(ticks, instant)
-                rows.append(((instant - t0) * 1e-9, info))
+                rows.append(((instant - t0) * 1e-9, out.info))
                 truth.append(world.true_pose())
                 measured.append(motor_map.present_twists(world.present_ticks()))
                 if bar is not None and len(rows) % round(config.rate) == 0:
                     bar.update(1.0)
+            phi_sent = out.command.phi if out.sent is not Action.NONE else np.full(2, math.nan)
+            ticks.append(TickRecord(instant, out.mode, out.sent, phi_sent, controller.state.e_int))
             tick += period_ns
         for sample in world.take_samples(instant):
+            if any(a <= sample.stamp_ns < b for a, b in outages):
+                continue
             origin = sample.stamp_ns if origin is None else origin
             q = configuration_from_pose(model, sample.chiee)
             est = estimator.update((sample.stamp_ns - origin) * 1e-9, np.concatenate([q, sample.chiee]))
             if est.ready:
-                state = (q, est.derivative[:3], sample.chiee, est.derivative[3:])
+                loop.state(sample.stamp_ns, instant, q, est.derivative[:3], sample.chiee, est.derivative[3:])
     if bar is not None:
         bar.close()
     if not rows:
@@ -174,7 +189,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         log.t, log.chiee_des[:, :2], log.chiee[:, :2], log.saturated, duration=reference.duration, name=config.name
     )
     fails = [((t - (t0 or s0)) * 1e-9, r) for t, r in failures]
-    return ExperimentResult(config, log, run_metrics, np.asarray(truth), fails, time.perf_counter() - wall0)
+    return ExperimentResult(config, log, run_metrics, np.asarray(truth), fails, time.perf_counter() - wall0, ticks)
 
 
 def _to_runlog(rows: list[tuple], config: ExperimentConfig, model: HsaParams, phi_meas: np.ndarray) -> RunLog:

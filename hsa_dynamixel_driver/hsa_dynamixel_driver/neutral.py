@@ -37,12 +37,13 @@ def write_neutral_file(path: Path, ids: list[int], ticks: list[int]) -> None:
     staging.replace(path)
 
 
-def configured_neutral(p: dict[str, Any], ids: list[int]) -> list[int] | None:
-    """Neutral ticks fixed before the bus is opened (param, read's reference, or an existing file), or None (the
-    first start with neutral_source 'file': the calibration is written from the present positions)."""
+def configured_neutral(p: dict[str, Any], ids: list[int], nominal: tuple[int, ...]) -> list[int] | None:
+    """Neutral ticks fixed before the bus is opened (param, else the wiring's ``nominal``; read's reference; or an
+    existing file), or None (the first start with neutral_source 'file': the calibration is written from the present
+    positions)."""
     source, path = p["neutral_source"], p["neutral_file"]
     if source in ("param", "read"):
-        return list(p["neutral_ticks"])
+        return list(p["neutral_ticks"] or nominal)
     if source == "file":
         if not path:
             raise ParameterValidationError("parameter 'neutral_file' must be set when neutral_source is 'file'")

@@ -1,4 +1,4 @@
-"""Parameters of the dynamixel_driver: the one list of declarations (SPECS) and the twist limit they give.
+"""Parameters of the dynamixel_driver: the one list of declarations (SPECS) and the parameter set they select.
 
 Names, units and ranges: docs/nodes/hsa_dynamixel_driver.md. Only ``max_goal_rate``, ``command_timeout`` and
 ``watchdog_action`` change at run time; every other parameter is read-only.
@@ -9,22 +9,22 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
+from rclpy.parameter import Parameter
 
+from hsa_common.model_params import WIRING_SPEC
 from hsa_common.parameters import ParameterValidationError, ParamSpec
 from hsa_core.actuation import DEFAULT_MAX_GOAL_RATE
-from hsa_core.params import ParameterError, load_params
+from hsa_core.params import HsaParams, ParameterError, load_params
 from hsa_dynamixel_driver.bus import SDK_BAUDRATES
 
 
-def _signs(value: list[int]) -> str | None:
-    """Validator: every entry is +1 or -1."""
-    return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
-
-
-def _ids(value: list[int]) -> str | None:
-    """Validator: the servo IDs are distinct."""
-    return None if len(set(value)) == len(value) else "IDs must be distinct"
+def _neutral_ticks(value: Any) -> str | None:
+    """Validator: unset/empty (the wiring's nominal), or 4 tick counts within ±1e6."""
+    if value is None or len(value) == 0:
+        return None
+    if len(value) != 4 or not all(isinstance(v, int) and abs(v) <= 1_000_000 for v in value):
+        return f"must be empty or 4 tick counts within ±1e6, got {list(value)!r}"
+    return None
 
 
 SPECS = (
@@ -32,24 +32,18 @@ SPECS = (
     ParamSpec("port", "/dev/ttyUSB0", "serial device of the U2D2 (a stable udev symlink is best)", read_only=True),
     ParamSpec("baudrate", 4_000_000, "bus speed [bit/s]; must equal the servos' Baud Rate register", read_only=True,
               validator=lambda v: None if v in SDK_BAUDRATES else f"must be one of {SDK_BAUDRATES}"),
-    ParamSpec("motor_ids", [21, 22, 23, 24], "Dynamixel IDs; motors 1-2 drive rod 2 (+24 mm), 3-4 rod 1",
-              low=0, high=252, length=4, read_only=True, validator=_ids),
-    ParamSpec("rho", [1, -1, 1, -1], "rod handedness of each motor [+1|-1]", length=4, read_only=True,
-              validator=_signs),
-    ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
-              validator=_signs),
-    ParamSpec("material", "fpu", "parameter set giving phi_max", choices=("fpu", "epu"), read_only=True),
+    WIRING_SPEC,
+    ParamSpec("material", "fpu", "parameter set giving the rods' handedness h and twist limit phi_max",
+              choices=("fpu", "epu"), read_only=True),
     ParamSpec("params_file", "", "parameter YAML overriding the packaged set (empty = packaged)", read_only=True),
-    ParamSpec("phi_max", 0.0, "twist limit [rad]; 0 = the smaller phi_max of the parameter set", low=0.0,
-              high=2.0 * math.pi, read_only=True),
     ParamSpec("goal_margin", 0.02, "goal clamp widening beyond [0, phi_max] on both ends [rad]", low=0.0, high=0.5,
               read_only=True),
     ParamSpec("neutral_source", "param", "neutral ticks (and so the absolute goal limits): the neutral_ticks list, "
               "neutral_file, or read (the φ map only, accepted within neutral_tolerance of neutral_ticks; the limits "
               "stay on neutral_ticks)", choices=("param", "file", "read"), read_only=True),
-    ParamSpec("neutral_ticks", [2048, 2048, 2048, 2048], "configured neutral positions [ticks] (neutral_source "
-              "'param' or 'read'); the default is the emulated servos' power-on position", length=4,
-              low=-1_000_000, high=1_000_000, read_only=True),
+    ParamSpec("neutral_ticks", Parameter.Type.INTEGER_ARRAY, "configured neutral positions [ticks] (neutral_source "
+              "'param' or 'read'); unset = the wiring file's nominal neutral_ticks (the emulated servos' power-on "
+              "position)", read_only=True, validator=_neutral_ticks),
     ParamSpec("neutral_file", "", "YAML of stored neutral ticks; written from the present positions if absent",
               read_only=True),
     ParamSpec("neutral_tolerance", 0.1, "largest |present - stored neutral| at start-up for torque-on [rad]",
@@ -76,13 +70,10 @@ SPECS = (
 )
 
 
-def twist_limit(p: dict[str, Any]) -> float:
-    """φ_max [rad]: the parameter, or the smaller rod limit of the parameter set (a bad set names its parameter)."""
-    if p["phi_max"] > 0.0:
-        return float(p["phi_max"])
+def robot_model(p: dict[str, Any]) -> HsaParams:
+    """The parameter set of ``material``/``params_file``: the rods' h and φ_max (a bad set names its parameter)."""
     name = "params_file" if p["params_file"] else "material"
     try:
-        params = load_params(p["params_file"] or p["material"])
+        return load_params(p["params_file"] or p["material"])
     except ParameterError as exc:
         raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
-    return float(np.min(np.asarray(params.phi_max)))

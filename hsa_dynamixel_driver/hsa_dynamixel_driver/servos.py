@@ -16,8 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from hsa_common.model_params import load_wiring_param
 from hsa_core.actuation import MotorLimits, MotorMap, accept_read_neutral
 from hsa_core.servo_supervision import Alert, Answer, ServoSupervisor
+from hsa_core.wiring import twist_limit
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     BusError,
@@ -29,7 +31,7 @@ from hsa_dynamixel_driver.bus import (
 )
 from hsa_dynamixel_driver.goals import GoalPipeline
 from hsa_dynamixel_driver.neutral import configured_neutral, write_neutral_file
-from hsa_dynamixel_driver.params import twist_limit
+from hsa_dynamixel_driver.params import robot_model
 
 REBOOT_WAIT_S = 2.0  # wall-clock wait for rebooted servos to answer a ping again (bus-level, like the SDK timeouts)
 COUNTERS = ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
@@ -43,9 +45,11 @@ class Servos:
     def __init__(self, p: dict[str, Any], logger: Any, now: Callable[[], float]) -> None:
         """Fix φ_max and the configured neutral (a refused parameter raises ParameterValidationError)."""
         self._p, self._log, self._now = p, logger, now
-        self.ids: list[int] = p["motor_ids"]
-        self.phi_max = twist_limit(p)
-        self.stored_neutral = configured_neutral(p, self.ids)
+        self.wiring = load_wiring_param(p["wiring_file"])  # motor IDs, rods and rod signs: the robot's wiring file
+        self._model = robot_model(p)  # the rods' handedness and twist limit
+        self.ids: list[int] = list(self.wiring.motor_ids)
+        self.phi_max = twist_limit(self._model)
+        self.stored_neutral = configured_neutral(p, self.ids, self.wiring.neutral_ticks)
         self.sup = ServoSupervisor(tuple(self.ids), p["error_limit"], p["neutral_tolerance"],
                                    describe_hardware_error)
         self.goals = GoalPipeline()
@@ -70,8 +74,7 @@ class Servos:
     def _set_neutral(self, ticks: list[int]) -> None:
         """Build the motor map, the absolute goal clamp and the sane range around the configured neutral ticks; a
         read neutral may later replace the map's zero (``_refine_map``), never these limits."""
-        self.map = MotorMap(tuple(ticks), tuple(self.ids), rho=tuple(self._p["rho"]), h=tuple(self._p["h"]),
-                            phi_max=self.phi_max, margin=self._p["goal_margin"])
+        self.map = self.wiring.motor_map(self._model, neutral_ticks=tuple(ticks), margin=self._p["goal_margin"])
         self.limits = MotorLimits.from_map(self.map)
         self.sup.calibrate(self.map)
 

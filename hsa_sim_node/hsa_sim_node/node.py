@@ -31,10 +31,9 @@ from rosgraph_msgs.msg import Clock
 
 from hsa_common import lockstep, qos
 from hsa_common.diagnostics import Diagnostics, Report
-from hsa_common.model_params import MODEL_SPECS, load_model
+from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC, load_model, load_wiring_param
 from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
-from hsa_core.actuation import MotorMap
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
@@ -55,9 +54,13 @@ the default, reads timed out on a busy machine (4 of 4484 in a lockstep run besi
 MAX_INSTANTS_PER_PUMP = 1000  # lockstep: give the executor a turn at least this often (acks, services)
 
 
-def _signs(value: list[int]) -> str | None:
-    """Refusal of a handedness list that is not all ±1."""
-    return None if all(v in (-1, 1) for v in value) else "entries must be +1 or -1"
+def _initial_ticks(value: list[int] | None) -> str | None:
+    """Refusal of power-on positions that are not unset/empty (the wiring's nominal) or 4 ticks within ±1e6."""
+    if value is None or len(value) == 0:
+        return None
+    if len(value) != 4 or not all(abs(v) <= 1_000_000 for v in value):
+        return f"must be empty or 4 tick counts within ±1e6, got {list(value)!r}"
+    return None
 
 
 def _payload_problem(value: list[float] | None) -> str | None:
@@ -75,15 +78,9 @@ SPECS = (
     ParamSpec("baudrate", 4_000_000, "Baud Rate of the emulated servos [bit/s]; the driver must use the same",
               read_only=True,
               validator=lambda v: None if v in BAUD_RATE_CODES else f"must be one of {sorted(BAUD_RATE_CODES)}"),
-    ParamSpec("motor_ids", [21, 22, 23, 24], "IDs of the emulated servos (order as in the driver)", low=0, high=252,
-              length=4, read_only=True,
-              validator=lambda v: None if len(set(v)) == len(v) else "IDs must be distinct"),
-    ParamSpec("initial_ticks", [2048, 2048, 2048, 2048], "power-on present positions [ticks] = the neutral (φ = 0)",
-              low=-1_000_000, high=1_000_000, length=4, read_only=True),
-    ParamSpec("rho", [1, -1, 1, -1], "rod handedness of each motor [+1|-1]", length=4, read_only=True,
-              validator=_signs),
-    ParamSpec("h", [1, 1], "control handedness of the two virtual rods [+1|-1]", length=2, read_only=True,
-              validator=_signs),
+    WIRING_SPEC,
+    ParamSpec("initial_ticks", Parameter.Type.INTEGER_ARRAY, "power-on present positions [ticks] = the neutral "
+              "(φ = 0); unset = the wiring file's nominal neutral_ticks", read_only=True, validator=_initial_ticks),
     *MODEL_SPECS,
     ParamSpec("base_position", [0.0, 0.0, 0.0], "world position of the base rigid body [m]", length=3,
               read_only=True),
@@ -112,11 +109,12 @@ class SimNode(Node):
     def __init__(self) -> None:
         super().__init__("sim_node")
         self._p: dict[str, Any] = declare(self, SPECS)
-        ids, ticks = self._p["motor_ids"], self._p["initial_ticks"]
+        wiring = load_wiring_param(self._p["wiring_file"])  # the driver's: IDs, rods, rod signs
+        ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
         model = load_model(self._p)
         disturbance = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
             else DisturbanceModel.none()
-        self._map = MotorMap(tuple(ticks), tuple(ids), rho=tuple(self._p["rho"]), h=tuple(self._p["h"]))
+        self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"
         os.makedirs(os.path.dirname(port), exist_ok=True)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from hsa_core import closed_loop
-from hsa_core.control import CollocatedGains
+from hsa_core.control import CollocatedGains, default_gains
 from hsa_core.experiment import ExperimentConfig, run_experiment
 from hsa_core.trajectories import TimedReference, step_reference
 
@@ -52,7 +52,7 @@ def test_the_jax_loop_reproduces_the_offline_experiment(law: str, ee_integral: b
 def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
     config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0))
     spec, inputs, constants = closed_loop.prepare(config)
-    gains = [CollocatedGains(), CollocatedGains(kp=0.2, ki=0.1, kd=0.01, gamma=50.0)]
+    gains = [default_gains("psatid"), CollocatedGains(kp=0.2, ki=0.1, kd=0.01, gamma=50.0)]
     batched = jax.tree_util.tree_map(lambda *v: np.stack(v), *gains)
     axes = closed_loop.LoopInputs(None, 0, None, None)
     logs = jax.jit(jax.vmap(partial(closed_loop.rollout, spec), in_axes=(axes, None)))(
@@ -93,3 +93,9 @@ def test_the_batch_is_split_over_every_device() -> None:
     assert got["devices"] == 2 and got["shards"] == 2
     assert len(set(got["rmse"])) == 4  # four seeds, four different runs
     assert got["rmse"][3] == pytest.approx(got["one"], rel=RTOL)
+
+
+def test_a_run_with_mocap_outages_is_refused() -> None:
+    """The batched loop has no supervision faults; an outage run must go to run_experiment, not be silently lost."""
+    with pytest.raises(ValueError, match="fault-free"):
+        closed_loop.prepare(ExperimentConfig("fpu", "psatid", mocap_outages=((1.0, 1.5),)))

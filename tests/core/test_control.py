@@ -4,12 +4,14 @@ plant."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
 
 from hsa_core import control, dynamics, kinematics, planning, simulation
-from hsa_core.control import CollocatedGains, Controller, EeIntegralGains, PidGains
+from hsa_core.control import CollocatedGains, Controller, EeIntegralGains, PidGains, default_gains
 from hsa_core.params import load_params
 from hsa_core.planning import Setpoint
 
@@ -178,7 +180,7 @@ def test_integral_reset_option(params, controllers):
     resetting.step(Q, Q_DOT, CHIEE, CHIEE_DOT, SETPOINT)
     assert np.all(resetting.state.e_int != 0.0)
     resetting.step(Q, Q_DOT, CHIEE, CHIEE_DOT, other)
-    _, expected_e_int = psatid_by_hand(params, CollocatedGains(), other, Q, Q_DOT, np.zeros(2))
+    _, expected_e_int = psatid_by_hand(params, default_gains("psatid"), other, Q, Q_DOT, np.zeros(2))
     np.testing.assert_allclose(resetting.state.e_int, expected_e_int, rtol=1e-12)
 
 
@@ -196,9 +198,9 @@ def test_pure_law_is_functional(params):
     ref = control.make_reference(params, SETPOINT)
     meas = control.Measurement(*(jax.numpy.asarray(v) for v in (Q, Q_DOT, CHIEE, CHIEE_DOT)))
     state = control.initial_state()
-    phi1, s1, _ = control.p_sati_d(params, CollocatedGains(), ref, state, meas, DT)
-    phi2, s2, _ = control.p_sati_d(params, CollocatedGains(), ref, state, meas, DT)
-    phi3, _, _ = control.p_sati_d(params, CollocatedGains(), ref, s1, meas, DT)
+    phi1, s1, _ = control.p_sati_d(params, default_gains("psatid"), ref, state, meas, DT)
+    phi2, s2, _ = control.p_sati_d(params, default_gains("psatid"), ref, state, meas, DT)
+    phi3, _, _ = control.p_sati_d(params, default_gains("psatid"), ref, s1, meas, DT)
     np.testing.assert_array_equal(phi1, phi2)
     np.testing.assert_array_equal(s1.e_int, s2.e_int)
     np.testing.assert_allclose(np.asarray(phi3) - np.asarray(phi1), 0.05 * np.asarray(s1.e_int), rtol=1e-9)
@@ -214,11 +216,11 @@ def test_paper_default_gains():
 @pytest.mark.parametrize(
     ("kind", "gains", "name"),
     [
-        ("psatid", CollocatedGains(kp=-0.3), "kp"),
-        ("psatid", CollocatedGains(ki=float("nan")), "ki"),
-        ("psatid_gc", CollocatedGains(gamma=0.0), "gamma"),
-        ("pid", PidGains(kd=float("inf")), "kd"),
-        ("pid", CollocatedGains(), "PidGains"),
+        ("psatid", dataclasses.replace(default_gains("psatid"), kp=-0.3), "kp"),
+        ("psatid", dataclasses.replace(default_gains("psatid"), ki=float("nan")), "ki"),
+        ("psatid_gc", dataclasses.replace(default_gains("psatid_gc"), gamma=0.0), "gamma"),
+        ("pid", dataclasses.replace(default_gains("pid"), kd=float("inf")), "kd"),
+        ("pid", default_gains("psatid"), "PidGains"),
     ],
 )
 def test_gain_validation_names_the_gain(params, kind, gains, name):

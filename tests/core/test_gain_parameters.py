@@ -6,7 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 from hsa_core.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains,
-                              ee_gains_from_parameters, gains_from_parameters, retune)
+                              default_gains, ee_gains_from_parameters, gains_from_parameters, retune)
 
 VALUES = {"kp": 0.2, "ki": 0.1, "kd": 0.01, "gamma": 50.0, "kp_pid": 8.0, "ki_pid": 90.0, "kd_pid": 0.3,
           "ee_ki": 0.25, "ee_e_on": 0.004, "ee_z_max": 0.02, "ee_reset_on_setpoint_change": True,
@@ -26,12 +26,12 @@ def test_ee_integral_gains() -> None:
 
 
 def test_retune_replaces_gains_and_keeps_the_extension_choice() -> None:
-    without = SimpleNamespace(kind=ControllerKind.PID, gains=PidGains(), ee_integral=None,
+    without = SimpleNamespace(kind=ControllerKind.PID, gains=default_gains("pid"), ee_integral=None,
                               reset_integral_on_setpoint_change=False)
     retune(without, VALUES)
     assert without.gains == PidGains(kp=8.0, ki=90.0, kd=0.3) and without.ee_integral is None
     assert without.reset_integral_on_setpoint_change is True
-    with_ee = SimpleNamespace(kind=ControllerKind.PSATID, gains=CollocatedGains(), ee_integral=EeIntegralGains(),
+    with_ee = SimpleNamespace(kind=ControllerKind.PSATID, gains=default_gains("psatid"), ee_integral=EeIntegralGains(),
                               reset_integral_on_setpoint_change=True)
     retune(with_ee, {**VALUES, "reset_integral_on_setpoint_change": False})
     assert with_ee.gains == CollocatedGains(kp=0.2, ki=0.1, kd=0.01, gamma=50.0)

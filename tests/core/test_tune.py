@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from hsa_core import closed_loop, robustness, tune
-from hsa_core.control import CollocatedGains, ControllerKind, PidGains
+from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
 from hsa_core.params import load_params
@@ -15,14 +15,14 @@ from hsa_core.trajectories import TimedReference, step_reference
 
 
 def test_the_gains_file_uses_the_controller_parameter_names() -> None:
-    doc = yaml.safe_load(tune.gains_yaml(ControllerKind.PSATID, CollocatedGains(kp=0.2, ki=0.01, kd=0.005), "x"))
+    doc = yaml.safe_load(tune.gains_yaml(ControllerKind.PSATID, CollocatedGains(kp=0.2, ki=0.01, kd=0.005, gamma=100.0), "x"))
     assert doc == {"/**": {"ros__parameters": {"kp": 0.2, "ki": 0.01, "kd": 0.005, "gamma": 100.0}}}
     doc = yaml.safe_load(tune.gains_yaml(ControllerKind.PID, PidGains(kp=5.0, ki=50.0, kd=0.1), "x"))
     assert doc == {"/**": {"ros__parameters": {"kp_pid": 5.0, "ki_pid": 50.0, "kd_pid": 0.1}}}
 
 
 def test_log_gains_map_back_to_round_values() -> None:
-    gains = tune.to_gains(ControllerKind.PSATID, CollocatedGains(), np.log10([0.3, 0.05, 0.02]))
+    gains = tune.to_gains(ControllerKind.PSATID, default_gains("psatid"), np.log10([0.3, 0.05, 0.02]))
     assert (gains.kp, gains.ki, gains.kd, gains.gamma) == (0.3, 0.05, 0.02, 100.0)
 
 
@@ -35,8 +35,8 @@ def test_an_oscillating_gain_set_scores_worse_than_a_calm_one() -> None:
                                                                    disturbance=disturbance))
     plants = robustness.perturbed_plants(disturbance.plant_params(load_params("fpu")), 1, 0.0, seed=0)
     noises = np.asarray(inputs.noise)[None]
-    calm = CollocatedGains(kp=0.01, ki=0.01, kd=0.02)  # mostly the setpoint's feedforward phi_ss
-    wild = CollocatedGains(kp=3.0, ki=0.05, kd=0.02)  # ten times the paper's kp
+    calm = CollocatedGains(kp=0.01, ki=0.01, kd=0.02, gamma=100.0)  # mostly the setpoint's feedforward phi_ss
+    wild = CollocatedGains(kp=3.0, ki=0.05, kd=0.02, gamma=100.0)  # ten times the paper's kp
     calm_score, wild_score = tune.evaluate_population(ControllerKind.PSATID, [calm, wild], spec, inputs, constants,
                                                       plants, noises, batch=2)
     assert calm_score.terms["bad"] == 0.0 and wild_score.terms["bad"] == 1.0

@@ -12,13 +12,12 @@ With `exit_on_finish` the process exits 0 after the final hold.
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_common.runner import run
@@ -77,7 +76,7 @@ class ExcitationPlayer(Node):
             **{key: v[key] for key in ("level", "n_levels", "hold", "t_step", "settling_time")},
         }
         info.publish(String(data=json.dumps(description)))
-        self._t0 = time.monotonic()
+        self._t0 = self.get_clock().now()  # node clock: simulated time under use_sim_time (lockstep)
         self._finished = False
         self.create_timer(self._exc.dt, self._tick)
         self.get_logger().info(f"playing {self._exc.kind} ({self._exc.mode}, seed {self._exc.seed}) for "
@@ -85,12 +84,9 @@ class ExcitationPlayer(Node):
 
     def _tick(self) -> None:
         """Publish the command due now; log the end once and exit after the final hold if asked."""
-        elapsed = time.monotonic() - self._t0 - self._start_delay
+        elapsed = (self.get_clock().now() - self._t0).nanoseconds * 1e-9 - self._start_delay
         phi = np.clip(self._exc.at(elapsed), 0.0, self._phi_limit) if elapsed < self._exc.duration else np.zeros(2)
-        msg = PlanarActuation()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.phi = phi.astype(float)
-        self._pub.publish(msg)
+        self._pub.publish(convert.actuation_msg(phi, self.get_clock().now().to_msg()))
         if elapsed >= self._exc.duration and not self._finished:
             self._finished = True
             self.get_logger().info("sequence finished; holding phi = 0")

@@ -14,7 +14,8 @@ Conventions (planning_and_control.md §7):
   on both ends, where s_m = h_r(m)·ρ_m is the sign of the motor; the bounds are rounded outwards to whole ticks so the
   clamped goal is never outside the configured interval. The Max/Min Position Limit registers do not apply in
   extended-position mode, so this clamp is the only limit.
-* Rate limit (``limit_goal_rate``): each goal moves by at most ⌊max_rate · dt · 2048/π⌋ ticks from the previous goal.
+* Rate limit (``limit_goal_rate``; on the node clock ``GoalRateLimiter``): each goal moves by at most
+  ⌊max_rate · dt · 2048/π⌋ ticks from the previous goal.
   The default ``DEFAULT_MAX_GOAL_RATE`` is twice the MX-28's no-load speed (55 rev/min at 12 V, ROBOTIS e-Manual;
   spec identification.md §2.2): no motion of the servo can need a faster goal, a flood of full-range swings cannot.
 * Absolute limits: the neutral ticks behind ``MotorLimits`` are configured (parameter or persisted calibration file),
@@ -25,6 +26,7 @@ Conventions (planning_and_control.md §7):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -238,3 +240,53 @@ class RejectionLog:
         if last is None:
             return f"{kind} phi_cmd: {detail} (repeats are logged at most every {self.period:g} s)"
         return f"{count} {kind} phi_cmd in the last {now - last:.1f} s, latest: {detail}"
+
+
+@dataclass
+class GoalRateLimiter:
+    """Goal-rate limit that is order-independent within one clock instant.
+
+    A write at time ``now`` may move the goal at most ``max_rate · min(now − t_a, period)`` from the goal in force at
+    ``t_a``, the last EARLIER instant at which a goal was written. Several writes at the same instant (the cycle
+    timer and a ``phi_cmd`` arriving in the same simulated instant, in either order) are all measured from that same
+    goal, so the last target of the instant alone decides the final goal. On the wall clock every write has its own
+    instant and this is the plain "time since the last write" limit.
+    """
+
+    _anchor_time: float = 0.0  # t_a: the last instant before the current one at which a goal was written
+    _anchor_goal: np.ndarray | None = None  # the goal in force at the end of t_a
+    _time: float = 0.0  # the instant of the latest write
+    _goal: np.ndarray | None = None  # the latest goal written
+
+    def reset(self, goal: ArrayLike) -> None:
+        """Torque came on holding ``goal``: it counts as in force since long ago, so the first write may move it by a
+        full period's step (the held goal needs no ramp-in)."""
+        held = np.asarray(goal, dtype=np.int64)
+        self._anchor_time, self._anchor_goal, self._time, self._goal = -math.inf, held, -math.inf, held
+
+    @property
+    def goal(self) -> np.ndarray | None:
+        """The latest goal written (or held since ``reset``), None before the first reset."""
+        return self._goal
+
+    def limited(self, target: ArrayLike, now: float, max_rate: float, period: float,
+                clamp: Callable[[np.ndarray], np.ndarray] = lambda g: g) -> np.ndarray:
+        """The goal a write of ``target`` at ``now`` may set ([ticks]); ``max_rate`` [rad/s] 0 = no limit.
+
+        ``clamp`` maps the rate-limited goal back into the absolute goal limits.
+        """
+        if self._goal is None:
+            raise RuntimeError("GoalRateLimiter.limited before reset: no goal in force")
+        target = np.asarray(target, dtype=np.int64)
+        if max_rate <= 0.0:
+            return target
+        base_time, base_goal = (self._anchor_time, self._anchor_goal) if now == self._time else (self._time,
+                                                                                                 self._goal)
+        dt = min(max(now - base_time, 0.0), period)  # a clock that jumped back allows no motion at that instant
+        return np.asarray(clamp(limit_goal_rate(base_goal, target, dt, max_rate)), dtype=np.int64)
+
+    def written(self, goal: ArrayLike, now: float) -> None:
+        """Record that ``goal`` was written at ``now`` (a new instant makes the previous one the anchor)."""
+        if now != self._time:
+            self._anchor_time, self._anchor_goal = self._time, self._goal
+        self._time, self._goal = now, np.asarray(goal, dtype=np.int64)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from hsa_core.actuation import MotorLimits, MotorMap
-from hsa_core.servo_supervision import GoalRateLimiter
+from hsa_core.actuation import GoalRateLimiter
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from hsa_core.actuation import MotorLimits, MotorMap
-from hsa_core.servo_supervision import GoalRateLimiter, reboot_refusal
+from hsa_core.actuation import GoalRateLimiter
+from hsa_core.servo_supervision import reboot_refusal
 from hsa_dynamixel_driver.goals import GoalPipeline
 
 TICKS_PER_RAD = 2048 / math.pi

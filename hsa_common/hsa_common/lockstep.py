@@ -19,6 +19,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.timer import Timer
 
+from hsa_common import convert
 from hsa_core.lockstep import Report
 from hsa_msgs.msg import LockstepAck
 
@@ -182,7 +183,7 @@ def to_msg(r: Report) -> LockstepAck:
     """Report → LockstepAck."""
     msg = LockstepAck(node=r.node, ready=r.ready, leaving=r.leaving,
                       next_due=-1 if r.next_due_ns is None else r.next_due_ns, pending=r.pending)
-    msg.clock.sec, msg.clock.nanosec = divmod(r.clock_ns, 1_000_000_000)
+    msg.clock = convert.stamp_msg(r.clock_ns)
     msg.pub_topics = list(r.published.keys() | r.matched.keys())
     msg.published = [r.published.get(t, 0) for t in msg.pub_topics]
     msg.matched = [r.matched.get(t, UNMATCHED) for t in msg.pub_topics]
@@ -195,7 +196,7 @@ def to_msg(r: Report) -> LockstepAck:
 
 def from_msg(msg: LockstepAck) -> Report:
     """LockstepAck → Report."""
-    return Report(msg.node, msg.clock.sec * 1_000_000_000 + msg.clock.nanosec, msg.ready, msg.leaving,
+    return Report(msg.node, convert.stamp_ns(msg.clock), msg.ready, msg.leaving,
                   None if msg.next_due < 0 else msg.next_due, msg.pending,
                   dict(zip(msg.pub_topics, msg.published)),
                   {t: n for t, n in zip(msg.pub_topics, msg.matched) if n != UNMATCHED},

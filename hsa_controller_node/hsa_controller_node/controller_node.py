@@ -26,12 +26,12 @@ from rclpy.node import Node
 from rclpy.time import Time
 from std_msgs.msg import Bool
 
-from hsa_common import qos
+from hsa_common import convert, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.model_params import load_model, load_wiring_param
 from hsa_common.parameters import declare, guard_updates
 from hsa_common.runner import run
-from hsa_controller_node.messages import INFO_STATE, command_msg, pose_of, q_of, repeated_info, tracking_info
+from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info, tracking_info
 from hsa_controller_node.parameters import SPECS, check_combination
 from hsa_controller_node.report import ControlReport
 from hsa_core.control import Controller, ControllerKind, ee_gains_from_parameters, gains_from_parameters, retune
@@ -103,17 +103,18 @@ class ControllerNode(Node):
     def _on_state(self, msg: PlanarState) -> None:
         """Hand a state to the loop (plausible, velocity_valid, newest stamp, not in the future); refusals are logged
         at most once per rejection_log_period."""
-        problem = self._loop.state(Time.from_msg(msg.header.stamp).nanoseconds, self._now_ns(), q_of(msg.q),
-                                   q_of(msg.q_dot), pose_of(msg.chiee), pose_of(msg.chiee_dot), msg.velocity_valid)
+        problem = self._loop.state(convert.stamp_ns(msg.header.stamp), self._now_ns(), convert.configuration(msg.q),
+                                   convert.configuration(msg.q_dot), convert.planar_pose(msg.chiee),
+                                   convert.planar_pose(msg.chiee_dot), msg.velocity_valid)
         if problem is not None:
             self.get_logger().warning(f"rejected state: {problem} ({sum(self._loop.rejections.states.values())} so "
                                       "far)", throttle_duration_sec=self._p["rejection_log_period"])
 
     def _on_setpoint(self, msg: Setpoint) -> None:
         """Queue a setpoint; the first tick after its stamp activates it (hsa_core.control_loop)."""
-        setpoint = CoreSetpoint(pose_of(msg.chiee_des), q_of(msg.q_des), np.asarray(msg.phi_ss, dtype=np.float64),
-                                msg.optimality_error)
-        self._loop.receive_setpoint(Time.from_msg(msg.header.stamp).nanoseconds, setpoint, msg)
+        setpoint = CoreSetpoint(convert.planar_pose(msg.chiee_des), convert.configuration(msg.q_des),
+                                np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error)
+        self._loop.receive_setpoint(convert.stamp_ns(msg.header.stamp), setpoint, msg)
 
     def _on_estop(self, msg: Bool) -> None:
         """E-stop state from the driver: on entry the loop resets the integrators and drops the held command."""

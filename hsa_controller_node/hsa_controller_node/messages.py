@@ -1,4 +1,4 @@
-"""controller_node's messages: converters between hsa_msgs and arrays, and the phi_cmd and controller_info it sends."""
+"""controller_node's messages: the phi_cmd and controller_info it sends (conversions: hsa_common.convert)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ import copy
 import math
 
 import numpy as np
-from builtin_interfaces.msg import Time as TimeMsg
 from rclpy.time import Time
 
+from hsa_common import convert
 from hsa_core.control import ControllerState
 from hsa_core.control_loop import Command, Tick
 from hsa_core.supervision import Mode
-from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, Setpoint
+from hsa_msgs.msg import ControllerInfo, PlanarActuation, Setpoint
 
 FRAME_ID = "hsa_base"
 INFO_STATE = {
@@ -26,37 +26,9 @@ NOTHING_SENT = np.full(2, math.nan)
 """φ fields of the info on ticks that send no command."""
 
 
-def q_of(msg: CsConfiguration) -> np.ndarray:
-    """[kappa_be, sigma_sh, sigma_ax] of a CsConfiguration."""
-    return np.array([msg.kappa_be, msg.sigma_sh, msg.sigma_ax])
-
-
-def pose_of(msg: PlanarPose) -> np.ndarray:
-    """[x, y, theta] of a PlanarPose."""
-    return np.array([msg.x, msg.y, msg.theta])
-
-
-def q_msg(q: np.ndarray) -> CsConfiguration:
-    """CsConfiguration of [kappa_be, sigma_sh, sigma_ax]."""
-    return CsConfiguration(kappa_be=float(q[0]), sigma_sh=float(q[1]), sigma_ax=float(q[2]))
-
-
-def pose_msg(chiee: np.ndarray) -> PlanarPose:
-    """PlanarPose of [x, y, theta]."""
-    return PlanarPose(x=float(chiee[0]), y=float(chiee[1]), theta=float(chiee[2]))
-
-
-def stamp_msg(ns: int) -> TimeMsg:
-    """builtin_interfaces/Time of int nanoseconds."""
-    return Time(nanoseconds=ns).to_msg()
-
-
 def command_msg(command: Command, now: Time) -> PlanarActuation:
     """phi_cmd of a command sent at now; source_stamp is the stamp of the state it was computed from."""
-    cmd = PlanarActuation(phi=command.phi)
-    cmd.header.stamp, cmd.header.frame_id = now.to_msg(), FRAME_ID
-    cmd.source_stamp = stamp_msg(command.source_stamp_ns)
-    return cmd
+    return convert.actuation_msg(command.phi, now.to_msg(), FRAME_ID, convert.stamp_msg(command.source_stamp_ns))
 
 
 def tracking_info(tick: Tick, now: Time, controller: str, setpoint: Setpoint | None,
@@ -64,9 +36,10 @@ def tracking_info(tick: Tick, now: Time, controller: str, setpoint: Setpoint | N
     """controller_info of a tracking tick: every field, from the law's quantities and the state stepped on."""
     info, source_ns = tick.info, tick.command.source_stamp_ns
     out = ControllerInfo(
-        state_stamp=stamp_msg(source_ns), controller=controller, state=ControllerInfo.STATE_TRACKING,
-        setpoint=setpoint, chiee=pose_msg(info.chiee), chiee_des=pose_msg(info.chiee_des), q=q_msg(info.q),
-        q_des=q_msg(info.q_des), q_dot=q_msg(tick.measurement.q_dot), varphi=info.varphi,
+        state_stamp=convert.stamp_msg(source_ns), controller=controller, state=ControllerInfo.STATE_TRACKING,
+        setpoint=setpoint, chiee=convert.planar_pose_msg(info.chiee), chiee_des=convert.planar_pose_msg(info.chiee_des),
+        q=convert.configuration_msg(info.q), q_des=convert.configuration_msg(info.q_des),
+        q_dot=convert.configuration_msg(tick.measurement.q_dot), varphi=info.varphi,
         varphi_des=info.varphi_des, e_int=info.e_int, z_ee=info.z_ee, phi_ss=info.phi_ss,
         phi_des_unsat=info.phi_des_unsat, phi_des_sat=info.phi_des_sat, motor_goal_angles=motor_goal_angles,
         saturated=bool(info.saturated), state_age=(now.nanoseconds - source_ns) * 1e-9, compute_time=tick.compute_s,
@@ -82,7 +55,7 @@ def repeated_info(last: ControllerInfo, now: Time, state: int, setpoint: Setpoin
     info = copy.deepcopy(last)
     info.header.stamp, info.state, info.compute_time = now.to_msg(), state, 0.0
     info.setpoint = setpoint
-    info.state_age = (now - Time.from_msg(info.state_stamp)).nanoseconds * 1e-9
+    info.state_age = (now.nanoseconds - convert.stamp_ns(info.state_stamp)) * 1e-9
     info.e_int, info.z_ee = integrators.e_int, integrators.z_ee
     if not commanded:
         info.phi_des_unsat, info.phi_des_sat = NOTHING_SENT, NOTHING_SENT

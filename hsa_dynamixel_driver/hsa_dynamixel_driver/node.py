@@ -19,13 +19,12 @@ from typing import Any
 import numpy as np
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.time import Time
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from hsa_common import lockstep, qos
+from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.parameters import declare, guard_updates
 from hsa_common.runner import run
@@ -71,7 +70,8 @@ class DynamixelDriver(LifecycleNode):
         self.create_service(Trigger, "clear_estop", self._on_clear_estop)
         # reliable, volatile, depth 10: matches any reliable publisher, and a quick True/False pair loses nothing
         self.create_subscription(Bool, "estop_request", self._on_estop_request, qos.INFO)
-        add_statuses(Diagnostics(self, hardware_id=self._p["port"]), self._servos, self._p, self._now)
+        add_statuses(Diagnostics(self, hardware_id=self._p["port"]), self._servos, self._p,
+                     lambda: self.get_clock().now().nanoseconds)
         if self._p["autostart"]:  # from the executor, so torque is never on outside the runner's shutdown guard
             self._autostart_timer: Timer | None = self.create_timer(0.0, self._autostart)
 
@@ -282,13 +282,13 @@ class DynamixelDriver(LifecycleNode):
         servos.bus.write_goals({i: int(t) for i, t in zip(servos.ids, step.ticks)})
         self._goals.written(step.ticks, now)
         self._counts["writes"] += 1
-        msg = PlanarActuation(phi=servos.map.present_twists(step.ticks), source_stamp=self._goals.target_source)
         # a goal cannot leave before the command it came from: under simulated time a phi_cmd may be taken before
         # this node has seen the /clock of the tick that sent it
         command = self._goals.command
-        issued = Time.from_msg(command.header.stamp).nanoseconds if command is not None else 0
-        msg.header.stamp = Time(nanoseconds=max(self.get_clock().now().nanoseconds, issued)).to_msg()
-        self._pub_goal.publish(msg)
+        issued = convert.stamp_ns(command.header.stamp) if command is not None else 0
+        self._pub_goal.publish(convert.actuation_msg(servos.map.present_twists(step.ticks),
+                                                     convert.stamp_msg(max(self.get_clock().now().nanoseconds, issued)),
+                                                     source_stamp=self._goals.target_source))
 
     def _publish_state(self, ticks_by_id: dict[int, int], velocities: dict[int, int]) -> None:
         """Publish motor_states and phi_present of one sync read."""
@@ -301,9 +301,7 @@ class DynamixelDriver(LifecycleNode):
                             velocity=[velocities[i] * VELOCITY_UNIT_RAD_S for i in servos.ids])
         joints.header.stamp = stamp
         self._pub_states.publish(joints)
-        phi = PlanarActuation(phi=servos.map.present_twists(ticks))
-        phi.header.stamp = stamp
-        self._pub_phi.publish(phi)
+        self._pub_phi.publish(convert.actuation_msg(servos.map.present_twists(ticks), stamp))
 
 
 def main() -> None:

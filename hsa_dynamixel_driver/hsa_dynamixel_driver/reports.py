@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from hsa_core.rate_meter import RateMeter
 from hsa_core.servo_supervision import Watchdog
 from hsa_dynamixel_driver.bus import describe_hardware_error
 from hsa_dynamixel_driver.servos import Servos
@@ -54,17 +55,16 @@ def servo_report(servos: Servos, p: dict[str, Any]) -> Report:
 class ControlReport:
     """OK; WARN watchdog expired. Rates are per second of node clock since the previous report."""
 
-    def __init__(self, servos: Servos, p: dict[str, Any], now: float) -> None:
-        """Start counting rates at ``now`` [s]."""
+    def __init__(self, servos: Servos, p: dict[str, Any], now_ns: int) -> None:
+        """Start counting rates at ``now_ns`` [ns], with every counter at 0."""
         self._servos, self._p = servos, p
-        self._since, self._base = now, dict(servos.counts)
+        self._rates = RateMeter(now_ns)
 
-    def __call__(self, now: float) -> Report:
-        """The control status at ``now`` [s]."""
-        counts, sup, p = self._servos.counts, self._servos.sup, self._p
-        elapsed = max(now - self._since, 1e-9)
-        rates = {f"{k}_per_s": round((counts[k] - self._base[k]) / elapsed, 1) for k in RATE_COUNTS}
-        self._since, self._base = now, dict(counts)
+    def __call__(self, now_ns: int) -> Report:
+        """The control status at ``now_ns`` [ns]."""
+        counts, sup, p, now = self._servos.counts, self._servos.sup, self._p, now_ns * 1e-9
+        rates = {f"{k}_per_s": round(rate, 1)
+                 for k, rate in self._rates.rates(now_ns, {k: counts[k] for k in RATE_COUNTS}).items()}
         age = "none" if sup.command_time is None else f"{now - sup.command_time:.3f} s"
         watchdog = sup.watchdog_status(p["watchdog_action"])
         values = {**rates, **{k: counts[k] for k in COMMAND_COUNTS},
@@ -84,10 +84,10 @@ def estop_report(servos: Servos, now: float) -> Report:
     return Report(OK, "released", values)
 
 
-def add_statuses(diagnostics: Diagnostics, servos: Servos, p: dict[str, Any], now: Callable[[], float]) -> None:
-    """Register the four statuses; ``now`` is the node clock [s]."""
-    control = ControlReport(servos, p, now())
+def add_statuses(diagnostics: Diagnostics, servos: Servos, p: dict[str, Any], now_ns: Callable[[], int]) -> None:
+    """Register the four statuses; ``now_ns`` is the node clock [ns]."""
+    control = ControlReport(servos, p, now_ns())
     diagnostics.add("bus", lambda: bus_report(servos, p))
     diagnostics.add("servos", lambda: servo_report(servos, p))
-    diagnostics.add("control", lambda: control(now()))
-    diagnostics.add("estop", lambda: estop_report(servos, now()))
+    diagnostics.add("control", lambda: control(now_ns()))
+    diagnostics.add("estop", lambda: estop_report(servos, now_ns() * 1e-9))

@@ -29,7 +29,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
-from hsa_common import lockstep, qos
+from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC, load_model, load_wiring_param
 from hsa_common.parameters import ParamSpec, declare
@@ -38,6 +38,7 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
 from hsa_core.playback import Step
+from hsa_core.rate_meter import RateMeter
 from hsa_core.sim_lockstep import SimLockstep
 from hsa_core.world import MOCAP_PERIOD_NS, World, payload_schedule
 from hsa_core.jaxsetup import configure_jax
@@ -134,9 +135,8 @@ class SimNode(Node):
                                                    qos_overriding_options=options)
         self._pub_base = (self.create_publisher(PoseStamped, self._p["base_topic"], qos.SENSOR,
                                                 qos_overriding_options=options) if self._p["base_topic"] else None)
-        self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time": 0.0}
-        self._report_base = (time.monotonic(), dict(self._stats))
-        self._emulator_base = (time.monotonic(), self._emulator.stats())
+        self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time_ns": 0}
+        self._world_rates, self._emulator_rates = RateMeter(time.monotonic_ns()), RateMeter(time.monotonic_ns())
         self._lockstep = lockstep.enabled(self)
         self._failure = ""
         diagnostics = Diagnostics(self, hardware_id=port)
@@ -177,22 +177,13 @@ class SimNode(Node):
     def _publish_samples(self, until_ns: int, origin_ns: int = 0) -> None:
         """Publish every mocap sample available by ``until_ns`` (stamps: world time + ``origin_ns``)."""
         for sample in self._world.take_samples(until_ns):
+            stamp, frame_id = convert.stamp_msg(sample.stamp_ns + origin_ns), self._p["frame_id"]
             position, quaternion = planar_to_world(sample.chiee, self._base)
-            msg = PoseStamped()
-            msg.header.stamp = Time(nanoseconds=sample.stamp_ns + origin_ns).to_msg()
-            msg.header.frame_id = self._p["frame_id"]
-            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = position.tolist()
-            (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
-             msg.pose.orientation.w) = quaternion.tolist()
-            self._pub_platform.publish(msg)
-            if self._pub_base is not None:
-                base = PoseStamped()
-                base.header = msg.header
-                base.pose.position.x, base.pose.position.y, base.pose.position.z = self._base.tolist()
-                base.pose.orientation.w = 1.0  # the base body is created aligned with the world
-                self._pub_base.publish(base)
+            self._pub_platform.publish(convert.pose_stamped(stamp, frame_id, position, quaternion))
+            if self._pub_base is not None:  # the base body is created aligned with the world
+                self._pub_base.publish(convert.pose_stamped(stamp, frame_id, self._base, (0.0, 0.0, 0.0, 1.0)))
             self._stats["samples"] += 1
-        self._stats["sim_time"] = self._world.t_ns * 1e-9
+        self._stats["sim_time_ns"] = self._world.t_ns
 
     # ---------------------------------------------------------------- wall clock
     def _follow_clock(self) -> None:
@@ -253,25 +244,20 @@ class SimNode(Node):
 
     def _send_clock(self, t_ns: int) -> None:
         """Publish /clock at instant ``t_ns``."""
-        msg = Clock()
-        msg.clock = Time(nanoseconds=t_ns).to_msg()
-        self._clock_pub.publish(msg)
+        self._clock_pub.publish(convert.clock_msg(t_ns))
 
     # ---------------------------------------------------------------- diagnostics
     def _world_report(self) -> Report:
         """``sim_node: world`` (real-time factor over the period since the previous report)."""
-        now = time.monotonic()
-        since, base = self._report_base
-        self._report_base = (now, dict(self._stats))
-        rtf = (self._stats["sim_time"] - base["sim_time"]) / max(now - since, 1e-9)
+        rtf = self._world_rates.rates(time.monotonic_ns(), {"sim_ns": self._stats["sim_time_ns"]})["sim_ns"] * 1e-9
         return world_report(self._world, self._stats, rtf, self._lockstep, self._p["disturbance"], self._failure)
 
     def _emulator_report(self) -> Report:
         """``sim_node: emulator`` (rates over the period since the previous report)."""
-        stats, now = self._emulator.stats(), time.monotonic()
-        since, base = self._emulator_base
-        self._emulator_base = (now, stats)
-        return emulator_report(self._emulator, self._map.ids, stats, base, max(now - since, 1e-9))
+        stats = self._emulator.stats()
+        rates = self._emulator_rates.rates(time.monotonic_ns(), {"sync_writes": stats.sync_writes,
+                                                                  "sync_reads": stats.sync_reads})
+        return emulator_report(self._emulator, self._map.ids, stats, rates)
 
     def on_shutdown(self) -> None:
         """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off,

@@ -23,7 +23,7 @@ def world_report(world: World, stats: Mapping[str, Any], rtf: float, lockstep: b
     """``sim_node: world``: ERROR after a barrier failure or a diverged plant, WARN slower than real time (wall)."""
     values = {"clock": "lockstep" if lockstep else "wall", "real_time_factor": round(rtf, 3),
               "samples": stats["samples"], "instants": stats["instants"], "clock_resends": stats["resends"],
-              "sim_time": round(stats["sim_time"], 3), "phi": np.round(world.twists(), 4).tolist(),
+              "sim_time": round(stats["sim_time_ns"] * 1e-9, 3), "phi": np.round(world.twists(), 4).tolist(),
               "chiee": np.round(world.true_pose(), 5).tolist(), "payload": float(world.plant.m_pl),
               "disturbance": disturbance}
     if failure:
@@ -35,14 +35,13 @@ def world_report(world: World, stats: Mapping[str, Any], rtf: float, lockstep: b
     return Report(OK, "running", values)
 
 
-def emulator_report(emulator: MX28Emulator, ids: Sequence[int], stats: EmulatorStats, base: EmulatorStats,
-                    elapsed: float) -> Report:
+def emulator_report(emulator: MX28Emulator, ids: Sequence[int], stats: EmulatorStats,
+                    rates: Mapping[str, float]) -> Report:
     """``sim_node: emulator``: ERROR unplugged, WARN while a servo is silent or reports a hardware error or after
-    CRC errors; ``base`` are the counters ``elapsed`` seconds ago (for the rates)."""
+    CRC errors; ``rates``: sync_writes and sync_reads per second over the reporting period."""
     silent, hw_errors = emulator.unresponsive(), emulator.hardware_errors()
     values = {"port": emulator.port, "device": emulator.device, **vars(stats),
-              "sync_writes_per_s": round((stats.sync_writes - base.sync_writes) / elapsed, 1),
-              "sync_reads_per_s": round((stats.sync_reads - base.sync_reads) / elapsed, 1),
+              "sync_writes_per_s": round(rates["sync_writes"], 1), "sync_reads_per_s": round(rates["sync_reads"], 1),
               "unresponsive_ids": list(silent),
               **{f"torque_{i}": emulator.torque_enabled(i) for i in ids},
               **{f"hardware_error_{i}": bits for i, bits in hw_errors.items()}}

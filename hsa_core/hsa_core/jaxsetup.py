@@ -3,11 +3,11 @@
 :func:`configure_jax` switches JAX to float64 (the model needs double precision, model.md §9.1), runs small compiled
 calls on the calling thread (no hand-off to a dispatch thread: the per-tick model calls of the nodes are microseconds
 long, benchmarks/results/model.json), and enables JAX's persistent compilation cache, so that a process started a
-second time loads its compiled model instead of compiling it again (directory: ``HSA_JAX_CACHE_DIR``, default
-``~/.cache/hsa_ros/jax``; an empty string disables it). :func:`require` is the guard of the model's entry
+second time loads every compiled function, small ones too, instead of compiling it again (directory:
+``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``; an empty string disables it). :func:`require` is the guard of the model's entry
 (:func:`hsa_core.params.load_params`): a program that forgot the call fails with one clear line instead of computing
-in float32. Nodes and programs that never touch the model (bridge, driver, sequencer, recorder, player, launcher)
-never import JAX.
+in float32. Nodes and programs that never touch the model (bridge, sequencer, recorder, player, launcher) never
+import JAX; the driver does, for the parameter set's h and φ_max.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def configure_jax() -> None:
     cache = cache_dir()
     if cache is not None:
         jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # the small ones add up at start
 
 
 def cache_dir() -> Path | None:

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hsa_core.control import Controller, ControllerInfo, Measurement
+from hsa_core.rate_meter import RateMeter
 from hsa_core.planning import Setpoint
 from hsa_core.supervision import Action, Decision, Mode, Supervisor
 from hsa_core.validation import q_bounds, state_problem
@@ -139,7 +140,7 @@ class ControlLoop:
         self._last_tick: int | None = None
         self._tracked_at: int | None = None  # newest tracking tick
         self._lost_at: int | None = None  # last tracking tick before the current outage (None while tracking)
-        self._window_start, self._window_ticks, self._window_compute = start_ns, 0, []
+        self._rate, self._window_compute = RateMeter(start_ns), []
 
     def receive_setpoint(self, stamp_ns: int, setpoint: Setpoint, tag: Any = None) -> None:
         """Queue a setpoint stamped stamp_ns; the first tick after the stamp activates it."""
@@ -147,7 +148,7 @@ class ControlLoop:
 
     def state(self, stamp_ns: int, now_ns: int, q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
               chiee_dot: ArrayLike, velocity_valid: bool = True) -> str | None:
-        """A measured state: why it is refused (counted), or None; only an accepted one with valid velocities is used."""
+        """A measured state: why it is refused (counted), or None; only accepted ones with valid velocities are used."""
         problem = state_problem(self._q_bounds, q, q_dot, chiee, chiee_dot, velocity_valid)
         if problem is None and velocity_valid:
             problem = self.supervisor.state(stamp_ns, now_ns)
@@ -188,10 +189,8 @@ class ControlLoop:
 
     def period(self, now_ns: int) -> Period:
         """The reporting period ending at now_ns (tick rate, compute times); the next one starts now."""
-        elapsed = (now_ns - self._window_start) * 1e-9
-        rate = self._window_ticks / elapsed if elapsed > 0.0 else 0.0
-        period = Period(rate, tuple(self._window_compute))
-        self._window_start, self._window_ticks, self._window_compute = now_ns, 0, []
+        period = Period(self._rate.rates(now_ns, {"ticks": self.counters.ticks})["ticks"], tuple(self._window_compute))
+        self._window_compute = []
         return period
 
     def _count(self, now_ns: int) -> None:
@@ -200,7 +199,6 @@ class ControlLoop:
             self.counters.deadline_misses += 1
         self._last_tick = now_ns
         self.counters.ticks += 1
-        self._window_ticks += 1
 
     def _activate(self, now_ns: int) -> tuple[Activation, ...]:
         """Activate the queued setpoints stamped before now_ns, in arrival order; refusals are counted."""

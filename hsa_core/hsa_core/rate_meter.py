@@ -10,11 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-MIN_PERIOD_NS = 1
-"""[ns] shortest period a rate is divided by: a report at the same instant (or after the clock went back) gives a
-finite rate instead of a division by zero."""
-
-
 class RateMeter:
     """Rate [1/s] of each cumulative counter over the period since the previous reading (or the start)."""
 
@@ -25,9 +20,10 @@ class RateMeter:
     def rates(self, now_ns: int, counts: Mapping[str, int]) -> dict[str, float]:
         """Per-second increase of each counter since the previous call, which ends the period at ``now_ns``.
 
-        A counter not seen before counts from 0; the period is at least :data:`MIN_PERIOD_NS` long.
+        A counter not seen before counts from 0. A period of no time (a second report at the same instant, or a clock
+        that went back) measures no rate: every rate is 0.
         """
-        period = max(now_ns - self._since_ns, MIN_PERIOD_NS) * 1e-9
-        rates = {name: (n - self._base.get(name, 0)) / period for name, n in counts.items()}
+        period = (now_ns - self._since_ns) * 1e-9
+        rates = {name: (n - self._base.get(name, 0)) / period if period > 0.0 else 0.0 for name, n in counts.items()}
         self._since_ns, self._base = now_ns, dict(counts)
         return rates

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import pytest
-
 from hsa_core.rate_meter import RateMeter
 
 S = 1_000_000_000  # ns per s
@@ -29,13 +27,13 @@ def test_a_counter_first_seen_later_counts_from_zero():
     assert meter.rates(2 * S, {"reads": 30, "writes": 4}) == {"reads": 20.0, "writes": 4.0}
 
 
-def test_an_empty_period_divides_by_one_nanosecond():
+def test_an_empty_period_measures_no_rate():
     meter = RateMeter(start_ns=3 * S)
     assert meter.rates(3 * S, {"ticks": 0}) == {"ticks": 0.0}
-    assert meter.rates(3 * S, {"ticks": 2}) == {"ticks": pytest.approx(2e9)}
+    assert meter.rates(3 * S, {"ticks": 2}) == {"ticks": 0.0}
 
 
-def test_a_clock_that_went_back_gives_a_finite_rate_and_restarts_the_period_there():
+def test_a_clock_that_went_back_measures_no_rate_and_restarts_the_period_there():
     meter = RateMeter(start_ns=10 * S)
-    assert meter.rates(4 * S, {"ticks": 3}) == {"ticks": pytest.approx(3e9)}
+    assert meter.rates(4 * S, {"ticks": 3}) == {"ticks": 0.0}
     assert meter.rates(5 * S, {"ticks": 43}) == {"ticks": 40.0}

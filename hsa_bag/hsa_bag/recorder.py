@@ -90,6 +90,8 @@ def describe(profile: QoSProfile) -> str:
 class BagRecorder(Node):
     """Records the selected topics into one bag directory; see the module docstring."""
 
+    lockstep_clock_acks = True  # its log times are its clock: lockstep instants wait until its clock is there
+
     def __init__(self) -> None:
         super().__init__("bag_recorder")
         params = declare(self, SPECS)

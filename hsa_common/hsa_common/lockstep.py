@@ -6,7 +6,8 @@ parameter/lifecycle services are not counted),
 and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
 (:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.lockstep`; the contract is in
 docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder:
-every selected topic subscribed).
+every selected topic subscribed), and with ``lockstep_clock_acks = True`` report every move of its clock, so that no
+instant ends before its clock has reached it (the recorder, whose log times are its clock).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ class Participant:
         self.published: Counter[str] = Counter()
         self.taken: Counter[str] = Counter()
         self.pending = 0
+        self.clock_acks = bool(getattr(node, "lockstep_clock_acks", False))  # a recorder: instants wait for its clock
         self._wrapped: set[int] = set()
         self._pubs: dict[str, list[Any]] = {}
         self._last: tuple | None = None
@@ -143,7 +145,8 @@ class Participant:
             self._matched = {t: min(p.get_subscription_count() for p in pubs) for t, pubs in self._pubs.items()}
             self._heard = heard(self.node)
         return Report(self.node.get_fully_qualified_name(), now, self._ready, leaving, min(dues) if dues else None,
-                      self.pending, dict(self.published), self._matched, dict(self.taken), self._heard)
+                      self.pending, dict(self.published), self._matched, dict(self.taken), self._heard,
+                      self.clock_acks)
 
     def idle(self, leaving: bool = False) -> None:
         """The runner found nothing to run: publish the report if anything but the clock changed."""
@@ -151,9 +154,10 @@ class Participant:
             return
         r = self.report(leaving)
         key = (r.ready, r.leaving, r.next_due_ns, r.pending, tuple(sorted(r.published.items())),
-               tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())), tuple(sorted(r.heard.items())))
+               tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())), tuple(sorted(r.heard.items())),
+               r.clock_ns if r.clock_acks else None)
         if key == self._last:
-            return  # only the clock moved: the simulator does not wait for that
+            return  # only the clock moved, and the simulator does not wait for this node's clock
         self._last = key
         self._ack_pub.publish(to_msg(r))
 
@@ -181,7 +185,7 @@ def _fewest(ends: Any) -> dict[str, int]:
 
 def to_msg(r: Report) -> LockstepAck:
     """Report → LockstepAck."""
-    msg = LockstepAck(node=r.node, ready=r.ready, leaving=r.leaving,
+    msg = LockstepAck(node=r.node, ready=r.ready, leaving=r.leaving, clock_acks=r.clock_acks,
                       next_due=-1 if r.next_due_ns is None else r.next_due_ns, pending=r.pending)
     msg.clock = convert.stamp_msg(r.clock_ns)
     msg.pub_topics = list(r.published.keys() | r.matched.keys())
@@ -200,4 +204,4 @@ def from_msg(msg: LockstepAck) -> Report:
                   None if msg.next_due < 0 else msg.next_due, msg.pending,
                   dict(zip(msg.pub_topics, msg.published)),
                   {t: n for t, n in zip(msg.pub_topics, msg.matched) if n != UNMATCHED},
-                  dict(zip(msg.sub_topics, msg.taken)), dict(zip(msg.heard_topics, msg.heard)))
+                  dict(zip(msg.sub_topics, msg.taken)), dict(zip(msg.heard_topics, msg.heard)), msg.clock_acks)

@@ -13,9 +13,11 @@ publications are counted in the same way. From the latest report of every partic
   but a reader that does not know the writer yet drops what arrives, so one side alone loses the first messages;
 * ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes it has taken
   every message published on it, and no service request is unanswered;
-* ``finish_problem(t)`` — instant t is finished (None): settled, and no participant has a timer due at or before t
+* ``finish_problem(t)`` — instant t is finished (None): settled, no participant has a timer due at or before t
   left to run (a participant reports a new earliest timer once it ran the due ones; one that only saw the clock
-  move need not report).
+  move need not report), and every participant with ``clock_acks`` (a recorder, whose log times are its clock) has
+  reported a clock at t: /clock and the instant's messages travel on different topics, so without that a loaded
+  machine could deliver a message before the clock of its instant.
 
 Message counting detects messages in flight between processes without any assumption on delivery order: a
 participant reports only after its callbacks ran, so every message it published is counted before the report that
@@ -45,6 +47,7 @@ class Report:
     matched: Mapping[str, int] = field(default_factory=dict)
     taken: Mapping[str, int] = field(default_factory=dict)
     heard: Mapping[str, int] = field(default_factory=dict)  # per subscribed topic (/clock too): publishers matched
+    clock_acks: bool = False  # it reports every clock move; an instant waits for its clock (a recorder's log times)
 
 
 class Barrier:
@@ -127,6 +130,9 @@ class Barrier:
         due = sorted(n for n, r in self.reports.items() if r.next_due_ns is not None and r.next_due_ns <= t_ns)
         if due:
             return f"timers due at {t_ns} ns not yet run by {due}"
+        behind = sorted(n for n, r in self.reports.items() if r.clock_acks and r.clock_ns < t_ns)
+        if behind:
+            return f"clock of {behind} not yet at {t_ns} ns"
         return self.settle_problem()
 
     def next_due_ns(self) -> int | None:

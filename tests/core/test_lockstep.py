@@ -91,6 +91,17 @@ def test_an_instant_is_finished_when_no_timer_due_is_left_and_all_is_settled() -
     assert barrier.next_due_ns() == 50 * MS
 
 
+def test_an_instant_waits_for_the_clock_of_a_clock_acking_participant_only() -> None:
+    """A recorder (clock_acks) must have reported the instant's clock before the instant ends; other nodes need not
+    report a clock move at all (their clocks stay behind in the barrier's view)."""
+    barrier = graph(**{"/rec": Report("/rec", 0, taken={"/pose": 0}, clock_acks=True)})
+    assert barrier.finish_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"
+    barrier.report(Report("/rec", 5 * MS, taken={"/pose": 0}, clock_acks=True))
+    assert barrier.finish_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"
+    barrier.report(Report("/rec", 10 * MS, taken={"/pose": 0}, clock_acks=True))
+    assert barrier.finish_problem(10 * MS) is None  # /bridge, /kin and /ctrl still report clock 0
+
+
 def test_a_late_joiner_is_settled_at_its_first_report_and_a_leaver_is_dropped() -> None:
     barrier = graph()
     barrier.start()

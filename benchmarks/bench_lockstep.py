@@ -14,7 +14,7 @@
   paper's 4.17 mm.
 Writes benchmarks/results/lockstep.json.
 
-    .venv/bin/python benchmarks/bench_lockstep.py [--skip-200hz] [--wall-steps]
+    .venv/bin/python benchmarks/bench_lockstep.py [--skip-200hz] [--wall-steps] [--out FILE]
 """
 
 from __future__ import annotations
@@ -109,6 +109,8 @@ def main() -> int:
     parser.add_argument("--skip-200hz", action="store_true")
     parser.add_argument("--wall-steps", action="store_true",
                         help="wall-clock recorder run on the full 110 s schedule (default: 3 steps of 10 s)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "lockstep.json",
+                        help="result JSON (default benchmarks/results/lockstep.json)")
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_lockstep_"))
     result: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()}}
@@ -149,8 +151,7 @@ def main() -> int:
     result["wall_clock_recorder"] = {"load": "two busy processes", "graph_wall_s": wall["graph_wall_s"],
                                      "mocap_samples_published": published, "recorded": len(ns),
                                      "lost": published - len(np.unique(ns))}
-    out = ROOT / "benchmarks" / "results" / "lockstep.json"
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
     return 0
 

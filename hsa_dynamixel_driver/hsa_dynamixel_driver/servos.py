@@ -195,7 +195,7 @@ class Servos:
         assert self.bus is not None
         try:
             reading = self.bus.read_positions()
-            errors = ({i: b for i, b in self.bus.read_hardware_errors().items() if b} if reading.alerts else None)
+            errors = self._hardware_errors() if reading.alerts else None
             ticks = self.present_ticks(reading.ticks)
             problem = self._checked(lambda: self.sup.torque_on_problem(ticks, reading.alerts, errors))
             if problem is None:
@@ -229,10 +229,15 @@ class Servos:
             self._log.info(f"torque off ({reason})")
         return unconfirmed
 
+    def _hardware_errors(self) -> dict[int, int]:
+        """Hardware Error Status of the servos that report one (nonzero bits only), read from the bus."""
+        assert self.bus is not None
+        return {i: b for i, b in self.bus.read_hardware_errors().items() if b}
+
     def alerts(self, alerts: frozenset[int]) -> None:
         """The set of alerting servos changed: read their Hardware Error Status; on a new error, torque off for all."""
         assert self.bus is not None
-        errors = {i: b for i, b in self.bus.read_hardware_errors().items() if b} if alerts else {}
+        errors = self._hardware_errors() if alerts else {}
         event = self.sup.hardware_errors(alerts, errors)
         if event is Alert.FAULT:
             self.disable_torque("hardware error")
@@ -259,7 +264,7 @@ class Servos:
             self.bus.wait_answering(ids, REBOOT_WAIT_S)
             self.bus.configure(return_delay=self._p["return_delay"])  # RAM defaults: torque off; EEPROM checked
             reading = self.bus.read_positions()
-            errors = {i: b for i, b in self.bus.read_hardware_errors().items() if b}
+            errors = self._hardware_errors()
         except BusError as exc:
             self.count_error(exc)
             self.sup.torque_refused(f"off (reboot of IDs {ids} failed: {exc})")

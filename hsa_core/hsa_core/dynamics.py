@@ -4,10 +4,11 @@ Inertia and gravity are sums over mass points: 8 Gauss-Legendre nodes on each vi
 platform CoG and the payload, vectorised as 2 layers over the 9 arc positions they share (nodes + tip). The point
 Jacobians are written in closed form with E(x) = S(x) + i x C(x) and its first two derivatives
 (smooth.arc_functions, exact and smooth at kappa = 0, §8.2). One contraction of them gives M (§7.2), C (the
-Christoffel-symbol matrix of §7.3, evaluated as sum m J^T J_dot) and G = dU_g/dxi (§7.4); K, D, alpha and A are closed
+Christoffel-symbol matrix of §7.3, evaluated as sum m J^T J_dot) and G = dU_g/dxi (§7.4); the forward dynamics takes
+M, C q_dot and G from the same sums written elementwise (:func:`_inertial_forces`). K, D, alpha and A are closed
 forms (§7.5-7.7) and the collocated map follows planning_and_control.md §3.2. Parameter-only terms are folded to
-constants when the parameters are closed over. The compiled graph is about ten fused XLA kernels, which keeps the
-compile time (~0.3 s) and the per-evaluation cost (~3 us inside a simulation loop) low.
+constants when the parameters are closed over. The compiled graph is a few fused XLA kernels, which keeps the
+compile time (~0.3 s) and the per-evaluation cost (~1.5 us inside a simulation loop, ~0.7 us per run batched) low.
 
 With `params.kappa_rule == "exp2023_shift"`, M, C, G, K, alpha, A and q_ddot are evaluated at
 kappa_dyn = kappa + sign(kappa) 0.01 (model.md §8.4(1)); the collocated map is always exact.
@@ -144,12 +145,40 @@ def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array)
 
 
 def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
-    """M, C q_dot and G, with C q_dot = sum_k m_k J_k^T (J_dot_k q_dot) from one contraction."""
-    J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    Ja = jax.lax.optimization_barrier(jnp.concatenate([J, jnp.sum(J_dot * xi_dot[:, None, None, None], axis=0)[None]]))
-    V = jnp.concatenate([Ja, jnp.broadcast_to(params.g[None, :, None, None], (1,) + J.shape[1:])])
-    R = jnp.sum(Ja[:3, None] * V[None] * mp.m, axis=(2, 3, 4)) + jnp.zeros((3, 5)).at[0, 0].set(mp.inertia_kk)
-    return R[:, :3], R[:, 3], -R[:, 4]
+    """M, C q_dot and G of :func:`_inertial_terms`, as elementwise sums over the mass points (no Jacobian arrays).
+
+    With Re(conj(a) b) for planar vectors in complex notation and the columns J_sh = F, J_ax = i F (the same at both
+    layers), every entry is a weighted sum over the points of dot(a, b) = Re(conj(a) b) or cross(a, b) = Im(conj(a) b):
+    M = [[|J_k|^2 + I_kk, dot(J_k, F), cross(F, J_k)], [., |F|^2, 0], [., 0, |F|^2]], (C q_dot)_j = <J_j, v> with
+    v = J_dot q_dot = kappa_dot (2 w_dot F_k + kappa_dot dJ_k/dkappa), G_j = -<J_j, g>. The
+    elementwise form fuses into a few XLA kernels: ~2x faster than the contraction of :func:`_inertial_terms` per
+    evaluation, batched or not (benchmarks/results/closed_loop.json); tests/core/test_dynamics.py checks it against it.
+    """
+    s, m = mp.s, mp.m
+    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))  # computed once, not inside every consumer kernel
+    F, F_k, F_kk = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4]), (s**3 * f[2], s**3 * f[5])
+    d = (mp.d[:, :, 0], mp.d[:, :, 1])
+    e_d = (f[6] * d[0] - f[7] * d[1], f[6] * d[1] + f[7] * d[0])  # e^{i kappa s} d, per layer
+    w, w_dot, kappa_dot = (xi[1], xi[2]), (xi_dot[1], xi_dot[2]), xi_dot[0]
+    J_k = (w[0] * F_k[0] - w[1] * F_k[1] - s * e_d[1], w[0] * F_k[1] + w[1] * F_k[0] + s * e_d[0])
+    dJ_k = (w[0] * F_kk[0] - w[1] * F_kk[1] - s * s * e_d[0], w[0] * F_kk[1] + w[1] * F_kk[0] - s * s * e_d[1])
+    v = tuple(kappa_dot * (2.0 * wd_fk + kappa_dot * dj) for wd_fk, dj in
+              zip((w_dot[0] * F_k[0] - w_dot[1] * F_k[1], w_dot[0] * F_k[1] + w_dot[1] * F_k[0]), dJ_k))
+    J_k, v = jax.lax.optimization_barrier((J_k, v))
+    g = (params.g[0], params.g[1])
+
+    def dot(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+        return jnp.sum(m * (a[0] * b[0] + a[1] * b[1]), axis=(0, 1))
+
+    def cross(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+        return jnp.sum(m * (a[0] * b[1] - a[1] * b[0]), axis=(0, 1))
+
+    m_kk, m_ks, m_ka, m_ff = dot(J_k, J_k) + mp.inertia_kk, dot(J_k, F), cross(F, J_k), dot(F, F)
+    zero = jnp.zeros_like(m_ff)
+    M = jnp.stack([jnp.stack([m_kk, m_ks, m_ka]), jnp.stack([m_ks, m_ff, zero]), jnp.stack([m_ka, zero, m_ff])])
+    C_q_dot = jnp.stack([dot(J_k, v), dot(F, v), cross(F, v)])
+    G = -jnp.stack([dot(J_k, g), dot(F, g), cross(F, g)])
+    return M, C_q_dot, G
 
 
 def _strain_deviation(params: HsaParams, xi: Array) -> Array:

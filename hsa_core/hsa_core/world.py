@@ -214,13 +214,13 @@ def _segment_fn(plant: HsaParams, motor_map: MotorMap, neutral: np.ndarray, spee
 
     @jax.jit
     def segment(x, position, goal, torque, m_pl, n):
-        loaded = dataclasses.replace(plant, m_pl=m_pl)
+        q_ddot = simulation.forward_dynamics_fn(dataclasses.replace(plant, m_pl=m_pl))  # parameter terms once
 
         def interval(_, carry):
             x, position, _step = carry
             moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
             phi = to_rods @ (moved - neutral)
-            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4_step(loaded, xk, phi, dt), x)
+            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation._rk4(q_ddot, xk, phi, dt), x)
             return x, moved, moved - position
 
         return jax.lax.fori_loop(0, n, interval, (x, position, jnp.zeros_like(position)))

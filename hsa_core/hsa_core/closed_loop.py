@@ -103,11 +103,13 @@ class _Carry(NamedTuple):
     samples: Array  # (Q, 3) recent noisy poses, by sample index mod Q
 
 
-def prepare(config: ExperimentConfig) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
-    """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants."""
+def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
+    """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants.
+
+    ``model`` is the controller's model, which plans the setpoints (default: the material's parameter set)."""
     if config.mocap_outages:
         raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
-    model = load_params(config.material)
+    model = load_params(config.material) if model is None else model
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
@@ -234,16 +236,22 @@ compiled = jax.jit(rollout, static_argnums=0)
 """``rollout`` compiled (``spec`` static); :func:`batch_rollout` batches."""
 
 
-def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, axes: LoopInputs) -> TickLog:
-    """Many runs at once: ``jax.vmap`` over the leaves of ``inputs`` whose entry in ``axes`` is 0 (None: shared).
+def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, axes: LoopInputs,
+                  constant_axes: LoopConstants | None = None) -> TickLog:
+    """Many runs at once: ``jax.vmap`` over the leaves of ``inputs`` whose entry in ``axes`` is 0 (None: shared), and
+    over those of ``constants`` marked 0 in ``constant_axes`` (default: all shared; e.g. a model and setpoints per run).
 
-    The batch axis is split over every JAX device (``jax.sharding``: one shard per device, constants replicated), so
-    the same call uses all GPUs of a workstation, or the host devices XLA is told to make. A batch that does not
+    The batch axis is split over every JAX device (``jax.sharding``: one shard per device, shared leaves replicated),
+    so the same call uses all GPUs of a workstation, or the host devices XLA is told to make. A batch that does not
     divide among the devices is padded with copies of its last run, which are dropped from the result."""
+    constant_axes = constant_axes or LoopConstants(None, None, None)
+
     def sizes(axis: int | None, sub: object) -> set[int]:
         return {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(sub)} if axis == 0 else set()
 
-    batch = set().union(*jax.tree_util.tree_leaves(jax.tree_util.tree_map(sizes, axes, inputs, is_leaf=_none)))
+    batch = set()
+    for tree_axes, tree in ((axes, inputs), (constant_axes, constants)):
+        batch |= set().union(*jax.tree_util.tree_leaves(jax.tree_util.tree_map(sizes, tree_axes, tree, is_leaf=_none)))
     if len(batch) != 1:
         raise ValueError(f"the batched inputs must share one batch size, got {sorted(batch)}")
     n = batch.pop()
@@ -258,14 +266,15 @@ def batch_rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants, 
         return jax.device_put(jax.tree_util.tree_map(lambda leaf: np.asarray(leaf)[index], sub), split)
 
     placed = jax.tree_util.tree_map(place, axes, inputs, is_leaf=_none)
-    logs = _batched(spec, axes)(placed, jax.device_put(constants, shared))
+    placed_constants = jax.tree_util.tree_map(place, constant_axes, constants, is_leaf=_none)
+    logs = _batched(spec, axes, constant_axes)(placed, placed_constants)
     return logs if len(index) == n else jax.tree_util.tree_map(lambda a: a[:n], logs)
 
 
 @functools.lru_cache(maxsize=16)
-def _batched(spec: LoopSpec, axes: LoopInputs):
+def _batched(spec: LoopSpec, axes: LoopInputs, constant_axes: LoopConstants):
     """The vmapped loop compiled once per spec and batch layout (a new jit per call would compile every batch)."""
-    return jax.jit(jax.vmap(partial(rollout, spec), in_axes=(axes, None)))
+    return jax.jit(jax.vmap(partial(rollout, spec), in_axes=(axes, constant_axes)))
 
 
 def _none(a: object) -> bool:

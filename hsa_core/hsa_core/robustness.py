@@ -14,7 +14,8 @@ Classification per run, from the plant's noise-free EE position in the last 2 s 
   (a settled run moves by the servo's tick and the noise-free plant, tenths of a millimetre).
 
 Outputs in ``--out``: ``robustness.json`` (per law: the distribution of RMSE, e_ss, t_r, and the two fractions; per
-run: the factors and metrics), ``robustness.csv`` and figures (``rmse_by_law``: box plots per law; ``worst_<law>``:
+run: the factors and metrics; the gains used where ``--gains LAW=FILE`` replaced the paper's), ``robustness.csv``
+and figures (``rmse_by_law``: box plots per law; ``worst_<law>``:
 the worst run's x, y against the reference), PDF and PNG.
 """
 
@@ -22,17 +23,19 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from hsa_core import cli, closed_loop, plotting
+from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains, load_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
 from hsa_core.jaxsetup import configure_jax
@@ -46,6 +49,12 @@ UNSTABLE_M = 0.02
 OSCILLATION_PTP_M = 2e-3
 """[m] peak-to-peak of x or y over a step's last 2 s above which a run counts as limit-cycling."""
 LAWS = ("psatid", "psatid_gc", "pid", "psatid+eei")
+BOUND = "bound"
+"""Not a law: each plant under perfect-model feedforward. The servos slew at full speed to the plant's own steady-state
+twist for each setpoint (P-satI-D with zero gains whose model is the plant itself), so the EE settles exactly, as fast
+as the servo speed limit and the plant's own dynamics allow without overdriving the twists: the reference level for
+the tuning target (docs/simulation.md, "Gain tuning")."""
+BOUND_NAME = "servo-limited feedforward"
 
 
 @dataclass(frozen=True)
@@ -100,20 +109,35 @@ def classify(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> tuple[bool
 
 
 def run_law(law: str, material: str, plants: Plants, disturbance: DisturbanceModel, batch: int,
-            reference: TimedReference | None = None) -> tuple[list[dict], Worst]:
-    """Every plant under one law: one record per run (factors, metrics, classification) and the worst run."""
-    kind, ee = _law(law)
-    config = ExperimentConfig(material, kind, ee, reference=reference, disturbance=disturbance)
-    spec, inputs, constants = closed_loop.prepare(config)
-    n = len(plants.seeds)
+            reference: TimedReference | None = None,
+            gains: CollocatedGains | PidGains | None = None) -> tuple[list[dict], Worst]:
+    """Every plant under one law (``gains``: default the paper's): one record per run (factors, metrics,
+    classification) and the worst run. Under :data:`BOUND` only the plants that can reach every setpoint run."""
     axes = closed_loop.LoopInputs(0, None, 0, None)
+    constant_axes = None
+    if law == BOUND:
+        paper = default_gains(ControllerKind.PSATID, material)
+        config = ExperimentConfig(material, ControllerKind.PSATID.value, gains=replace(paper, kp=0.0, ki=0.0, kd=0.0),
+                                  reference=reference, disturbance=disturbance)
+        spec, inputs, constants, plant_index = _per_plant_constants(config, plants)
+        constant_axes = closed_loop.LoopConstants(0, 0, None)
+    else:
+        kind, ee = _law(law)
+        config = ExperimentConfig(material, kind, ee, gains=gains, reference=reference, disturbance=disturbance)
+        spec, inputs, constants = closed_loop.prepare(config)
+        plant_index = np.arange(len(plants.seeds))
     records: list[dict] = []
     worst: Worst | None = None
-    for lo in range(0, n, batch):
-        idx = np.arange(lo, min(lo + batch, n))
+    for lo in range(0, len(plant_index), batch):
+        idx = plant_index[lo:lo + batch]
         noise = np.stack([closed_loop.noise(disturbance, spec, seed=int(plants.seeds[i])) for i in idx])
         params = jax.tree_util.tree_map(lambda a: a[idx], plants.params)
-        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, noise=noise), constants, axes)
+        run_constants = constants
+        if constant_axes is not None:  # this chunk's plants as their own models, with their setpoints
+            refs = jax.tree_util.tree_map(lambda a: a[lo:lo + batch], constants.refs)
+            run_constants = constants._replace(model=params, refs=refs)
+        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, noise=noise), run_constants, axes,
+                                         constant_axes)
         for j, i in enumerate(idx):
             one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)
             unstable, cycling = classify(spec, one)
@@ -136,6 +160,19 @@ def run_law(law: str, material: str, plants: Plants, disturbance: DisturbanceMod
     return records, worst
 
 
+def _per_plant_constants(config: ExperimentConfig, plants: Plants) -> tuple[
+        closed_loop.LoopSpec, closed_loop.LoopInputs, closed_loop.LoopConstants, np.ndarray]:
+    """The loop of ``config`` with each plant as the controller's model: setpoints planned on every plant and stacked,
+    for the plants that can reach every setpoint (their indices, last); the others have no such feedforward."""
+    prepared = [closed_loop.prepare(config, model=jax.tree_util.tree_map(lambda a: np.asarray(a)[i], plants.params))
+                for i in range(len(plants.seeds))]
+    full = max(len(p[2].ref_index) and int(np.max(p[2].ref_index)) for p in prepared)
+    keep = np.array([i for i, p in enumerate(prepared) if int(np.max(p[2].ref_index)) == full and p[0] == prepared[0][0]])
+    spec, inputs, first = prepared[keep[0]]
+    refs = jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *[prepared[i][2].refs for i in keep])
+    return spec, inputs, first._replace(model=plants.params, refs=refs), keep
+
+
 def summary(records: list[dict]) -> dict:
     """Per law: median, quartiles and max of RMSE, e_ss and t_r; fractions unstable and limit-cycling."""
     out = {}
@@ -155,7 +192,7 @@ def summary(records: list[dict]) -> dict:
 def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: str) -> list[Path]:
     """Box plots of RMSE per law and each law's worst run."""
     laws = list(worst)
-    names = [plotting.law_name(*_law(law)) for law in laws]
+    names = [BOUND_NAME if law == BOUND else plotting.law_name(*_law(law)) for law in laws]
     with plt.rc_context(plotting.STYLE):
         fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(laws), 3.2))
         data = [[r["rmse_mm"] for r in records if r["law"] == law and np.isfinite(r["rmse_mm"])] for law in laws]
@@ -192,12 +229,24 @@ def _law(law: str) -> tuple[str, bool]:
     return kind, ext == "eei"
 
 
+def _gains_arg(text: str) -> tuple[str, Path]:
+    """argparse type of --gains: LAW=FILE, LAW one of LAWS, FILE a controller_node gains file (as hsa_tune writes)."""
+    law, sep, path = text.partition("=")
+    if not sep or law not in LAWS or not path:
+        raise argparse.ArgumentTypeError(f"expected LAW=FILE with LAW one of {list(LAWS)}, got {text!r}")
+    try:
+        load_gains(path, _law(law)[0])
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return law, Path(path)
+
+
 def _laws(text: str) -> list[str]:
-    """argparse type of --laws: a comma-separated list of LAWS."""
+    """argparse type of --laws: a comma-separated list of LAWS and BOUND."""
     laws = text.split(",")
-    bad = [law for law in laws if law not in LAWS]
+    bad = [law for law in laws if law not in (*LAWS, BOUND)]
     if bad:
-        raise argparse.ArgumentTypeError(f"unknown law(s) {bad}; choose from {list(LAWS)}")
+        raise argparse.ArgumentTypeError(f"unknown law(s) {bad}; choose from {[*LAWS, BOUND]}")
     return laws
 
 
@@ -206,16 +255,24 @@ def main(argv: list[str] | None = None) -> int:
     parser = cli.ArgumentParser(prog="hsa_robustness",
                                 description="Monte-Carlo robustness of the control laws over perturbed plants (JAX).")
     parser.add_argument("--material", choices=["fpu", "epu"], default="fpu")
-    parser.add_argument("--laws", type=_laws, default=list(LAWS), help=f"comma-separated, from {', '.join(LAWS)}")
+    parser.add_argument("--laws", type=_laws, default=list(LAWS),
+                        help=f"comma-separated, from {', '.join(LAWS)}; '{BOUND}': perfect-model feedforward at the "
+                             "servo speed limit, the reference level of the tuning target")
     parser.add_argument("--n", type=cli.positive_int, default=32, help="perturbed plants (default 32)")
     parser.add_argument("--range", type=float, default=0.10, dest="spread",
                         help="relative ± range of each perturbation factor (default 0.10)")
     parser.add_argument("--batch", type=cli.positive_int, default=16, help="runs per compiled batch")
     parser.add_argument("--duration", type=cli.positive, default=None,
                         help="truncate the step list to this many seconds (default: all 110 s)")
+    parser.add_argument("--gains", type=_gains_arg, action="append", default=[], metavar="LAW=FILE",
+                        help="that law's gains from a gains file (e.g. hsa_tune's gains.yaml; repeatable; "
+                             "default: the paper's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/robustness"))
     args = parser.parse_args(argv)
+    gains = {law: load_gains(path, _law(law)[0]) for law, path in args.gains}
+    if unused := sorted(set(gains) - set(args.laws)):
+        parser.error(f"--gains for {unused}, which --laws does not run")
     if not 0.0 <= args.spread < 1.0:
         parser.error(f"--range must be in [0, 1), got {args.spread}")
     configure_jax()
@@ -232,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     for law in args.laws:
         t0 = time.perf_counter()
-        rows, worst[law] = run_law(law, args.material, plants, disturbance, args.batch, reference)
+        rows, worst[law] = run_law(law, args.material, plants, disturbance, args.batch, reference, gains.get(law))
         records += rows
         print(f"[robustness] {law}: {args.n} plants in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     table = summary(records)
@@ -244,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         writer.writerows({k: r[k] for k in keys} for r in records)
     (args.out / "robustness.json").write_text(json.dumps(
         {"material": args.material, "plants": args.n, "range": args.spread, "seed": args.seed,
+         "gains": {law: ({"file": str(path), **dataclasses.asdict(gains[law])}) for law, path in args.gains},
          "duration_s": reference.duration, "devices": len(jax.devices()), "wall_s": round(time.perf_counter() - started, 1), "summary": table},
         indent=2) + "\n")
     figures(records, worst, args.out, args.material)

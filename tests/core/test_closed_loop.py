@@ -63,6 +63,26 @@ def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
         np.testing.assert_allclose(metric_values(got), metric_values(one.metrics), rtol=RTOL)
 
 
+def test_a_batch_of_models_and_setpoints_equals_the_runs_one_by_one() -> None:
+    """constant_axes batches the controller's model and its planned setpoints (as the feedforward bound needs)."""
+    config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0))
+    nominal = closed_loop.prepare(config)[2].model
+    models = [nominal, nominal.replace(C_eps=np.asarray(nominal.C_eps) * 1.05)]
+    prepared = [closed_loop.prepare(config, model=m) for m in models]
+    spec, inputs, _ = prepared[0]
+    stacked = jax.tree_util.tree_map(lambda *v: np.stack(v), *[p[2] for p in prepared])
+    constants = stacked._replace(ref_index=prepared[0][2].ref_index)
+    logs = closed_loop.batch_rollout(spec, inputs, constants, closed_loop.LoopInputs(None, None, None, None),
+                                     closed_loop.LoopConstants(0, 0, None))
+    rmse = []
+    for i, (_, _, one_constants) in enumerate(prepared):
+        one = closed_loop.evaluate(spec, closed_loop.compiled(spec, inputs, one_constants))
+        got = closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[i], logs))
+        np.testing.assert_allclose(metric_values(got), metric_values(one), rtol=RTOL)
+        rmse.append(got.rmse)
+    assert rmse[0] != pytest.approx(rmse[1], rel=1e-3)  # the two models do steer differently
+
+
 SHARDED = """
 import json, sys
 import jax, numpy as np

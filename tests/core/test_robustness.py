@@ -89,3 +89,43 @@ def test_the_study_writes_its_table_and_figures(tmp_path, capsys) -> None:
     for stem in ("rmse_by_law", "worst_psatid"):
         assert (tmp_path / f"{stem}.pdf").stat().st_size > 0 and (tmp_path / f"{stem}.png").stat().st_size > 0
     assert "psatid" in capsys.readouterr().out
+
+
+def test_bad_gains_arguments_are_refused_in_one_line(tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--gains", "pdi=x.yaml"])
+    assert exc.value.code == 2 and "expected LAW=FILE" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--gains", f"psatid={tmp_path / 'missing.yaml'}"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "missing.yaml: not a gains file for psatid" in err and len(err.splitlines()) == 1
+    gains = tmp_path / "g.yaml"
+    gains.write_text("/**:\n  ros__parameters: {kp: 0.1, ki: 0.01, kd: 0.01, gamma: 100.0}\n")
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--laws", "pid", "--gains", f"psatid={gains}"])
+    assert exc.value.code == 2 and "--gains for ['psatid'], which --laws does not run" in capsys.readouterr().err
+
+
+def test_gains_from_a_file_replace_the_papers(tmp_path) -> None:
+    """Feedforward only (gains ~0) tracks differently from the paper's gains on the same plants; the JSON says which."""
+    gains = tmp_path / "ff.yaml"
+    gains.write_text("/**:\n  ros__parameters: {kp: 1.0e-9, ki: 1.0e-9, kd: 1.0e-9, gamma: 100.0}\n")
+    common = ["--n", "1", "--laws", "psatid", "--duration", "10", "--batch", "1"]
+    assert robustness.main([*common, "--out", str(tmp_path / "paper")]) == 0
+    assert robustness.main([*common, "--gains", f"psatid={gains}", "--out", str(tmp_path / "ff")]) == 0
+    paper, ff = (json.loads((tmp_path / d / "robustness.json").read_text()) for d in ("paper", "ff"))
+    assert paper["gains"] == {} and ff["gains"]["psatid"]["kp"] == 1e-9 and ff["gains"]["psatid"]["file"] == str(gains)
+    assert ff["summary"]["psatid"]["rmse_mm"]["median"] != pytest.approx(paper["summary"]["psatid"]["rmse_mm"]["median"],
+                                                                         rel=1e-3)
+
+
+def test_the_bound_settles_each_reachable_plant_on_its_setpoints(tmp_path) -> None:
+    """Perfect-model feedforward: no steady-state error beyond the servo's tick (a tick of twist moves the EE by well
+    under 0.3 mm), no oscillation; plants that cannot reach every setpoint are left out, not run."""
+    assert robustness.main(["--n", "4", "--laws", "bound", "--duration", "20", "--batch", "4",
+                            "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "robustness.json").read_text())["summary"]["bound"]
+    rows = [r for r in (tmp_path / "robustness.csv").read_text().splitlines()[1:]]
+    assert 1 <= summary["runs"] == len(rows) <= 4
+    assert summary["e_ss_mm"]["max"] < 0.3 and summary["limit_cycle_fraction"] == 0.0
+    assert summary["unstable_fraction"] == 0.0

@@ -144,6 +144,45 @@ def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array)
     return M, C, G
 
 
+class _PointTerms(NamedTuple):
+    """Per mass point (2 layers x 9 arc positions) in complex notation (re, im): F = J_sh (J_ax = i F), J_k, and
+    the arc functions' derivatives F_k = dF/dkappa, F_kk and e^{i kappa s} d they come from."""
+
+    F: tuple[Array, Array]
+    F_k: tuple[Array, Array]
+    F_kk: tuple[Array, Array]
+    e_d: tuple[Array, Array]
+    J_k: tuple[Array, Array]
+
+
+def _point_terms(mp: MassPoints, xi: Array) -> _PointTerms:
+    """Jacobian columns of every mass point as complex numbers (:func:`_point_jacobians`, written elementwise)."""
+    s = mp.s
+    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))  # computed once, not inside every consumer kernel
+    F, F_k, F_kk = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4]), (s**3 * f[2], s**3 * f[5])
+    d = (mp.d[:, :, 0], mp.d[:, :, 1])
+    e_d = (f[6] * d[0] - f[7] * d[1], f[6] * d[1] + f[7] * d[0])  # e^{i kappa s} d, per layer
+    w = (xi[1], xi[2])
+    J_k = (w[0] * F_k[0] - w[1] * F_k[1] - s * e_d[1], w[0] * F_k[1] + w[1] * F_k[0] + s * e_d[0])
+    return _PointTerms(F, F_k, F_kk, e_d, J_k)
+
+
+def _weighted_dot(m: Array, a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+    """sum_k m_k Re(conj(a_k) b_k) over the mass points."""
+    return jnp.sum(m * (a[0] * b[0] + a[1] * b[1]), axis=(0, 1))
+
+
+def _weighted_cross(m: Array, a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+    """sum_k m_k Im(conj(a_k) b_k) over the mass points."""
+    return jnp.sum(m * (a[0] * b[1] - a[1] * b[0]), axis=(0, 1))
+
+
+def _gravity_of(params: HsaParams, mp: MassPoints, pt: _PointTerms) -> Array:
+    """G_j = -sum_k m_k <J_j, g> (:func:`_inertial_terms`' G, elementwise); with J_ax = i F, <J_ax, g> = cross(F, g)."""
+    g = (params.g[0], params.g[1])
+    return -jnp.stack([_weighted_dot(mp.m, pt.J_k, g), _weighted_dot(mp.m, pt.F, g), _weighted_cross(mp.m, pt.F, g)])
+
+
 def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
     """M, C q_dot and G of :func:`_inertial_terms`, as elementwise sums over the mass points (no Jacobian arrays).
 
@@ -154,31 +193,20 @@ def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array
     elementwise form fuses into a few XLA kernels: ~2x faster than the contraction of :func:`_inertial_terms` per
     evaluation, batched or not (benchmarks/results/closed_loop.json); tests/core/test_dynamics.py checks it against it.
     """
-    s, m = mp.s, mp.m
-    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))  # computed once, not inside every consumer kernel
-    F, F_k, F_kk = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4]), (s**3 * f[2], s**3 * f[5])
-    d = (mp.d[:, :, 0], mp.d[:, :, 1])
-    e_d = (f[6] * d[0] - f[7] * d[1], f[6] * d[1] + f[7] * d[0])  # e^{i kappa s} d, per layer
+    pt = _point_terms(mp, xi)
+    s, m, (F_k, F_kk, e_d) = mp.s, mp.m, (pt.F_k, pt.F_kk, pt.e_d)
     w, w_dot, kappa_dot = (xi[1], xi[2]), (xi_dot[1], xi_dot[2]), xi_dot[0]
-    J_k = (w[0] * F_k[0] - w[1] * F_k[1] - s * e_d[1], w[0] * F_k[1] + w[1] * F_k[0] + s * e_d[0])
     dJ_k = (w[0] * F_kk[0] - w[1] * F_kk[1] - s * s * e_d[0], w[0] * F_kk[1] + w[1] * F_kk[0] - s * s * e_d[1])
     v = tuple(kappa_dot * (2.0 * wd_fk + kappa_dot * dj) for wd_fk, dj in
               zip((w_dot[0] * F_k[0] - w_dot[1] * F_k[1], w_dot[0] * F_k[1] + w_dot[1] * F_k[0]), dJ_k))
-    J_k, v = jax.lax.optimization_barrier((J_k, v))
-    g = (params.g[0], params.g[1])
-
-    def dot(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
-        return jnp.sum(m * (a[0] * b[0] + a[1] * b[1]), axis=(0, 1))
-
-    def cross(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
-        return jnp.sum(m * (a[0] * b[1] - a[1] * b[0]), axis=(0, 1))
-
-    m_kk, m_ks, m_ka, m_ff = dot(J_k, J_k) + mp.inertia_kk, dot(J_k, F), cross(F, J_k), dot(F, F)
+    J_k, v = jax.lax.optimization_barrier((pt.J_k, v))
+    F = pt.F
+    m_kk = _weighted_dot(m, J_k, J_k) + mp.inertia_kk
+    m_ks, m_ka, m_ff = _weighted_dot(m, J_k, F), _weighted_cross(m, F, J_k), _weighted_dot(m, F, F)
     zero = jnp.zeros_like(m_ff)
     M = jnp.stack([jnp.stack([m_kk, m_ks, m_ka]), jnp.stack([m_ks, m_ff, zero]), jnp.stack([m_ka, zero, m_ff])])
-    C_q_dot = jnp.stack([dot(J_k, v), dot(F, v), cross(F, v)])
-    G = -jnp.stack([dot(J_k, g), dot(F, g), cross(F, g)])
-    return M, C_q_dot, G
+    C_q_dot = jnp.stack([_weighted_dot(m, J_k, v), _weighted_dot(m, F, v), _weighted_cross(m, F, v)])
+    return M, C_q_dot, _gravity_of(params, mp, pt._replace(J_k=J_k))
 
 
 def _strain_deviation(params: HsaParams, xi: Array) -> Array:
@@ -348,7 +376,8 @@ def collocated_jacobian(params: HsaParams, q: ArrayLike, phi_ss: ArrayLike) -> A
 def static_residual(params: HsaParams, q: ArrayLike, phi: ArrayLike) -> Array:
     """G + K - alpha: zero at a static equilibrium of configuration q under the constant twist phi."""
     xi = _dynamic_strains(params, q)
-    G = _inertial_terms(params, _constants(params)[0], xi, jnp.zeros(3))[2]
+    mp = _constants(params)[0]
+    G = _gravity_of(params, mp, _point_terms(mp, xi))
     return G + _elastic_of(params, xi) - _actuation_of(params, xi, _as_f64(phi))
 
 
@@ -378,7 +407,7 @@ def forward_dynamics_fn(params: HsaParams) -> Callable[[ArrayLike, ArrayLike, Ar
         rhs = _actuation_of(params, xi, phi) - C_q_dot - G - _elastic_of(params, xi) - jnp.sum(D * q_dot, axis=1)
         return solve3(M, rhs)
 
-    return q_ddot
+    return jax.jit(q_ddot)  # traced once per use, however many RK4 stages call it (XLA inlines it)
 
 
 def solve3(M: Array, b: Array) -> Array:

@@ -1,6 +1,7 @@
 """Deterministic model results kept on disk beside JAX's compilation cache, so a second start skips recomputing them.
 
-The planner's reachable polygon (a batch of static equilibria, most of a warm planner start) is the user. An entry is
+The users: the planner's reachable polygon (a batch of static equilibria, most of a warm planner start) and the
+world's initial state (the plant hanging at rest, 5 s of RK4 steps). An entry is
 keyed by a name, the inputs' bytes (dtype, shape, values; parameter sets by all their fields) and the source of
 ``hsa_core`` itself, so any change of the model code or of an input computes afresh. The cache lives in
 ``<HSA_JAX_CACHE_DIR>/results`` and follows that setting (empty: no cache). A missing, unreadable or foreign entry is

@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hsa_core import kinematics, simulation
+from hsa_core import kinematics, resultcache, simulation
 from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.params import HsaParams
@@ -105,7 +105,8 @@ class World:
         self._segment = _segment_fn(self.plant, motor_map, self._neutral, speed)
         self._pose = _pose_fn(self.plant)
         self._rng = disturbance.rng()
-        x = np.array(simulation.steady_state_rollout(self.plant, np.zeros(2)))
+        x = np.array(resultcache.cached("hanging_at_rest", (self.plant,), lambda: {  # kept from a last start
+            "x": simulation.steady_state_rollout(self.plant, np.zeros(2))})["x"])
         x[3:] = 0.0
         self.x = jnp.asarray(x)
         self.position = self._neutral.copy()  # shaft positions [ticks], continuous

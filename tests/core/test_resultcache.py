@@ -79,3 +79,20 @@ def test_planner_region_is_the_same_from_the_cache(cache: Path, monkeypatch: pyt
     Planner(params, "static")  # fills the entry
     assert len(list((cache / "results").glob("reachability-*.npz"))) == 1
     np.testing.assert_array_equal(Planner(params, "static")._region.boundary, computed)
+
+
+def test_world_starts_from_the_same_state_from_the_cache(cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The world's hanging-at-rest start state read from the cache is the one it computes without a cache."""
+    from hsa_core.disturbance import DisturbanceModel
+    from hsa_core.wiring import load_wiring
+    from hsa_core.world import World
+
+    params = load_params("fpu")
+    motor_map = load_wiring().motor_map(params)
+    monkeypatch.setenv("HSA_JAX_CACHE_DIR", "")
+    computed = np.asarray(World(params, DisturbanceModel(), motor_map).x)
+    monkeypatch.setenv("HSA_JAX_CACHE_DIR", str(cache))
+    World(params, DisturbanceModel(), motor_map)  # fills the entry
+    assert len(list((cache / "results").glob("hanging_at_rest-*.npz"))) == 1
+    np.testing.assert_array_equal(np.asarray(World(params, DisturbanceModel(), motor_map).x), computed)
+    assert computed[2] != 0.0 and np.all(computed[3:] == 0.0)  # hanging under gravity, at rest

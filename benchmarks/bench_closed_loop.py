@@ -44,6 +44,7 @@ def main() -> int:
     from hsa_core.experiment import ExperimentConfig, run_experiment
 
     config = ExperimentConfig("fpu", "psatid")
+    load_before = os.getloadavg()[0]  # the machine may be shared: the load next to the figures
     started = time.perf_counter()
     offline = run_experiment(config)
     python_loop_s = time.perf_counter() - started
@@ -75,6 +76,7 @@ def main() -> int:
         "batched": rows,
         "target_runs_per_min": TARGET_RUNS_PER_MIN,
         "target_met": best >= TARGET_RUNS_PER_MIN,
+        "load_average_1min_before": round(load_before, 1),
         "load_average_1min_after": round(os.getloadavg()[0], 1),
     }
     out = ROOT / "benchmarks" / "results" / "closed_loop.json"

@@ -3,12 +3,13 @@
 Inertia and gravity are sums over mass points: 8 Gauss-Legendre nodes on each virtual rod (model.md §9.1), the
 platform CoG and the payload, vectorised as 2 layers over the 9 arc positions they share (nodes + tip). The point
 Jacobians are written in closed form with E(x) = S(x) + i x C(x) and its first two derivatives
-(smooth.arc_functions, exact and smooth at kappa = 0, §8.2). One contraction of them gives M (§7.2), C (the
+(smooth.arc_terms, exact and smooth at kappa = 0, §8.2). One contraction of them gives M (§7.2), C (the
 Christoffel-symbol matrix of §7.3, evaluated as sum m J^T J_dot) and G = dU_g/dxi (§7.4); the forward dynamics takes
-M, C q_dot and G from the same sums written elementwise (:func:`_inertial_forces`). K, D, alpha and A are closed
-forms (§7.5-7.7) and the collocated map follows planning_and_control.md §3.2. Parameter-only terms are folded to
-constants when the parameters are closed over. The compiled graph is a few fused XLA kernels, which keeps the
-compile time (~0.3 s) and the per-evaluation cost (~1.5 us inside a simulation loop, ~0.7 us per run batched) low.
+M, C q_dot and G from the same sums written elementwise, the two layers merged at each arc position and the sums
+taken in one XLA reduction (:func:`_inertial_forces`). K, D, alpha and A are closed forms (§7.5-7.7) and the
+collocated map follows planning_and_control.md §3.2. Parameter-only terms are folded to constants when the parameters
+are closed over. The compiled graph is a few fused XLA kernels, which keeps the compile time (~0.3 s) and the
+per-evaluation cost (~0.5 us inside a simulation loop, ~0.19 us per run batched 64 to a CPU core) low.
 
 With `params.kappa_rule == "exp2023_shift"`, M, C, G, K, alpha, A and q_ddot are evaluated at
 kappa_dyn = kappa + sign(kappa) 0.01 (model.md §8.4(1)); the collocated map is always exact.
@@ -25,7 +26,7 @@ from jax.typing import ArrayLike
 
 from hsa_core.kinematics import apply_kappa_rule, points_in_base, strains
 from hsa_core.params import HsaParams
-from hsa_core.smooth import arc_functions
+from hsa_core.smooth import arc_functions, arc_terms
 
 KAPPA_SHIFT_DYN = 1e-2
 """exp2023 curvature shift of the dynamics [1/m] (model.md §8.1)."""
@@ -183,30 +184,65 @@ def _gravity_of(params: HsaParams, mp: MassPoints, pt: _PointTerms) -> Array:
     return -jnp.stack([_weighted_dot(mp.m, pt.J_k, g), _weighted_dot(mp.m, pt.F, g), _weighted_cross(mp.m, pt.F, g)])
 
 
-def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
-    """M, C q_dot and G of :func:`_inertial_terms`, as elementwise sums over the mass points (no Jacobian arrays).
+def _times(a: tuple[Array, Array], b: tuple[Array, Array]) -> tuple[Array, Array]:
+    """Complex product a b of planar vectors stored as (re, im) pairs."""
+    return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
 
-    With Re(conj(a) b) for planar vectors in complex notation and the columns J_sh = F, J_ax = i F (the same at both
-    layers), every entry is a weighted sum over the points of dot(a, b) = Re(conj(a) b) or cross(a, b) = Im(conj(a) b):
-    M = [[|J_k|^2 + I_kk, dot(J_k, F), cross(F, J_k)], [., |F|^2, 0], [., 0, |F|^2]], (C q_dot)_j = <J_j, v> with
-    v = J_dot q_dot = kappa_dot (2 w_dot F_k + kappa_dot dJ_k/dkappa), G_j = -<J_j, g>. The
-    elementwise form fuses into a few XLA kernels: ~2x faster than the contraction of :func:`_inertial_terms` per
-    evaluation, batched or not (benchmarks/results/closed_loop.json); tests/core/test_dynamics.py checks it against it.
+
+def _dot(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+    """Re(conj(a) b) of planar vectors stored as (re, im) pairs."""
+    return a[0] * b[0] + a[1] * b[1]
+
+
+def _cross(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
+    """Im(conj(a) b) of planar vectors stored as (re, im) pairs."""
+    return a[0] * b[1] - a[1] * b[0]
+
+
+def _sums(terms: tuple[Array, ...]) -> tuple[Array, ...]:
+    """The sum of each term over the arc positions, as one variadic XLA reduction (one kernel that computes the
+    shared factors once; separate sums are separate kernels, each recomputing its factors: ~2x slower on the CPU)."""
+    return jax.lax.reduce(terms, (0.0,) * len(terms), lambda a, b: tuple(x + y for x, y in zip(a, b)), (0,))
+
+
+def _inertial_forces(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array) -> tuple[Array, Array, Array]:
+    """M, C q_dot and G of :func:`_inertial_terms`, as weighted sums over the 9 arc positions (no Jacobian arrays).
+
+    With dot(a, b) = Re(conj(a) b) and cross(a, b) = Im(conj(a) b) for planar vectors in complex notation and the
+    columns J_sh = F, J_ax = i F (the same at both layers), M = [[|J_k|^2 + I_kk, dot(J_k, F), cross(F, J_k)],
+    [., |F|^2, 0], [., 0, |F|^2]], (C q_dot)_j = <J_j, v> with v = J_dot q_dot = kappa_dot (2 w_dot F_k + kappa_dot
+    dJ_k/dkappa), G_j = -<J_j, g>, each summed over the points with their masses. The two layers share F, F_k and
+    F_kk and differ in J_k = w F_k + i s e^{i kappa s} d and dJ_k/dkappa = w F_kk - s^2 e^{i kappa s} d only through
+    the offset d, which enters linearly (|e^{i kappa s} d|^2 = |d|^2): so each sum over a position's two points is
+    one term in the position's mass m_0 + m_1, its first moment m_0 d_0 + m_1 d_1 and its second moment
+    m_0 |d_0|^2 + m_1 |d_1|^2. The ten sums are one XLA kernel (:func:`_sums`); per evaluation ~3x faster than the
+    point-by-point sums on the CPU, batched or not (benchmarks/results/closed_loop.json); tests/core/test_dynamics.py
+    checks the result against :func:`_inertial_terms`.
     """
-    pt = _point_terms(mp, xi)
-    s, m, (F_k, F_kk, e_d) = mp.s, mp.m, (pt.F_k, pt.F_kk, pt.e_d)
+    s, (m0, m1), (d0, d1) = mp.s, mp.m, mp.d
+    S0, S1, S2, B0, B1, B2, cos, sin = arc_terms(xi[0] * s)
+    mass = m0 + m1
+    moment = _times((cos, sin), (m0 * d0[:, 0] + m1 * d1[:, 0], m0 * d0[:, 1] + m1 * d1[:, 1]))  # e^{i kappa s} sum m d
+    second_moment = m0 * (d0[:, 0] ** 2 + d0[:, 1] ** 2) + m1 * (d1[:, 0] ** 2 + d1[:, 1] ** 2)
+    F, F_k, F_kk = (s * S0, s * B0), (s * s * S1, s * s * B1), (s**3 * S2, s**3 * B2)
     w, w_dot, kappa_dot = (xi[1], xi[2]), (xi_dot[1], xi_dot[2]), xi_dot[0]
-    dJ_k = (w[0] * F_kk[0] - w[1] * F_kk[1] - s * s * e_d[0], w[0] * F_kk[1] + w[1] * F_kk[0] - s * s * e_d[1])
-    v = tuple(kappa_dot * (2.0 * wd_fk + kappa_dot * dj) for wd_fk, dj in
-              zip((w_dot[0] * F_k[0] - w_dot[1] * F_k[1], w_dot[0] * F_k[1] + w_dot[1] * F_k[0]), dJ_k))
-    J_k, v = jax.lax.optimization_barrier((pt.J_k, v))
-    F = pt.F
-    m_kk = _weighted_dot(m, J_k, J_k) + mp.inertia_kk
-    m_ks, m_ka, m_ff = _weighted_dot(m, J_k, F), _weighted_cross(m, F, J_k), _weighted_dot(m, F, F)
+    wF_k, wdF_k, wF_kk = _times(w, F_k), _times(w_dot, F_k), _times(w, F_kk)
+    i_moment = (-s * moment[1], s * moment[0])  # i s e^{i kappa s} sum m d
+    J_k = (mass * wF_k[0] + i_moment[0], mass * wF_k[1] + i_moment[1])  # sum m J_k
+    common = tuple(kappa_dot * (2.0 * a + kappa_dot * b) for a, b in zip(wdF_k, wF_kk))  # v without the offset term
+    offset = kappa_dot * kappa_dot * s * s
+    v = (mass * common[0] - offset * moment[0], mass * common[1] - offset * moment[1])  # sum m v
+    mF, g = (mass * F[0], mass * F[1]), (params.g[0], params.g[1])
+    m_kk, m_ks, m_ka, m_ff, c_k, c_s, c_a, g_k, g_s, g_a = _sums((
+        mass * _dot(wF_k, wF_k) + 2.0 * _dot(wF_k, i_moment) + s * s * second_moment,
+        _dot(J_k, F), _cross(F, J_k), _dot(mF, F),
+        _dot(J_k, common) - offset * _dot(wF_k, moment), _dot(F, v), _cross(F, v),
+        _dot(J_k, g), _dot(mF, g), _cross(mF, g),
+    ))
+    m_kk = m_kk + mp.inertia_kk
     zero = jnp.zeros_like(m_ff)
     M = jnp.stack([jnp.stack([m_kk, m_ks, m_ka]), jnp.stack([m_ks, m_ff, zero]), jnp.stack([m_ka, zero, m_ff])])
-    C_q_dot = jnp.stack([_weighted_dot(m, J_k, v), _weighted_dot(m, F, v), _weighted_cross(m, F, v)])
-    return M, C_q_dot, _gravity_of(params, mp, pt._replace(J_k=J_k))
+    return M, jnp.stack([c_k, c_s, c_a]), -jnp.stack([g_k, g_s, g_a])
 
 
 def _strain_deviation(params: HsaParams, xi: Array) -> Array:

@@ -77,13 +77,15 @@ def _even_poly(coefficients: np.ndarray, x2: Array) -> Array:
     return out
 
 
-def arc_functions(x: ArrayLike) -> Array:
-    """[S, S', S'', B, B', B'', cos x, sin x] at x, with B(x) = x C(x) = (1 - cos x)/x; shape (8,) + x.shape.
+def arc_terms(x: ArrayLike) -> tuple[Array, ...]:
+    """[S, S', S'', B, B', B'', cos x, sin x] at x as eight arrays, with B(x) = x C(x) = (1 - cos x)/x.
 
     E(x) = S(x) + i B(x) = (e^{ix} - 1)/(ix) is the position kernel of the constant-strain backbone (model.md §6.1);
     the dynamics needs it with its first two derivatives at every quadrature node. One sin/cos pair (of x/2, so that
     1 - cos x = 2 sin^2(x/2) has no cancellation) and one reciprocal serve all eight values; below X_T the series of
-    S and B and their termwise derivatives are used, with the same gradient-safe branching as S, C, T and c.
+    S and B and their termwise derivatives are used, with the same gradient-safe branching as S, C, T and c. Eight
+    arrays, not one stacked: on the CPU, XLA makes a stack one concatenate kernel that evaluates the shared sin and
+    cos (scalar library calls) again for every row, which made the forward dynamics ~5x slower.
     """
     x, small, xs = _split(x)
     half_sin, half_cos = jnp.sin(0.5 * x), jnp.cos(0.5 * x)
@@ -98,15 +100,18 @@ def arc_functions(x: ArrayLike) -> Array:
     B2 = S1 - (B1 - B0 * inv) * inv
     x2 = x * x
     # odd functions (S', B, B'') carry one factor x; the zero constant terms of S'' and B'' series are dropped
-    series = jnp.stack(
-        [
-            _even_poly(_S_SERIES[0], x2),
-            x * _even_poly(_S_SERIES[1][1:], x2),
-            _even_poly(_S_SERIES[2][1:], x2),
-            x * _even_poly(_B_SERIES[0], x2),
-            _even_poly(_B_SERIES[1], x2),
-            x * _even_poly(_B_SERIES[2][1:], x2),
-        ]
+    series = (
+        _even_poly(_S_SERIES[0], x2),
+        x * _even_poly(_S_SERIES[1][1:], x2),
+        _even_poly(_S_SERIES[2][1:], x2),
+        x * _even_poly(_B_SERIES[0], x2),
+        _even_poly(_B_SERIES[1], x2),
+        x * _even_poly(_B_SERIES[2][1:], x2),
     )
-    closed = jnp.stack([S0, S1, S2, B0, B1, B2])
-    return jnp.concatenate([jnp.where(small, series, closed), jnp.stack([cos, sin])])
+    closed = (S0, S1, S2, B0, B1, B2)
+    return tuple(jnp.where(small, a, b) for a, b in zip(series, closed)) + (cos, sin)
+
+
+def arc_functions(x: ArrayLike) -> Array:
+    """:func:`arc_terms` stacked, shape (8,) + x.shape."""
+    return jnp.stack(arc_terms(x))

@@ -67,11 +67,13 @@ def _graph(bag: Path, log: TextIO, mode: str, n_levels: int, payload: list[list[
     env = rosenv.ros_environment()
     for key in ("HSA_ROS_ENV", "ROS_DOMAIN_ID"):  # not the test session's domain: three graphs run at once
         env.pop(key)
+    # nodes get 20 s (not 5) to stop on SIGINT: three graphs end together here, and beside two busy processes one
+    # bridge was still tearing down at the launcher's SIGKILL 10 s after the SIGINT
     return subprocess.Popen([
-        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "sim:=true", "clock:=lockstep",
-        "disturbance:=default", "kind:=staircase", f"mode:={mode}", f"n_levels:={n_levels}", f"hold:={HOLD}",
-        "start_delay:=0.0", f"final_hold:={FINAL_HOLD}", f"payload_schedule:=[{flat}]", f"bag_dir:={bag}",
-        f"topics:={TOPICS}",
+        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "--sigterm-timeout", "20", "sim:=true",
+        "clock:=lockstep", "disturbance:=default", "kind:=staircase", f"mode:={mode}", f"n_levels:={n_levels}",
+        f"hold:={HOLD}", "start_delay:=0.0", f"final_hold:={FINAL_HOLD}", f"payload_schedule:=[{flat}]",
+        f"bag_dir:={bag}", f"topics:={TOPICS}",
     ], env=env, start_new_session=True, stdout=log, stderr=subprocess.STDOUT, text=True)
 
 

@@ -431,8 +431,10 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
     config = tmp_path / "sequencer.yaml"
     config.write_text(json.dumps({"/**": {"ros__parameters": {
         "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 2.0}}}))
-    graph = start_process([sys.executable, "-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"), "live:=true",
-                           "live_port:=0", "record:=false", "setpoint_rate:=0.2", f"sequencer_config:={config}"])
+    # nodes get 20 s (not 5) to stop: under load a teardown at nice 5 can outlast the launcher's default 10 s
+    graph = start_process([sys.executable, "-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"),
+                           "--sigterm-timeout", "20", "live:=true", "live_port:=0", "record:=false",
+                           "setpoint_rate:=0.2", f"sequencer_config:={config}"])
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(graph.stdout), daemon=True)
     reader.start()

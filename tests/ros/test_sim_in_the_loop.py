@@ -44,8 +44,11 @@ def sim_run(tmp_path_factory) -> Path:
     config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
         "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 0.5}}}))
     proc = start_process([
-        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "material:=fpu", "controller:=psatid",
-        f"setpoint_rate:={1.0 / STEP_PERIOD}", f"bag_dir:={bag}", f"sequencer_config:={config}", "clock:=lockstep",
+        # nodes get 20 s (not 5) to stop on SIGINT: beside two busy processes a planner was still tearing down at
+        # the launcher's SIGKILL 10 s after the SIGINT (nodes tear down at nice 5, hsa_common.runner.TEARDOWN_NICE)
+        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "--sigterm-timeout", "20", "material:=fpu",
+        "controller:=psatid", f"setpoint_rate:={1.0 / STEP_PERIOD}", f"bag_dir:={bag}", f"sequencer_config:={config}",
+        "clock:=lockstep",
     ])
     try:
         output, _ = proc.communicate(timeout=900)

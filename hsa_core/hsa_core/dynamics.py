@@ -145,45 +145,6 @@ def _inertial_terms(params: HsaParams, mp: MassPoints, xi: Array, xi_dot: Array)
     return M, C, G
 
 
-class _PointTerms(NamedTuple):
-    """Per mass point (2 layers x 9 arc positions) in complex notation (re, im): F = J_sh (J_ax = i F), J_k, and
-    the arc functions' derivatives F_k = dF/dkappa, F_kk and e^{i kappa s} d they come from."""
-
-    F: tuple[Array, Array]
-    F_k: tuple[Array, Array]
-    F_kk: tuple[Array, Array]
-    e_d: tuple[Array, Array]
-    J_k: tuple[Array, Array]
-
-
-def _point_terms(mp: MassPoints, xi: Array) -> _PointTerms:
-    """Jacobian columns of every mass point as complex numbers (:func:`_point_jacobians`, written elementwise)."""
-    s = mp.s
-    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))  # computed once, not inside every consumer kernel
-    F, F_k, F_kk = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4]), (s**3 * f[2], s**3 * f[5])
-    d = (mp.d[:, :, 0], mp.d[:, :, 1])
-    e_d = (f[6] * d[0] - f[7] * d[1], f[6] * d[1] + f[7] * d[0])  # e^{i kappa s} d, per layer
-    w = (xi[1], xi[2])
-    J_k = (w[0] * F_k[0] - w[1] * F_k[1] - s * e_d[1], w[0] * F_k[1] + w[1] * F_k[0] + s * e_d[0])
-    return _PointTerms(F, F_k, F_kk, e_d, J_k)
-
-
-def _weighted_dot(m: Array, a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
-    """sum_k m_k Re(conj(a_k) b_k) over the mass points."""
-    return jnp.sum(m * (a[0] * b[0] + a[1] * b[1]), axis=(0, 1))
-
-
-def _weighted_cross(m: Array, a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
-    """sum_k m_k Im(conj(a_k) b_k) over the mass points."""
-    return jnp.sum(m * (a[0] * b[1] - a[1] * b[0]), axis=(0, 1))
-
-
-def _gravity_of(params: HsaParams, mp: MassPoints, pt: _PointTerms) -> Array:
-    """G_j = -sum_k m_k <J_j, g> (:func:`_inertial_terms`' G, elementwise); with J_ax = i F, <J_ax, g> = cross(F, g)."""
-    g = (params.g[0], params.g[1])
-    return -jnp.stack([_weighted_dot(mp.m, pt.J_k, g), _weighted_dot(mp.m, pt.F, g), _weighted_cross(mp.m, pt.F, g)])
-
-
 def _times(a: tuple[Array, Array], b: tuple[Array, Array]) -> tuple[Array, Array]:
     """Complex product a b of planar vectors stored as (re, im) pairs."""
     return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
@@ -197,6 +158,19 @@ def _dot(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
 def _cross(a: tuple[Array, Array], b: tuple[Array, Array]) -> Array:
     """Im(conj(a) b) of planar vectors stored as (re, im) pairs."""
     return a[0] * b[1] - a[1] * b[0]
+
+
+def _gravity_of(params: HsaParams, mp: MassPoints, xi: Array) -> Array:
+    """G_j = -sum_k m_k <J_j, g> (:func:`_inertial_terms`' G, point by point in complex notation): J_sh = F,
+    J_ax = i F (so <J_ax, g> = cross(F, g)) and J_k = w F_k + i s e^{i kappa s} d (:func:`_point_jacobians`)."""
+    s = mp.s
+    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))  # computed once, not inside every consumer kernel
+    F, F_k = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4])
+    e_d = _times((f[6], f[7]), (mp.d[:, :, 0], mp.d[:, :, 1]))  # e^{i kappa s} d, per layer
+    wF_k = _times((xi[1], xi[2]), F_k)
+    J_k = (wF_k[0] - s * e_d[1], wF_k[1] + s * e_d[0])
+    g = (params.g[0], params.g[1])
+    return -jnp.stack([jnp.sum(mp.m * term, axis=(0, 1)) for term in (_dot(J_k, g), _dot(F, g), _cross(F, g))])
 
 
 def _sums(terms: tuple[Array, ...]) -> tuple[Array, ...]:
@@ -412,8 +386,7 @@ def collocated_jacobian(params: HsaParams, q: ArrayLike, phi_ss: ArrayLike) -> A
 def static_residual(params: HsaParams, q: ArrayLike, phi: ArrayLike) -> Array:
     """G + K - alpha: zero at a static equilibrium of configuration q under the constant twist phi."""
     xi = _dynamic_strains(params, q)
-    mp = _constants(params)[0]
-    G = _gravity_of(params, mp, _point_terms(mp, xi))
+    G = _gravity_of(params, _constants(params)[0], xi)
     return G + _elastic_of(params, xi) - _actuation_of(params, xi, _as_f64(phi))
 
 

@@ -22,6 +22,12 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from hsa_common import rosenv
 
 PEERS = Path(__file__).parent / "peers"
+LAUNCHER = (sys.executable, "-m", "hsa_common.launcher")
+"""hsa_launch as the tests run it."""
+GRAPH_STOP = ("--sigterm-timeout", "20")
+"""Launcher options of a test whose graph must end cleanly (exit 0): its nodes get 20 s, not 5, between SIGINT and
+SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside two busy processes a bridge, a
+planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM + 5 s and were SIGKILLed (launcher exit 137)."""
 
 
 def start_process(args: list[str], **popen: object) -> subprocess.Popen:

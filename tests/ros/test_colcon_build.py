@@ -17,7 +17,7 @@ import pytest
 
 from hsa_common import rosenv
 from hsa_common.launcher import LaunchFile
-from tests.ros.conftest import start_process, stop_process, wait_until
+from tests.ros.conftest import GRAPH_STOP, LAUNCHER, stop_process, wait_until
 from tests.ros.test_launch_files import GRAPHS, OPTIONAL_ON, REQUIRED
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -74,8 +74,7 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
     """
     path = REPO / "launch_scripts" / graph
     names = [p.name for p in LaunchFile(path, args).processes()]
-    # a loaded machine: once the setpoint sequencer needed longer than SIGINT + 5 s + SIGTERM + 5 s to end (SIGKILLed)
-    launcher = subprocess.Popen([sys.executable, "-m", "hsa_common.launcher", str(path), "--sigterm-timeout", "20",
+    launcher = subprocess.Popen([*LAUNCHER, str(path), *GRAPH_STOP,
                                  *(f"{k}:={v}" for k, v in args.items())], env=install_environment(install), cwd=cwd,
                                 start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []

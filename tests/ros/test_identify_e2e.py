@@ -22,7 +22,6 @@ import dataclasses
 import math
 import shutil
 import subprocess
-import sys
 from contextlib import ExitStack
 from pathlib import Path
 from typing import TextIO
@@ -39,7 +38,7 @@ from hsa_core.experiment import ExperimentConfig, ExperimentResult, run_experime
 from hsa_core.params import HsaParams, load_params
 from hsa_core.trajectories import step_reference
 from hsa_identification.cli import identify_main
-from tests.ros.conftest import stop_process
+from tests.ros.conftest import GRAPH_STOP, LAUNCHER, stop_process
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -67,10 +66,8 @@ def _graph(bag: Path, log: TextIO, mode: str, n_levels: int, payload: list[list[
     env = rosenv.ros_environment()
     for key in ("HSA_ROS_ENV", "ROS_DOMAIN_ID"):  # not the test session's domain: three graphs run at once
         env.pop(key)
-    # nodes get 20 s (not 5) to stop on SIGINT: three graphs end together here, and beside two busy processes one
-    # bridge was still tearing down at the launcher's SIGKILL 10 s after the SIGINT
     return subprocess.Popen([
-        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "--sigterm-timeout", "20", "sim:=true",
+        *LAUNCHER, str(GRAPH), *GRAPH_STOP, "sim:=true",
         "clock:=lockstep", "disturbance:=default", "kind:=staircase", f"mode:={mode}", f"n_levels:={n_levels}",
         f"hold:={HOLD}", "start_delay:=0.0", f"final_hold:={FINAL_HOLD}", f"payload_schedule:=[{flat}]",
         f"bag_dir:={bag}", f"topics:={TOPICS}",

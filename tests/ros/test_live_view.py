@@ -17,7 +17,6 @@ import math
 import re
 import struct
 import subprocess
-import sys
 import threading
 import time
 from collections import defaultdict
@@ -41,7 +40,7 @@ from hsa_common.launcher import LaunchFile, find_executable, package_share
 from hsa_core import kinematics as kin
 from hsa_core.params import load_params
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
-from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
+from tests.ros.conftest import GRAPH_STOP, LAUNCHER, ParameterClient, start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
@@ -431,10 +430,8 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
     config = tmp_path / "sequencer.yaml"
     config.write_text(json.dumps({"/**": {"ros__parameters": {
         "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 2.0}}}))
-    # nodes get 20 s (not 5) to stop: under load a teardown at nice 5 can outlast the launcher's default 10 s
-    graph = start_process([sys.executable, "-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"),
-                           "--sigterm-timeout", "20", "live:=true", "live_port:=0", "record:=false",
-                           "setpoint_rate:=0.2", f"sequencer_config:={config}"])
+    graph = start_process([*LAUNCHER, str(LAUNCH / "sim.launch.yaml"), *GRAPH_STOP, "live:=true", "live_port:=0",
+                           "record:=false", "setpoint_rate:=0.2", f"sequencer_config:={config}"])
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(graph.stdout), daemon=True)
     reader.start()

@@ -14,7 +14,6 @@ differs.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +25,7 @@ from hsa_bag.bagio import Bag
 from hsa_core.trajectories import step_reference
 from geometry_msgs.msg import PoseStamped
 from hsa_msgs.msg import ControllerInfo, PlanarState
-from tests.ros.conftest import start_process, stop_process
+from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -36,9 +35,7 @@ STEPS, STEP_PERIOD = 2, 3.0  # setpoints, s each
 
 def launch(graph: str, *args: str, timeout: float = 600.0) -> str:
     """Run a launch graph with hsa_common.launcher until it ends; return its output (asserting exit code 0)."""
-    # nodes get 20 s (not 5) to stop on SIGINT: on a saturated 2-core machine the graph's shutdown can take longer
-    proc = start_process([sys.executable, "-m", "hsa_common.launcher", str(LAUNCH / graph), "--sigterm-timeout", "20",
-                          *args])  # fmt: skip
+    proc = start_process([*LAUNCHER, str(LAUNCH / graph), *GRAPH_STOP, *args])
     try:
         output, _ = proc.communicate(timeout=timeout)
     finally:

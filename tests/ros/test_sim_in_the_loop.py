@@ -11,7 +11,6 @@ Lockstep makes the graph a deterministic function of its configuration, whatever
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from hsa_bag.bagio import Bag
 from hsa_core import metrics
 from hsa_core.experiment import ExperimentConfig, run_experiment
 from hsa_core.trajectories import step_reference
-from tests.ros.conftest import start_process, stop_process
+from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -44,9 +43,7 @@ def sim_run(tmp_path_factory) -> Path:
     config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
         "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 0.5}}}))
     proc = start_process([
-        # nodes get 20 s (not 5) to stop on SIGINT: beside two busy processes a planner was still tearing down at
-        # the launcher's SIGKILL 10 s after the SIGINT (nodes tear down at nice 5, hsa_common.runner.TEARDOWN_NICE)
-        sys.executable, "-m", "hsa_common.launcher", str(GRAPH), "--sigterm-timeout", "20", "material:=fpu",
+        *LAUNCHER, str(GRAPH), *GRAPH_STOP, "material:=fpu",
         "controller:=psatid", f"setpoint_rate:={1.0 / STEP_PERIOD}", f"bag_dir:={bag}", f"sequencer_config:={config}",
         "clock:=lockstep",
     ])

@@ -68,8 +68,11 @@ def _call(node, request: CalibrateRestStrain.Request) -> CalibrateRestStrain.Res
 def test_calibration_at_rest_recovers_the_plant_rest_strains_and_writes_the_file(graph, ros_node) -> None:
     time.sleep(2.0)  # 1 s of states (the default window) after the driver holds phi = 0
     response = _call(ros_node, CalibrateRestStrain.Request(num_samples=0, write_parameter_file=False))
-    deadline = time.monotonic() + 20.0  # the node may not have discovered the driver's phi_present yet
-    while "no actuation" in response.message and time.monotonic() < deadline:
+    # the node may not have discovered the driver's phi_present yet, nor (on a loaded machine, where the wall-clock
+    # graph runs late) have buffered the window's 200 states: both pass with time, unlike a wrong answer
+    deadline = time.monotonic() + 60.0
+    while ("no actuation" in response.message or "not enough samples" in response.message) \
+            and time.monotonic() < deadline:
         time.sleep(1.0)
         response = _call(ros_node, CalibrateRestStrain.Request(num_samples=0, write_parameter_file=False))
     assert response.success, response.message

@@ -23,9 +23,11 @@ shuts its context down (the simulator does, when a barrier times out).
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
+import threading
 from collections.abc import Callable
 
 import rclpy
@@ -51,6 +53,9 @@ not starved — at 19 a teardown beside busy processes took a minute (54-67 s me
 the launcher's SIGTERM escalation hit every node."""
 SPIN_PERIOD = 0.02
 """[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (< 100 ms torque-off)."""
+STUCK_AFTER = 10.0
+"""[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
+well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
@@ -60,6 +65,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    watch_stop()
     logger = rclpy.logging.get_logger(name)
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -125,6 +131,20 @@ def spin_lockstep(executor: Executor, participant: lockstep.Participant | None, 
         handler()
         if handler.exception() is not None:
             raise handler.exception()
+
+
+def watch_stop() -> None:
+    """Arm the stuck-stop report: a thread that learns of the first SIGINT/SIGTERM from the interpreter's wakeup fd,
+    which the C-level handler writes even while the main thread is blocked in rcl or DDS and runs no Python."""
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        os.read(read_fd, 1)
+        faulthandler.dump_traceback_later(STUCK_AFTER, exit=False)
+
+    threading.Thread(target=watch, name="stop-watch", daemon=True).start()
 
 
 def make_executor() -> Executor:

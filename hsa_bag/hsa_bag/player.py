@@ -122,6 +122,7 @@ class Player:
         self.clock: Publisher | None = None
         if options.clock_hz > 0 or playback is not None:
             self.clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+        self.lead = node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS) if playback is not None else None
         self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
         mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
         self.loop_span = max(bag.end - self.first, 0) + mean_period
@@ -247,9 +248,10 @@ class Player:
                 self.publishers[upcoming[0]].publish(upcoming[2])
                 published += 1
                 upcoming = next(timeline, None)
-            elif step.action == "clock":
-                assert step.t_ns is not None
-                self.clock.publish(convert.clock_msg(step.t_ns))
+            elif step.action in ("lead", "clock"):
+                clock = self.lead if step.action == "lead" else self.clock
+                assert clock is not None and step.t_ns is not None
+                clock.publish(convert.clock_msg(step.t_ns))
             elif step.action == "done":
                 break
             elif step.action == "fail":

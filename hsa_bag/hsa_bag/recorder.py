@@ -11,7 +11,9 @@ message published on them is in the bag. Types come from the Jazzy typestore and
 interface packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
 
 **Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with ``use_sim_time``)
-read in the subscription callback, in ns. Header stamps inside the messages are untouched.
+read in the subscription callback, in ns; in lockstep the lead clock's instant where that is ahead
+(:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before /clock). Header stamps inside the
+messages are untouched.
 
 Files, splitting and crash safety: :mod:`hsa_bag.storage`. The pending chunk is flushed at ``chunk_size`` bytes and
 every ``flush_period`` s, so a SIGKILL loses at most the last ``flush_period`` (``bag_recover`` then completes the
@@ -90,8 +92,6 @@ def describe(profile: QoSProfile) -> str:
 class BagRecorder(Node):
     """Records the selected topics into one bag directory; see the module docstring."""
 
-    lockstep_clock_acks = True  # its log times are its clock: lockstep instants wait until its clock is there
-
     def __init__(self) -> None:
         super().__init__("bag_recorder")
         params = declare(self, SPECS)
@@ -112,6 +112,7 @@ class BagRecorder(Node):
             raise ParameterValidationError(
                 f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it"
             ) from exc
+        self.lockstep_clock = lockstep.LeadClock(self)  # log times; lockstep instants wait until it is there
         self._recording: dict[str, Recording] = {}
         self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
         lockstep.wall_timer(self, params["discovery_period"], self._discover)  # discovery is a wall-clock matter
@@ -192,7 +193,7 @@ class BagRecorder(Node):
 
     def _write(self, handle: int, data: bytes) -> None:
         """Subscription callback: the serialized message goes into the bag, stamped with the receive time."""
-        self._bag.write(handle, self.get_clock().now().nanoseconds, data)
+        self._bag.write(handle, self.lockstep_clock.now_ns(), data)
 
     def _report(self) -> Report:
         """Diagnostics: bag, file, counts; WARN while some topic cannot be recorded."""

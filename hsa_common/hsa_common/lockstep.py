@@ -6,8 +6,10 @@ parameter/lifecycle services are not counted),
 and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
 (:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.lockstep`; the contract is in
 docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder:
-every selected topic subscribed), and with ``lockstep_clock_acks = True`` report every move of its clock, so that no
-instant ends before its clock has reached it (the recorder, whose log times are its clock).
+every selected topic subscribed). A node whose log times are simulated time (the recorder) reads them from a
+:class:`LeadClock` kept as its ``lockstep_clock``: the coordinator sends each timer instant there before /clock moves,
+and the participant reports every move of that clock, so nothing a timer publishes at t reaches the node before its
+clock is at t.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.timer import Timer
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from hsa_common import convert
 from hsa_core.lockstep import Report
@@ -33,9 +36,14 @@ after a participant still gets its report."""
 ACK_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """The simulator's subscription: deep enough for a burst of reports from every participant."""
-UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC})
-UNWATCHED = UNCOUNTED - {"/clock"}
-"""Topics whose discovery does not hold the start (every other subscription, /clock included, must be matched)."""
+LEAD_TOPIC = "/_lockstep/lead"
+"""Hidden topic of the lead clock: each timer instant, sent to the nodes with a :class:`LeadClock` before /clock."""
+LEAD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Only the latest instant matters; reliable, as the coordinator sends each one once and waits for the reports."""
+UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC, LEAD_TOPIC})
+UNWATCHED = UNCOUNTED - {"/clock", LEAD_TOPIC}
+"""Topics whose discovery does not hold the start (every other subscription, the clocks included, must be matched)."""
 UNMATCHED = 2**32 - 1  # LockstepAck.matched of a service client (its readiness is service_is_ready)
 
 
@@ -53,6 +61,23 @@ def enabled(node: Node) -> bool:
     return bool(node.get_parameter("lockstep").value)
 
 
+class LeadClock:
+    """A node's simulated time for logging: the node clock, or the lead clock's instant if that is ahead (lockstep)."""
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+        self.lead_ns = 0
+        if enabled(node):
+            node.create_subscription(ClockMsg, LEAD_TOPIC, self._lead, LEAD_QOS)
+
+    def _lead(self, msg: ClockMsg) -> None:
+        self.lead_ns = max(self.lead_ns, convert.stamp_ns(msg.clock))
+
+    def now_ns(self) -> int:
+        """[ns] the later of the node clock and the latest lead instant."""
+        return max(self.node.get_clock().now().nanoseconds, self.lead_ns)
+
+
 class Participant:
     """Counts a node's traffic and reports to the lockstep simulator; see the module docstring."""
 
@@ -61,7 +86,8 @@ class Participant:
         self.published: Counter[str] = Counter()
         self.taken: Counter[str] = Counter()
         self.pending = 0
-        self.clock_acks = bool(getattr(node, "lockstep_clock_acks", False))  # a recorder: instants wait for its clock
+        self.lead_clock: LeadClock | None = getattr(node, "lockstep_clock", None)  # a recorder: instants wait for it
+        self.clock_acks = self.lead_clock is not None
         self._wrapped: set[int] = set()
         self._pubs: dict[str, list[Any]] = {}
         self._last: tuple | None = None
@@ -130,8 +156,7 @@ class Participant:
     def report(self, leaving: bool = False) -> Report:
         """The node's state now, as the barrier sees it."""
         self.instrument()
-        clock = self.node.get_clock()
-        now = clock.now().nanoseconds
+        now = self.node.get_clock().now().nanoseconds
         dues = []
         for timer in self.node.timers:
             if getattr(timer, "lockstep_wall", False) or timer.is_canceled():
@@ -144,7 +169,8 @@ class Participant:
             self._ready = all(c.service_is_ready() for c in self.node.clients) and (hook is None or bool(hook()))
             self._matched = {t: min(p.get_subscription_count() for p in pubs) for t, pubs in self._pubs.items()}
             self._heard = heard(self.node)
-        return Report(self.node.get_fully_qualified_name(), now, self._ready, leaving, min(dues) if dues else None,
+        clock_ns = now if self.lead_clock is None else self.lead_clock.now_ns()
+        return Report(self.node.get_fully_qualified_name(), clock_ns, self._ready, leaving, min(dues) if dues else None,
                       self.pending, dict(self.published), self._matched, dict(self.taken), self._heard,
                       self.clock_acks)
 

@@ -13,11 +13,13 @@ publications are counted in the same way. From the latest report of every partic
   but a reader that does not know the writer yet drops what arrives, so one side alone loses the first messages;
 * ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes it has taken
   every message published on it, and no service request is unanswered;
+* ``lead_problem(t)`` — every participant with ``clock_acks`` (a recorder, whose log times are its clock) has
+  reported a clock at t (None). /clock and an instant's messages travel on different topics, so a loaded machine can
+  deliver a message before the clock of its instant: the coordinator first sends t to these participants alone (the
+  lead clock) and moves /clock only once they are there (``needs_lead``: some have joined);
 * ``finish_problem(t)`` — instant t is finished (None): settled, no participant has a timer due at or before t
   left to run (a participant reports a new earliest timer once it ran the due ones; one that only saw the clock
-  move need not report), and every participant with ``clock_acks`` (a recorder, whose log times are its clock) has
-  reported a clock at t: /clock and the instant's messages travel on different topics, so without that a loaded
-  machine could deliver a message before the clock of its instant.
+  move need not report), and the ``clock_acks`` participants are at t (``lead_problem``).
 
 Message counting detects messages in flight between processes without any assumption on delivery order: a
 participant reports only after its callbacks ran, so every message it published is counted before the report that
@@ -130,10 +132,16 @@ class Barrier:
         due = sorted(n for n, r in self.reports.items() if r.next_due_ns is not None and r.next_due_ns <= t_ns)
         if due:
             return f"timers due at {t_ns} ns not yet run by {due}"
+        return self.lead_problem(t_ns) or self.settle_problem()
+
+    def needs_lead(self) -> bool:
+        """Whether some participant reports its clock (``clock_acks``): /clock then waits for the lead clock."""
+        return any(r.clock_acks for r in self.reports.values())
+
+    def lead_problem(self, t_ns: int) -> str | None:
+        """Which ``clock_acks`` participants have not reported a clock at ``t_ns`` yet, or None."""
         behind = sorted(n for n, r in self.reports.items() if r.clock_acks and r.clock_ns < t_ns)
-        if behind:
-            return f"clock of {behind} not yet at {t_ns} ns"
-        return self.settle_problem()
+        return f"clock of {behind} not yet at {t_ns} ns" if behind else None
 
     def next_due_ns(self) -> int | None:
         """The earliest timer of any participant, or None."""

@@ -9,8 +9,10 @@ state machine; the player feeds it the playback time of the next message and the
   subscription that does not know it yet);
 * an **instant** is the log time of the next message, or an earlier timer due of a participant (so timers run at the
   instants they were due at, as in the recorded run); the first instant is the first message's log time. Before the
-  clock moves to a new instant, everything published must be taken (``settle_problem``); then /clock is published
-  (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has run);
+  clock moves to a new instant, everything published must be taken (``settle_problem``); where a timer is due, the
+  participants that log in simulated time (a recorder) get the instant first (``lead``) and must report it
+  (``lead_problem``), so that what the timer publishes cannot reach them before their clock; then /clock is
+  published (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has run);
   /clock is sent again every ``resend`` s while that waits (it is best effort);
 * a message whose log time is the current instant is published (``publish``); after the last one the graph must
   settle once more (``done``);
@@ -25,13 +27,14 @@ from dataclasses import dataclass
 
 from hsa_core.lockstep import Barrier
 
-START, MOVE, FINISH, OVER = "start", "move", "finish", "over"
+START, MOVE, LEAD, FINISH, OVER = "start", "move", "lead", "finish", "over"
 
 
 @dataclass(frozen=True)
 class Step:
-    """What the player does now: ``wait``, ``clock`` (publish /clock at ``t_ns``), ``publish`` (the next message),
-    ``done`` or ``fail``; ``reason`` says what holds the barrier (wait, fail, a resent clock)."""
+    """What the coordinator does now: ``wait``, ``lead`` (publish ``t_ns`` on the lead clock), ``clock`` (publish
+    /clock at ``t_ns``), ``publish`` (the next message), ``done`` or ``fail`` (the simulator's own actions:
+    :mod:`hsa_core.sim_lockstep`); ``reason`` says what holds the barrier (wait, fail, a resent clock)."""
 
     action: str
     t_ns: int | None = None
@@ -72,6 +75,12 @@ class LockstepPlayback:
                     return Step("clock", self.instant, problem)
                 return failed
             self._progress(MOVE, now)
+        if self.phase == LEAD:
+            assert self.instant is not None
+            problem = self.barrier.lead_problem(self.instant)
+            if problem is not None:
+                return self._wait(problem, now, self.timeout)
+            return self._move_clock(now)
         if self.phase == MOVE:
             if next_ns is not None and self.instant is not None and next_ns <= self.instant:
                 self._progress(MOVE, now)
@@ -86,10 +95,17 @@ class LockstepPlayback:
             if self.instant is not None and due is not None and self.instant < due < next_ns:
                 next_ns = due
             self.instant = next_ns
-            self._progress(FINISH, now)
-            self._clock_sent = now
-            return Step("clock", self.instant)
+            if due is not None and due <= next_ns and self.barrier.needs_lead():
+                self._progress(LEAD, now)
+                return Step("lead", self.instant)
+            return self._move_clock(now)
         return Step("done", self.instant)
+
+    def _move_clock(self, now: float) -> Step:
+        """/clock moves to the instant, which must then finish."""
+        self._progress(FINISH, now)
+        self._clock_sent = now
+        return Step("clock", self.instant)
 
     def _progress(self, phase: str, now: float) -> None:
         """Enter ``phase``; the wait for it starts now."""

@@ -9,8 +9,10 @@ sample becomes available and whether the emulated bus is idle, and acts on each 
 * ``run`` to t: the next event is a sample becoming available; run the world to t and publish the samples at once,
   without /clock (data callbacks keep the clock of the last timer instant);
 * ``instant`` t: the next event is a participant's timer due, or ``sync_ns`` of simulated time have passed since the
-  last instant; run the world to t. The graph must then settle (take everything published); at a timer due the clock
-  moves (``clock`` t) and the instant must finish (``finish_problem``, and the bus has executed every packet it
+  last instant; run the world to t. The graph must then settle (take everything published); at a timer due the
+  participants that log in simulated time get t first (``lead`` t, when :meth:`~hsa_core.lockstep.Barrier.needs_lead`)
+  and report it (``lead_problem``), so nothing a timer publishes at t can reach them before their clock; then the
+  clock moves (``clock`` t) and the instant must finish (``finish_problem``, and the bus has executed every packet it
   received), /clock being sent again every ``resend`` s while that waits (it is best effort); then ``finish`` t:
   the bus writes reach the world at t and the samples available at t are published;
 * ``stop``: an expected participant has left, the graph is ending: simulated time stops (``done`` thereafter);
@@ -27,7 +29,7 @@ from collections.abc import Callable, Mapping
 from hsa_core.lockstep import Barrier
 from hsa_core.playback import Step
 
-START, ADVANCE, SETTLE, FINISH = "start", "advance", "settle", "finish"
+START, ADVANCE, SETTLE, LEAD, FINISH = "start", "advance", "settle", "lead", "finish"
 SYNC_NS = 50_000_000
 """[ns] the graph must have taken every sample at least every 50 ms of simulated time."""
 START_TIMEOUT = 180.0
@@ -78,10 +80,17 @@ class SimLockstep:
                 return self._wait(problem, now)
             self._since = now
             if world_ns == self.instant and self.instant == self.barrier.next_due_ns():
-                self.phase = FINISH
-                self._clock_sent = now
-                return Step("clock", self.instant)
+                if self.barrier.needs_lead():
+                    self.phase = LEAD
+                    return Step("lead", self.instant)
+                return self._move_clock(now)
             self.phase = ADVANCE
+        if self.phase == LEAD:
+            problem = self.barrier.lead_problem(self.instant)
+            if problem is not None:
+                return self._wait(problem, now)
+            self._since = now
+            return self._move_clock(now)
         if self.phase == FINISH:
             problem = self.barrier.finish_problem(self.instant)
             if problem is None and not bus_idle():
@@ -91,6 +100,12 @@ class SimLockstep:
             self.phase = ADVANCE
             return Step("finish", self.instant)
         return self._advance(now, next_sample_ns)
+
+    def _move_clock(self, now: float) -> Step:
+        """/clock moves to the instant, which must then finish."""
+        self.phase = FINISH
+        self._clock_sent = now
+        return Step("clock", self.instant)
 
     def _advance(self, now: float, next_sample_ns: int) -> Step:
         """The next event: a sample becoming available (``run``), or an instant the graph must settle at."""

@@ -149,6 +149,7 @@ class SimNode(Node):
             self._coordinator = SimLockstep(self._barrier, self._p["barrier_timeout"], resend=CLOCK_RESEND)
             self._clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.RELIABLE))
+            self._lead_pub = self.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
             self.create_subscription(LockstepAck, lockstep.ACK_TOPIC, self._on_ack, lockstep.ACK_READER_QOS)
             lockstep.wall_timer(self, 0.01, self._pump)
             self.get_logger().info(f"lockstep: waiting for {list(self._barrier.expected)}")
@@ -215,6 +216,8 @@ class SimNode(Node):
                 if step.reason:  # resent while the barrier waits
                     self._stats["resends"] += 1
                     return self._waiting(step)
+            elif step.action == "lead":
+                self._lead_pub.publish(convert.clock_msg(step.t_ns))
             elif step.action == "start":
                 self.get_logger().info(f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)")
             elif step.action == "finish":

@@ -102,6 +102,16 @@ def test_an_instant_waits_for_the_clock_of_a_clock_acking_participant_only() -> 
     assert barrier.finish_problem(10 * MS) is None  # /bridge, /kin and /ctrl still report clock 0
 
 
+def test_the_lead_clock_is_needed_only_with_a_clock_acking_participant_and_waits_for_it_alone() -> None:
+    barrier = graph()
+    assert not barrier.needs_lead() and barrier.lead_problem(10 * MS) is None  # nobody logs in simulated time
+    barrier.report(Report("/rec", 0, taken={"/pose": 0}, clock_acks=True))
+    assert barrier.needs_lead()
+    assert barrier.lead_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"
+    barrier.report(Report("/rec", 10 * MS, taken={"/pose": 0}, clock_acks=True))
+    assert barrier.lead_problem(10 * MS) is None  # the other participants' clocks (0) do not matter
+
+
 def test_a_late_joiner_is_settled_at_its_first_report_and_a_leaver_is_dropped() -> None:
     barrier = graph()
     barrier.start()

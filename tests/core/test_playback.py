@@ -75,6 +75,25 @@ def test_a_timer_due_before_the_next_message_gets_its_own_instant() -> None:
     assert (step.action, step.t_ns) == ("clock", T0 + 40 * MS)  # the message, before the next due (50 ms)
 
 
+def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> None:
+    """A timer's messages at an instant may reach the recorder before /clock: its lead clock must be there first."""
+    barrier, playback = started()
+    barrier.report(Report("/rec", 0, taken={"/ee": 0}, clock_acks=True))
+    playback.step(T0, {"/ee": 2}, now=0.0)
+    barrier.report(Report("/rec", T0, taken={"/ee": 0}, clock_acks=True))
+    barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))
+    step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.0)
+    assert (step.action, step.t_ns) == ("lead", T0 + 25 * MS)
+    step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.1)
+    assert (step.action, step.reason) == ("wait", f"clock of ['/rec'] not yet at {T0 + 25 * MS} ns")
+    barrier.report(Report("/rec", T0 + 25 * MS, taken={"/ee": 0}, clock_acks=True))
+    step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.2)
+    assert (step.action, step.t_ns, step.reason) == ("clock", T0 + 25 * MS, "")
+    barrier.report(kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS))
+    step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.3)
+    assert (step.action, step.t_ns) == ("clock", T0 + 40 * MS)  # no timer due: the player's messages wait anyway
+
+
 def test_timer_dues_before_the_first_message_are_not_stepped_through() -> None:
     barrier = Barrier(["/kin"])
     barrier.report(kinematics(due=25 * MS))  # a timer on the grid of simulated time 0

@@ -6,7 +6,8 @@ Lockstep makes the graph a deterministic function of its configuration, whatever
 * it equals the ROS-free offline experiment (same world, estimator, planner and controller code, same timeline):
   the commanded φ agrees tick by tick to 1e-9 rad and the metrics table is the same;
 * the bag holds every message: every mocap sample (one per 5 ms of simulated time) and the ee_pose and state
-  derived from it, every controller tick and every driver read (25 ms), stamped and logged in simulated time.
+  derived from it, every controller tick and every driver read (25 ms), stamped and logged in simulated time, a
+  tick's and a read's messages at their own instant.
 """
 
 from __future__ import annotations
@@ -77,19 +78,22 @@ def test_the_graph_equals_the_offline_experiment(sim_run, offline) -> None:
 
 def test_the_bag_holds_every_message_in_simulated_time(sim_run) -> None:
     stamps: dict[str, np.ndarray] = {}
+    log_times: dict[str, np.ndarray] = {}
     counts: dict[str, int] = {}
     latest_log_time = 0
     with Bag(sim_run) as bag:
         for topic in TOPICS:
             counts[topic] = bag.topic(topic).count
             store = bag.typestore(topic)
-            found = []
+            found, logged = [], []
             for _, log_time, raw in bag.messages([topic]):
                 latest_log_time = max(latest_log_time, log_time)
                 if topic in STAMPED:
                     stamp = store.deserialize_cdr(raw, bag.topic(topic).msgtype).header.stamp
                     found.append(stamp.sec * 10**9 + stamp.nanosec)
+                    logged.append(log_time)
             stamps[topic] = np.array(found)
+            log_times[topic] = np.array(logged)
     poses = stamps["/mocap/platform/pose"]
     np.testing.assert_array_equal(poses, np.arange(len(poses)) * 5 * MS)  # every sample from t = 0, none twice
     assert counts["/mocap/base/pose"] == counts["/hsa/ee_pose"] == counts["/hsa/state"] == len(poses)
@@ -100,3 +104,5 @@ def test_the_bag_holds_every_message_in_simulated_time(sim_run) -> None:
     np.testing.assert_array_equal(np.diff(ticks), 25 * MS)  # 40 Hz, none missed
     assert counts["/hsa/phi_cmd"] == len(ticks)
     assert latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS  # logged in simulated time
+    for timed in ("/hsa/phi_present", "/hsa/controller_info"):  # a timer's messages are logged at its instant
+        np.testing.assert_array_equal(log_times[timed], stamps[timed], err_msg=timed)

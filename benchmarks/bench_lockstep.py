@@ -3,7 +3,8 @@
 * **Determinism:** the main job (``launch_scripts/run_sim_experiment.py``, FPU steps, P-satI-D, lockstep) twice, the
   second time beside two CPU-burning processes; a SHA-256 digest of the concatenated serialized payloads per recorded
   topic. Every topic must agree except the documented wall-clock-only ones (``/diagnostics``: CPU and rate figures;
-  ``/hsa/controller_info`` carries ``compute_time``, so it is compared with that field zeroed).
+  ``/hsa/controller_info`` carries ``compute_time``, so it is compared with that field zeroed). The log times are
+  compared too (their own digest per topic).
 * **Speed:** graph wall time of the runs (start of the graph to its end, as run.sh prints it), at 40 Hz, and of a
   run at 200 Hz control.
 * **Recorder on the wall clock:** the sim graph with ``clock:=wall`` (11 steps at 0.3 Hz, or the full schedule with
@@ -81,8 +82,9 @@ def run_graph(out: Path, *extra: str) -> dict:
     return result
 
 
-def digests(bag: Path) -> dict[str, str]:
-    """SHA-256 over the serialized payloads of each topic, in log order (controller_info: compute_time zeroed)."""
+def digests(bag: Path) -> dict[str, tuple[str, str]]:
+    """Per topic, SHA-256 over the serialized payloads in log order (controller_info: compute_time zeroed) and over
+    the log times."""
     out = {}
     with Bag(bag) as reader:
         for topic in sorted(reader.topics):
@@ -90,17 +92,18 @@ def digests(bag: Path) -> dict[str, str]:
     return out
 
 
-def _digest(reader: Bag, topic: str) -> str:
-    h = hashlib.sha256()
+def _digest(reader: Bag, topic: str) -> tuple[str, str]:
+    payloads, log_times = hashlib.sha256(), hashlib.sha256()
     store = reader.typestore(topic)
     msgtype = reader.topic(topic).msgtype
-    for _, _, raw in reader.messages([topic]):
+    for _, log_time, raw in reader.messages([topic]):
         if topic == "/hsa/controller_info":
             msg = store.deserialize_cdr(raw, msgtype)
             msg.compute_time = 0.0
             raw = store.serialize_cdr(msg, msgtype)
-        h.update(bytes(raw))
-    return h.hexdigest()
+        payloads.update(bytes(raw))
+        log_times.update(log_time.to_bytes(8, "little"))
+    return payloads.hexdigest(), log_times.hexdigest()
 
 
 def main() -> int:
@@ -119,12 +122,17 @@ def main() -> int:
     with burners():
         loaded = run_graph(work / "loaded")
     d_quiet, d_loaded = digests(work / "quiet" / "bag"), digests(work / "loaded" / "bag")
-    compared = {t: {"quiet": d_quiet[t][:16], "loaded": d_loaded.get(t, "")[:16], "equal": d_quiet[t] == d_loaded.get(t)}
+    missing = ("", "")
+    compared = {t: {"quiet": d_quiet[t][0][:16], "loaded": d_loaded.get(t, missing)[0][:16],
+                    "equal": d_quiet[t][0] == d_loaded.get(t, missing)[0],
+                    "log_times_equal": d_quiet[t][1] == d_loaded.get(t, missing)[1]}
                 for t in d_quiet}
     result["determinism"] = {
         "runs": {"quiet": quiet, "loaded_two_burners": loaded},
         "topics": compared,
         "identical_except_wall_only": all(v["equal"] for t, v in compared.items() if t not in WALL_ONLY),
+        "log_times_identical_except_wall_only": all(v["log_times_equal"] for t, v in compared.items()
+                                                     if t not in WALL_ONLY),
         "wall_only_topics": list(WALL_ONLY),
     }
     result["speed"] = {"fpu_steps_40hz": quiet, "target_graph_wall_s": 35.0}

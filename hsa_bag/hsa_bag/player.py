@@ -122,7 +122,7 @@ class Player:
         self.clock: Publisher | None = None
         if options.clock_hz > 0 or playback is not None:
             self.clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
-        self.lead = node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS) if playback is not None else None
+        self.lead = None if playback is None else node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
         self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
         mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
         self.loop_span = max(bag.end - self.first, 0) + mean_period

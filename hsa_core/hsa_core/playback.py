@@ -12,8 +12,8 @@ state machine; the player feeds it the playback time of the next message and the
   clock moves to a new instant, everything published must be taken (``settle_problem``); where a timer is due, the
   participants that log in simulated time (a recorder) get the instant first (``lead``) and must report it
   (``lead_problem``), so that what the timer publishes cannot reach them before their clock; then /clock is
-  published (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has run);
-  /clock is sent again every ``resend`` s while that waits (it is best effort);
+  published (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has
+  run); /clock is sent again every ``resend`` s while that waits (it is best effort);
 * a message whose log time is the current instant is published (``publish``); after the last one the graph must
   settle once more (``done``);
 * waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is a failure

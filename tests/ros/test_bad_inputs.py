@@ -52,13 +52,20 @@ def graph() -> Iterator[dict[str, NodeProcess]]:
 
 
 def _track(ros_node, infos: Recorder) -> tuple[MocapStream, object]:  # noqa: ANN001 - rclpy node
-    """Latch the worked-example setpoint, stream OFFSET_CHIEE and wait until the controller tracks it."""
+    """Latch the worked-example setpoint, stream OFFSET_CHIEE and wait until the controller tracks that very message.
+
+    The setpoint carries a stamp of its own: the controller may still hold an earlier test's setpoint and track on it
+    before this one (a new publisher, discovered late on a loaded machine) arrives and is counted."""
     sp_pub = ros_node.create_publisher(Setpoint, f"{NS}/setpoint", qos.LATCHED)
-    sp_pub.publish(setpoint())
+    msg = setpoint()
+    msg.header.stamp = ros_node.get_clock().now().to_msg()
+    sp_pub.publish(msg)
     stream = MocapStream(ros_node, TOPIC, OFFSET_CHIEE)
-    if not wait_until(lambda: any(m.state == ControllerInfo.STATE_TRACKING for m in infos.since()), 20.0):
+    mine = msg.header.stamp
+    if not wait_until(lambda: any(m.state == ControllerInfo.STATE_TRACKING and m.setpoint.header.stamp == mine
+                                  for m in infos.since()), 20.0):
         stream.close()
-        pytest.fail("the controller never tracked the streamed pose")
+        pytest.fail("the controller never tracked the streamed pose on this test's setpoint")
     return stream, sp_pub
 
 

@@ -299,7 +299,7 @@ def metrics_window(spec: LoopSpec, log: TickLog) -> slice:
 def evaluate(spec: LoopSpec, log: TickLog, name: str = "") -> metrics.RunMetrics:
     """The experiment's metrics of one run's TickLog (over :func:`metrics_window`)."""
     window = metrics_window(spec, log)
-    t = np.arange(spec.n_eval) * spec.period_ms * 1e-3
+    t = (np.arange(spec.n_eval) * spec.period_ms * MS) * 1e-9  # as the experiment's log: whole ns, then seconds
     chiee, chiee_des = np.asarray(log.chiee)[window], np.asarray(log.chiee_des)[window]
     return metrics.evaluate_run(t[: len(chiee)], chiee_des[:, :2], chiee[:, :2], np.asarray(log.saturated)[window],
                                 duration=spec.n_eval * spec.period_ms * 1e-3, name=name)

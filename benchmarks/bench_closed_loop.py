@@ -3,8 +3,9 @@
 The batch is split over one XLA host device per core (``--host-devices``), as ``batch_rollout`` splits it over GPUs.
 For batch sizes B (``--batches``, default 8 32 128): the first call (compiling with an empty compilation cache,
 then running), the wall time of one call after compiling (noise seeds differ per run), runs per minute, and the
-process's peak resident memory. For comparison: one run of the Python experiment loop (``run_experiment``). Target (issue "batched closed loop"): ≥ 500 runs per minute on this machine.
-Writes benchmarks/results/closed_loop.json.
+process's peak resident memory, and how far the seed-0 run's metrics are from the offline experiment's. For
+comparison: one run of the Python experiment loop (``run_experiment``). Target (issue "batched closed loop"): ≥ 500
+runs per minute on this machine. Writes benchmarks/results/closed_loop.json.
 
     .venv/bin/python benchmarks/bench_closed_loop.py [--batches 8 32 128 256]
 """

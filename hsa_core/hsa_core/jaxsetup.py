@@ -28,6 +28,20 @@ def configure_jax() -> None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # the small ones add up at start
 
 
+def use_every_core() -> None:
+    """One XLA CPU device per core, so that a batch split over ``jax.devices()`` (``closed_loop.batch_rollout``) runs
+    on all of them; a GPU backend is unaffected. Call it before the first JAX computation: where JAX already computes
+    in this process (e.g. a test calling a CLI's main) or ``XLA_FLAGS`` sets the host device count, nothing changes."""
+    import jax
+
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return
+    try:
+        jax.config.update("jax_num_cpu_devices", os.cpu_count() or 1)
+    except RuntimeError:  # backends already initialised: the process keeps its devices
+        pass
+
+
 def cache_dir() -> Path | None:
     """The persistent cache directory (``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``), None if disabled."""
     cache = os.environ.get("HSA_JAX_CACHE_DIR", str(Path.home() / ".cache" / "hsa_ros" / "jax"))

@@ -38,7 +38,7 @@ from hsa_core import cli, closed_loop, plotting
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains, load_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
-from hsa_core.jaxsetup import configure_jax
+from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.metrics import STEADY_STATE_WINDOW
 from hsa_core.params import HsaParams, load_params
 from hsa_core.plotting import plt
@@ -276,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0.0 <= args.spread < 1.0:
         parser.error(f"--range must be in [0, 1), got {args.spread}")
     configure_jax()
+    use_every_core()
     disturbance = DisturbanceModel(seed=args.seed)
     plants = perturbed_plants(disturbance.plant_params(load_params(args.material)), args.n, args.spread, args.seed)
     reference = step_reference(args.material)

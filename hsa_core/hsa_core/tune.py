@@ -39,7 +39,7 @@ from hsa_core import cli, closed_loop, plotting, robustness
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
-from hsa_core.jaxsetup import configure_jax
+from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.params import load_params
 from hsa_core.plotting import plt
 from hsa_core.trajectories import TimedReference, step_reference
@@ -142,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.duration < 20.0:
         parser.error("--duration must cover at least two steps (20 s): the response time needs a step change")
     configure_jax()
+    use_every_core()
     kind = ControllerKind(args.law)
     paper = default_gains(kind, args.material)
     disturbance = DisturbanceModel(seed=args.seed)

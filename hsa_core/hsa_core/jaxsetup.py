@@ -31,10 +31,11 @@ def configure_jax() -> None:
 def use_every_core() -> None:
     """One XLA CPU device per core, so that a batch split over ``jax.devices()`` (``closed_loop.batch_rollout``) runs
     on all of them; a GPU backend is unaffected. Call it before the first JAX computation: where JAX already computes
-    in this process (e.g. a test calling a CLI's main) or ``XLA_FLAGS`` sets the host device count, nothing changes."""
+    in this process (e.g. a test calling a CLI's main), or the user chose a count (``JAX_NUM_CPU_DEVICES``, or the
+    host device count in ``XLA_FLAGS``), nothing changes."""
     import jax
 
-    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+    if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return
     try:
         jax.config.update("jax_num_cpu_devices", os.cpu_count() or 1)

@@ -246,8 +246,8 @@ XLA_OPTIONS = {"xla_cpu_enable_fast_math": True, "xla_cpu_fast_math_honor_nans":
 """XLA options of every compilation of the loop: on the CPU, floating-point reassociation and contraction (FMA) only;
 NaN, inf, division and library functions stay exact. Reassociation lets LLVM vectorise the dynamics' sums over the
 9 mass points, which the strict order keeps scalar: ~1.5x the runs per minute (benchmarks/results/closed_loop.json).
-The loop's metrics still equal the experiment's to ~1e-14 (tests/core/test_closed_loop.py); other backends ignore
-these options."""
+The loop's metrics still equal the experiment's to ~1e-14 (tests/core/test_closed_loop.py); other backends do not
+read ``xla_cpu_`` options."""
 
 compiled = jax.jit(rollout, static_argnums=0, compiler_options=XLA_OPTIONS)
 """``rollout`` compiled (``spec`` static); :func:`batch_rollout` batches."""

@@ -14,6 +14,9 @@ at once on two cores, the driver's torque-off (and the simulator's bus answering
 
 After its hook and rclpy's shutdown a node leaves with ``os._exit``: what must persist is persisted by then, and the
 interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1 s without it), past the launcher's SIGTERM.
+rclpy's shutdown itself is bounded (``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so
+past the limit the node prints every thread's stack and a C-level timer ends it with its exit code
+(:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's barrier
 (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and, whenever none is ready, the
@@ -44,7 +47,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from hsa_common import lockstep, rosenv
+from hsa_common import exit_deadline, lockstep, rosenv
 from hsa_common.parameters import ParameterValidationError
 
 TEARDOWN_NICE = 5
@@ -53,6 +56,12 @@ not starved — at 19 a teardown beside busy processes took a minute (54-67 s me
 the launcher's SIGTERM escalation hit every node."""
 SPIN_PERIOD = 0.02
 """[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (< 100 ms torque-off)."""
+TEARDOWN_LIMIT = 5.0
+"""[s] longest wait for rclpy's teardown (destroy_node, shutdown) after the node's own: past it the node prints every
+thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code (:mod:`hsa_common.exit_deadline`). It takes
+milliseconds; CI once saw a planner_node hang in it until the launcher's SIGKILL, 25 s on."""
+TEARDOWN_DUMP = 0.5
+"""[s] time left for the stack dump before the deadline ends the process."""
 STUCK_AFTER = 10.0
 """[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
 well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
@@ -84,17 +93,20 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         participant = lockstep.Participant(node)
     executor = SingleThreadedExecutor() if in_lockstep else make_executor()
     executor.add_node(node)
+    failed = True  # until the spin ends in an orderly stop
     try:
         node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
         if in_lockstep:
             spin_lockstep(executor, participant, stop)
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD)
+        failed = False
     except ExternalShutdownException:
-        pass  # the node shut its context down (e.g. the sequencer's exit_on_finish)
+        failed = False  # the node shut its context down (e.g. the sequencer's exit_on_finish)
     except (RCLError, RuntimeError):
         if rclpy.ok():
             raise
+        failed = False
         # the context was shut down while a callback was publishing or a message was being taken (rclpy raises
         # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
@@ -106,8 +118,12 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         else:
             os.nice(TEARDOWN_NICE)  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
         executor.shutdown(timeout_sec=1.0)
+        # the node's work is done; the middleware's teardown may hang holding the GIL (exit_deadline): bound it
+        faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
+        exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else int(getattr(node, "exit_code", 0)))
         node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
     code = int(getattr(node, "exit_code", 0))
     sys.stdout.flush()
     sys.stderr.flush()

@@ -1,0 +1,49 @@
+"""hsa_common.exit_deadline and the runner's bounded teardown: a process stuck in native code that holds the GIL still
+ends, with the exit code it was meant to have."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from tests.ros.conftest import PEERS, start_process, wait_for_line
+
+pytestmark = pytest.mark.ros
+
+STUCK = """
+import ctypes, sys
+from hsa_common import exit_deadline
+assert exit_deadline.arm(0.5, int(sys.argv[1]))
+if sys.argv[2] == "stuck":
+    ctypes.PyDLL(None).sleep(60)  # a C call that keeps the GIL: no Python runs until it returns
+sys.exit(3)
+"""
+
+
+@pytest.mark.parametrize("code", [0, 7])
+def test_the_deadline_ends_a_process_stuck_with_the_gil(code: int) -> None:
+    out = subprocess.run([sys.executable, "-c", STUCK, str(code), "stuck"], capture_output=True, text=True, timeout=30)
+    assert out.returncode == code, out.stderr
+
+
+def test_a_process_that_ends_before_the_deadline_keeps_its_own_exit() -> None:
+    out = subprocess.run([sys.executable, "-c", STUCK, "7", "free"], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 3, out.stderr
+
+
+def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None:
+    """The runner bounds rclpy's teardown (TEARDOWN_LIMIT): the node leaves with exit_code 5, not a SIGKILL, and
+    its output names where it hung."""
+    proc = start_process([sys.executable, str(PEERS / "stuck_teardown.py"), "5"])
+    try:
+        wait_for_line(proc, "ready")
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=40)  # the runner's limit is 5.5 s; the stuck call alone lasts 60 s
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 5, output
+    assert "Timeout (0:00:05)!" in output and "in destroy_node" in output, output

@@ -59,7 +59,8 @@ SPIN_PERIOD = 0.02
 TEARDOWN_LIMIT = 5.0
 """[s] longest wait for rclpy's teardown (destroy_node, shutdown) after the node's own: past it the node prints every
 thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code (:mod:`hsa_common.exit_deadline`). It takes
-milliseconds; CI once saw a planner_node hang in it until the launcher's SIGKILL, 25 s on."""
+milliseconds, but beside busy processes a planner_node once hung in it until the launcher's SIGKILL, 25 s on (and CI
+SIGKILLed two other nodes after the same 25 s)."""
 TEARDOWN_DUMP = 0.5
 """[s] time left for the stack dump before the deadline ends the process."""
 STUCK_AFTER = 10.0

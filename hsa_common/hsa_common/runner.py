@@ -61,11 +61,14 @@ TEARDOWN_LIMIT = 5.0
 thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code (:mod:`hsa_common.exit_deadline`). It takes
 milliseconds, but beside busy processes a planner_node once hung in it until the launcher's SIGKILL, 25 s on (and CI
 SIGKILLed two other nodes after the same 25 s)."""
-TEARDOWN_DUMP = 0.5
+TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
 STUCK_AFTER = 10.0
 """[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
 well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
+
+_DUMP_LOCK = threading.Lock()  # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
+_TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
@@ -120,7 +123,9 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
             os.nice(TEARDOWN_NICE)  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
         executor.shutdown(timeout_sec=1.0)
         # the node's work is done; the middleware's teardown may hang holding the GIL (exit_deadline): bound it
-        faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
+        with _DUMP_LOCK:
+            _TEARDOWN.set()  # from now on the stop watch leaves this dump alone
+            faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
         exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else int(getattr(node, "exit_code", 0)))
         node.destroy_node()
         rclpy.try_shutdown()
@@ -159,7 +164,9 @@ def watch_stop() -> None:
 
     def watch() -> None:
         os.read(read_fd, 1)
-        faulthandler.dump_traceback_later(STUCK_AFTER, exit=False)
+        with _DUMP_LOCK:
+            if not _TEARDOWN.is_set():  # the teardown's shorter dump comes first
+                faulthandler.dump_traceback_later(STUCK_AFTER, exit=False)
 
     threading.Thread(target=watch, name="stop-watch", daemon=True).start()
 

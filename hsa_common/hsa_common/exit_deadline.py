@@ -1,9 +1,10 @@
 """A deadline that ends the process with a chosen exit code even while Python is stuck in native code.
 
-Why: a node's last step, rclpy's ``destroy_node``, can hang inside the middleware — CI caught a planner_node stuck for
-25 s in the final node-handle destruction (rmw_fastrtps) until the launcher SIGKILLed it — and that call holds the
-GIL, so no Python thread, signal handler or ``Thread.join(timeout)`` can end it. :func:`arm` starts a POSIX timer
-whose expiry runs libc's ``_exit(code)`` on a thread of its own (``SIGEV_THREAD``), outside the interpreter.
+Why: a node's last step, rclpy's ``destroy_node``, can hang inside the middleware — beside busy processes a
+planner_node stuck in the final node-handle destruction (rmw_fastrtps) until the launcher SIGKILLed it 25 s on — and
+that call holds the GIL, so no Python thread, signal handler or ``Thread.join(timeout)`` can end it. :func:`arm`
+starts a POSIX timer whose expiry runs libc's ``_exit(code)`` on a thread of its own (``SIGEV_THREAD``), outside the
+interpreter.
 
 Linux/glibc only (``timer_create``, x86-64 and arm64 calling conventions: the timer's ``sigval`` is passed as
 ``_exit``'s int); elsewhere :func:`arm` returns False and the process keeps Python's own exit path.
@@ -33,16 +34,13 @@ class _ITimerSpec(ctypes.Structure):
     _fields_ = [("interval", _TimeSpec), ("value", _TimeSpec)]
 
 
-_armed: list[ctypes.c_void_p] = []  # the timers: kept alive until the process ends
-
-
 def arm(seconds: float, code: int) -> bool:
     """End the process with ``_exit(code)`` once ``seconds`` have passed, whatever Python is doing; False where the
     platform has no such timer (nothing is armed then)."""
     if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
+        libc = ctypes.CDLL(None)
         timer_create, timer_settime, exit_now = libc.timer_create, libc.timer_settime, libc._exit
     except (OSError, AttributeError):
         return False
@@ -52,7 +50,4 @@ def arm(seconds: float, code: int) -> bool:
         return False
     whole = int(seconds)
     when = _ITimerSpec(value=_TimeSpec(whole, int((seconds - whole) * 1e9)))
-    if timer_settime(timer, 0, ctypes.byref(when), None) != 0:
-        return False
-    _armed.append(timer)
-    return True
+    return timer_settime(timer, 0, ctypes.byref(when), None) == 0  # the timer lives in the kernel until it fires

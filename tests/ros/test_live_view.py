@@ -463,9 +463,10 @@ def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
 
 
 @pytest.mark.slow
-def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
+def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> None:
     """sim.launch.yaml live:=true on a 2-step schedule: a client sees the simulated robot, the tracking of the
-    sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends with 0 with the graph."""
+    sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends with 0 with the graph; the real
+    viewer's code finds data at every path of the shipped layout."""
     points = [0.0, 0.112, 0.004, 0.114]  # two reachable FPU targets [m]
     config = tmp_path / "sequencer.yaml"
     config.write_text(json.dumps({"/**": {"ros__parameters": {
@@ -503,6 +504,9 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
     scenes = session.received["/live/scene"]
     span = (scenes[-1][0] - scenes[0][0]) if len(scenes) > 1 else 0.0
     assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (len(scenes), span)  # wall rate ≤ 25 Hz (+ setpoints)
+    layout = json.loads((Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text())
+    report = run_viewer_check(viewer_check, session, layout)
+    assert all(c["ok"] for c in report["channels"].values()) and all(p["ok"] for p in report["paths"]), report
     print(f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, {len(tracking)} ticks, "
           f"final ‖e‖ {final[-1] * 1e3:.2f} mm")
 

@@ -54,7 +54,7 @@ SUBPROTOCOL = "foxglove.sdk.v1"
 """The subprotocol foxglove-sdk 0.30 servers accept (they answer HTTP 400 to a client offering only the older
 'foxglove.websocket.v1'); the current Foxglove app offers it."""
 OLD_SUBPROTOCOL = "foxglove.websocket.v1"
-"""The only subprotocol older viewers offer (the open-source Foxglove Studio, Lichtblick 1.21 and older)."""
+"""The only subprotocol older viewers offer (the open-source Foxglove Studio, Lichtblick 1.22.0 and older)."""
 PARAMS = load_params("fpu")
 PERIOD_NS, T0_NS = 5_000_000, 1_760_000_000 * 10**9  # 200 Hz state grid
 Q_DES = np.array([-6.0, 0.01, 0.25])
@@ -418,7 +418,9 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     panels = layout["configById"]
     assert {k.split("!")[0] for k in panels} >= {"3D", "Plot"}
     assert set(panels["3D!hsa_scene"]["topics"]) == {"/live/scene"}
+    checking = time.monotonic()
     report = run_viewer_check(viewer_check, session, layout)
+    checking = time.monotonic() - checking
     assert set(report["channels"]) == set(EXPECTED)
     failed = {t: c["error"] for t, c in report["channels"].items() if not c["ok"]}
     assert not failed, failed  # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
@@ -427,7 +429,8 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     assert plot_paths | {(k, c["topicPath"]) for k, c in panels.items() if "topicPath" in c} <= set(paths)
     assert {k for k, _ in paths} == set(panels)  # every panel of the layout is checked
     assert all(p["ok"] for p in paths.values()), [p for p in paths.values() if not p["ok"]]
-    print(f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with data")
+    print(f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with data "
+          f"({checking:.1f} s)")
 
 
 def test_a_taken_port_is_refused_in_one_line(live_node) -> None:

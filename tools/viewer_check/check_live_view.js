@@ -25,16 +25,16 @@ const NUMERIC = ["int8", "uint8", "int16", "uint16", "int32", "uint32", "int64",
 
 /** The viewer's functions, taken from its bundle: its webpack runtime and modules without running the app. */
 function loadViewer() {
-  const text = fs.readFileSync(BUNDLE, "utf8");
-  const start = text.indexOf("var __webpack_modules__ = ({");
-  const entry = text.indexOf(ENTRY, start);
-  const [from, to] = MCAP_SUPPORT.map((marker) => text.indexOf(marker, entry));
+  const bundle = fs.readFileSync(BUNDLE); // 56 MB: searched as bytes, only the parts used are decoded
+  const start = bundle.indexOf("var __webpack_modules__ = ({");
+  const entry = bundle.indexOf(ENTRY, start);
+  const [from, to] = MCAP_SUPPORT.map((marker) => bundle.indexOf(marker, entry));
   if (start < 0 || entry < 0 || from < 0 || to < 0) {
     throw new Error(`${BUNDLE}: not the bundle this script knows (webpack runtime or mcap-support not found)`);
   }
   // the runtime of the UMD bundle, returning its require instead of running the app's entry module
   const runtime = new Function("__WEBPACK_EXTERNAL_MODULE__8156__", "__WEBPACK_EXTERNAL_MODULE__47111__", "self",
-    `${text.slice(start, entry)}\nreturn __webpack_require__;`);
+    `${bundle.toString("utf8", start, entry)}\nreturn __webpack_require__;`);
   const page = { location: { href: "file:///studio-base/index.js" } };
   globalThis.document = { currentScript: { src: page.location.href }, baseURI: page.location.href };
   let require;
@@ -45,7 +45,7 @@ function loadViewer() {
   }
   // mcap-support is concatenated into the entry module: its section, evaluated with the bundle's require
   const mcap = new Function("__webpack_require__",
-    `${text.slice(from, to)}\nreturn { parseChannel };`)(require);
+    `${bundle.toString("utf8", from, to)}\nreturn { parseChannel };`)(require);
   const messagePaths = require(MESSAGE_PATHS);
   return {
     parseChannel: mcap.parseChannel,

@@ -2,8 +2,9 @@
 
 ROS-free and Foxglove-free: the node (hsa_live) feeds these functions the fields of the messages it receives and logs
 their results as JSON messages. Units are SI (m, rad, s); names as in the paper (p_ee, p^d, e = p^d − p_ee as in
-hsa_core.metrics, φ, φ^ss, q). JSON has no NaN: every non-finite number becomes ``None`` (null), so a tick that sent
-no command (φ NaN in controller_info) leaves a gap in the plot instead of a message the viewer cannot parse.
+hsa_core.metrics, φ, φ^ss, q). JSON has no NaN, and the viewers of the Foxglove family read a JSON-schema field type
+only as one string (``"number"``, never ``["number", "null"]``): a non-finite value is left out of the payload
+(:func:`finite`), so a tick that sent no command (φ NaN in controller_info) has no φ field, a gap in the plot.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ Q_NAMES = ("kappa_be", "sigma_sh", "sigma_ax")
 
 
 def number(value: float) -> float | None:
-    """``value`` as a float, or None when it is not finite (JSON null)."""
+    """``value`` as a float, or None when it is not finite (left out of a payload by :func:`finite`)."""
     value = float(value)
     return value if math.isfinite(value) else None
 
@@ -33,28 +34,47 @@ def numbers(values: Iterable[float]) -> list[float | None]:
     return [number(v) for v in values]
 
 
+def finite(payload: Mapping[str, Any]) -> dict[str, Any]:
+    """``payload`` without its missing values, nested mappings included: a member that is None, or a list holding a
+    None, is left out (a viewer shows an absent field as a gap; the schema's types stay single)."""
+    kept: dict[str, Any] = {}
+    for key, value in payload.items():
+        if isinstance(value, Mapping):
+            value = finite(value)
+        if value is None or (isinstance(value, list) and any(v is None for v in value)):
+            continue
+        kept[key] = value
+    return kept
+
+
 def point(xy: Sequence[float]) -> dict[str, float | None]:
-    """A planar position [x, y] as {"x", "y"} [m]."""
+    """A planar position [x, y] as {"x", "y"} [m] (None where not finite)."""
     return {"x": number(xy[0]), "y": number(xy[1])}
 
 
 def tracking_sample(p_ee: Sequence[float], p_des: Sequence[float]) -> dict[str, Any]:
     """Measured EE position, reference and error e = p^d − p_ee with its norm ‖e‖ [m] of one controller tick."""
     ex, ey = float(p_des[0]) - float(p_ee[0]), float(p_des[1]) - float(p_ee[1])
-    return {"p_ee": point(p_ee), "p_des": point(p_des), "e": {"x": number(ex), "y": number(ey)},
-            "e_norm": number(math.hypot(ex, ey))}
+    return finite({"p_ee": point(p_ee), "p_des": point(p_des), "e": {"x": number(ex), "y": number(ey)},
+                   "e_norm": number(math.hypot(ex, ey))})
 
 
 def actuation_sample(phi_cmd: Sequence[float], phi_unsat: Sequence[float], phi_ss: Sequence[float],
                      phi_min: Sequence[float], phi_max: Sequence[float], saturated: bool) -> dict[str, Any]:
-    """Commanded φ (after saturation), the law's output before it, φ^ss and the admissible box per rod [rad]."""
-    return {"phi_cmd": numbers(phi_cmd), "phi_unsat": numbers(phi_unsat), "phi_ss": numbers(phi_ss),
-            "phi_min": numbers(phi_min), "phi_max": numbers(phi_max), "saturated": bool(saturated)}
+    """Commanded φ (after saturation), the law's output before it, φ^ss and the admissible box per rod [rad]; a list
+    with a non-finite value (no command sent) is left out."""
+    return finite({"phi_cmd": numbers(phi_cmd), "phi_unsat": numbers(phi_unsat), "phi_ss": numbers(phi_ss),
+                   "phi_min": numbers(phi_min), "phi_max": numbers(phi_max), "saturated": bool(saturated)})
 
 
 def configuration_sample(q: Sequence[float], q_des: Sequence[float]) -> dict[str, Any]:
     """Measured q and desired q^d of one controller tick, by component name [1/m, -, -]."""
-    return {"q": dict(zip(Q_NAMES, numbers(q))), "q_des": dict(zip(Q_NAMES, numbers(q_des)))}
+    return finite({"q": dict(zip(Q_NAMES, numbers(q))), "q_des": dict(zip(Q_NAMES, numbers(q_des)))})
+
+
+def phi_present_sample(phi: Sequence[float]) -> dict[str, Any]:
+    """Measured φ per rod [rad] (left out when not finite)."""
+    return finite({"phi": numbers(phi)})
 
 
 def controller_state_name(code: int) -> str:
@@ -154,18 +174,20 @@ def progress(sequencer_status: str | None, controller_state: int | None, e_norm:
         parts.append("finished")
     if failures:
         parts.append(f"{failures} failed")
-    return {"step": index + 1 if index >= 0 else 0, "steps": steps, "finished": finished, "failures": failures,
-            "sequencer_state": str(status.get("state", "")), "trajectory": str(status.get("trajectory", "")),
-            "controller_state": mode, "e_norm": error, "text": " · ".join(parts)}
+    return finite({"step": index + 1 if index >= 0 else 0, "steps": steps, "finished": finished,
+                   "failures": failures, "sequencer_state": str(status.get("state", "")),
+                   "trajectory": str(status.get("trajectory", "")), "controller_state": mode, "e_norm": error,
+                   "text": " · ".join(parts)})
 
 
 def json_schema(title: str, sample: Any) -> dict[str, Any]:
-    """JSON schema (draft 2020-12 subset) of a payload shaped like ``sample``; numbers may be null (non-finite)."""
+    """JSON schema (draft 2020-12 subset) of a payload shaped like ``sample``, every field of one type (a string, as
+    the Foxglove-family viewers require); a missing value is an absent field, not a null."""
     return {"title": title, **_schema_of(sample)}
 
 
 def _schema_of(value: Any) -> dict[str, Any]:
-    """Schema of one value: objects by their keys, arrays by their first item, numbers nullable."""
+    """Schema of one value: objects by their keys, arrays by their first item, numbers as "number"."""
     if isinstance(value, dict):
         return {"type": "object", "properties": {k: _schema_of(v) for k, v in value.items()}}
     if isinstance(value, (list, tuple)):
@@ -176,4 +198,4 @@ def _schema_of(value: Any) -> dict[str, Any]:
         return {"type": "string"}
     if isinstance(value, int):
         return {"type": "integer"}
-    return {"type": ["number", "null"]}
+    return {"type": "number"}

@@ -195,7 +195,7 @@ class LiveNode(Node):
         self._counts["ticks"] += 1
         self._controller_state = int(msg.state)
         sample = live.tracking_sample(convert.planar_pose(msg.chiee)[:2], convert.planar_pose(msg.chiee_des)[:2])
-        self._e_norm = sample["e_norm"]
+        self._e_norm = sample.get("e_norm")
         t = convert.stamp_ns(msg.header.stamp)
         self._log("/live/tracking", sample, t)
         self._log("/live/actuation", lambda: live.actuation_sample(
@@ -206,7 +206,7 @@ class LiveNode(Node):
     def _on_phi_present(self, msg: PlanarActuation) -> None:
         """The measured twist from the driver."""
         self._counts["phi_present"] += 1
-        self._log("/live/phi_present", lambda: {"phi": live.numbers(msg.phi)}, convert.stamp_ns(msg.header.stamp))
+        self._log("/live/phi_present", lambda: live.phi_present_sample(msg.phi), convert.stamp_ns(msg.header.stamp))
 
     def _log(self, topic: str, payload: Any, log_time: int) -> None:
         """Log a JSON payload (or a function making it, called only when a viewer subscribes) on ``topic``."""
@@ -260,7 +260,7 @@ def _schemas() -> dict[str, dict[str, Any]]:
         "/live/actuation": live.json_schema("hsa_live.Actuation",
                                             live.actuation_sample(pair, pair, pair, pair, pair, False)),
         "/live/configuration": live.json_schema("hsa_live.Configuration", live.configuration_sample(triple, triple)),
-        "/live/phi_present": live.json_schema("hsa_live.PhiPresent", {"phi": pair}),
+        "/live/phi_present": live.json_schema("hsa_live.PhiPresent", live.phi_present_sample(pair)),
         "/live/diagnostics": live.json_schema("hsa_live.Diagnostics", table.snapshot(0.0)),
         "/live/progress": live.json_schema("hsa_live.Progress", live.progress(json.dumps(
             {"state": "", "trajectory": "", "setpoint_index": 0, "length": 1, "finished": False, "failures": 0}),

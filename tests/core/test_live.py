@@ -1,4 +1,5 @@
-"""hsa_core.live: the scene throttle, the JSON payloads of the live view (no NaN), the diagnostics table, progress."""
+"""hsa_core.live: the scene throttle, the JSON payloads of the live view (no NaN, no null), the diagnostics table,
+progress."""
 
 from __future__ import annotations
 
@@ -23,11 +24,14 @@ def test_throttle_lets_one_event_per_period_through_and_restarts_after_a_clock_r
         live.Throttle(0.0)
 
 
-def test_non_finite_numbers_become_null_so_the_json_stays_valid() -> None:
+def test_non_finite_numbers_are_left_out_so_the_json_stays_valid_and_single_typed() -> None:
     sample = live.actuation_sample([math.nan, 0.5], [math.inf, 0.6], [0.7, 0.9], [0.0, 0.0], [3.1, 3.1], True)
     text = json.dumps(sample, allow_nan=False)  # raises on NaN
-    assert json.loads(text)["phi_cmd"] == [None, 0.5] and json.loads(text)["phi_unsat"] == [None, 0.6]
-    assert sample["saturated"] is True
+    assert "null" not in text and "phi_cmd" not in sample and "phi_unsat" not in sample
+    assert sample["phi_ss"] == [0.7, 0.9] and sample["saturated"] is True
+    assert live.phi_present_sample([math.nan, 0.2]) == {} and live.phi_present_sample([0.1, 0.2]) == {"phi": [0.1, 0.2]}
+    assert live.finite({"a": {"x": None, "y": 1.0}, "b": None, "c": [1.0], "d": [None]}) == {"a": {"y": 1.0},
+                                                                                            "c": [1.0]}
 
 
 def test_tracking_error_is_reference_minus_measurement() -> None:
@@ -35,7 +39,8 @@ def test_tracking_error_is_reference_minus_measurement() -> None:
     assert sample["e"] == {"x": pytest.approx(-0.003), "y": pytest.approx(0.004)}
     assert sample["e_norm"] == pytest.approx(0.005)
     assert sample["p_ee"] == {"x": 0.003, "y": 0.110} and sample["p_des"] == {"x": 0.0, "y": 0.114}
-    assert live.tracking_sample([math.nan, 0.1], [0.0, 0.1])["e_norm"] is None
+    blind = live.tracking_sample([math.nan, 0.1], [0.0, 0.1])
+    assert "e_norm" not in blind and blind["p_ee"] == {"y": 0.1} and blind["e"] == {"y": 0.0}
 
 
 def test_configuration_sample_names_the_components() -> None:
@@ -68,15 +73,16 @@ def test_progress_line_from_the_sequencer_status_and_the_controller() -> None:
     done = json.dumps({"setpoint_index": 10, "length": 11, "finished": True, "failures": 0})
     assert live.progress(done, 3, None)["text"] == "step 11/11 · holding (stale) · finished"
     assert live.progress(None, None, None)["text"] == "no sequencer status yet · no controller_info yet"
+    assert "e_norm" not in live.progress(None, None, None)
     assert live.progress("not json", 7, None)["text"] == "no sequencer status yet · state 7"
     waiting = json.dumps({"setpoint_index": -1, "length": 11})
     assert live.progress(waiting, 0, None)["text"] == "no setpoint yet · waiting for setpoint"
 
 
-def test_json_schema_describes_the_payload() -> None:
+def test_json_schema_describes_the_payload_with_one_type_per_field() -> None:
     schema = live.json_schema("hsa_live.Tracking", live.tracking_sample([0.0, 0.1], [0.0, 0.1]))
     assert schema["title"] == "hsa_live.Tracking" and schema["type"] == "object"
-    assert schema["properties"]["p_ee"]["properties"]["x"]["type"] == ["number", "null"]
+    assert schema["properties"]["p_ee"]["properties"]["x"]["type"] == "number"  # a string: Foxglove-family viewers
     actuation = live.json_schema("a", live.actuation_sample([0, 0], [0, 0], [0, 0], [0, 0], [1, 1], False))
-    assert actuation["properties"]["phi_cmd"] == {"type": "array", "items": {"type": ["number", "null"]}}
+    assert actuation["properties"]["phi_cmd"] == {"type": "array", "items": {"type": "number"}}
     assert actuation["properties"]["saturated"] == {"type": "boolean"}

@@ -4,7 +4,9 @@ Real publishers of the graph's topics (state 200 Hz, controller_info 40 Hz, phi_
 status latched, /diagnostics 1 Hz) feed the node; the client (``websockets``) connects to 127.0.0.1, reads the
 advertised channels, subscribes to all of them and decodes what arrives: the scene with the protobuf schema the
 server advertises (as the Foxglove app does), the plots as JSON. Expected values are computed here from
-hsa_core.kinematics and the published numbers, not from hsa_core.visual or hsa_core.live.
+hsa_core.kinematics and the published numbers, not from hsa_core.visual or hsa_core.live. What arrived is then handed
+to a real viewer's own code (tools/viewer_check: the open-source Foxglove Studio's schema parser and message-path
+code, from npm), which must parse every channel and find data at every message path of the shipped layout.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import functools
 import json
 import math
 import re
+import shutil
 import struct
 import subprocess
 import threading
@@ -45,10 +48,13 @@ from tests.ros.conftest import GRAPH_STOP, LAUNCHER, ParameterClient, start_proc
 pytestmark = pytest.mark.ros
 
 LAUNCH = Path(__file__).parents[2] / "launch_scripts"
+VIEWER_CHECK = Path(__file__).parents[2] / "tools" / "viewer_check"
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 """The subprotocol foxglove-sdk 0.30 servers accept (they answer HTTP 400 to a client offering only the older
 'foxglove.websocket.v1'); the current Foxglove app offers it."""
+OLD_SUBPROTOCOL = "foxglove.websocket.v1"
+"""The only subprotocol older viewers offer (the open-source Foxglove Studio, Lichtblick 1.22.0 and older)."""
 PARAMS = load_params("fpu")
 PERIOD_NS, T0_NS = 5_000_000, 1_760_000_000 * 10**9  # 200 Hz state grid
 Q_DES = np.array([-6.0, 0.01, 0.25])
@@ -109,8 +115,9 @@ def prepared_state(i: int) -> PlanarState:
 
 
 def phi_of(i: int) -> list[float]:
-    """Commanded φ of tick i; every 10th tick sends nothing (NaN, as the controller's no-command ticks)."""
-    if i % 10 == 9:
+    """Commanded φ of state i (a tick every 5th state); every 10th tick sends nothing (NaN, as the controller's
+    no-command ticks)."""
+    if i // 5 % 10 == 9:
         return [math.nan, math.nan]
     return [0.5 + 0.4 * math.sin(0.1 * i), 1.0 + 0.3 * math.cos(0.1 * i)]
 
@@ -191,6 +198,15 @@ class Graph:
             i += 1
 
 
+async def handshake(port: int, subprotocols: list[str]) -> str | int:
+    """The subprotocol the server picks for a client offering ``subprotocols``, or the HTTP status it refuses with."""
+    try:
+        async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=subprotocols) as ws:
+            return str(ws.subprotocol)
+    except websockets.InvalidStatus as refused:
+        return refused.response.status_code
+
+
 class Session:
     """A Foxglove WebSocket client session: advertised channels and the messages received per topic."""
 
@@ -267,11 +283,31 @@ def live_node() -> Iterator[tuple[subprocess.Popen, int]]:
     assert stop_process(proc) == 0
 
 
-def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, live_node) -> None:
+@pytest.fixture(scope="module")
+def viewer_check() -> list[str]:
+    """The command running a real viewer's schema and message-path code (its pinned npm packages installed once)."""
+    assert shutil.which("node") and shutil.which("npm"), "Node.js and npm are needed for the viewer check"
+    subprocess.run(["bash", str(VIEWER_CHECK / "install.sh")], check=True, timeout=600)
+    return ["node", str(VIEWER_CHECK / "check_live_view.js")]
+
+
+def run_viewer_check(command: list[str], session: Session, layout: dict) -> dict:
+    """The viewer check's report on the advertised channels, the last 50 messages per topic and the layout."""
+    messages = {topic: [base64.b64encode(p).decode() for _, _, p in received[-50:]]
+                for topic, received in session.received.items()}
+    stdin = json.dumps({"channels": list(session.channels.values()), "messages": messages, "layout": layout})
+    result = subprocess.run(command, input=stdin, capture_output=True, text=True, timeout=120)
+    assert result.stdout, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, live_node, viewer_check) -> None:
     proc, port = live_node
     listening = [c.laddr for c in psutil.Process(proc.pid).net_connections(kind="inet")
                  if c.status == psutil.CONN_LISTEN]
     assert listening and all(a.ip == "127.0.0.1" for a in listening), listening  # loopback only
+    assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL])) == 400  # viewers offering only the old name
+    assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL, SUBPROTOCOL])) == SUBPROTOCOL
     graph = Graph(ros_node)
     graph.wait_subscribed()
     session, subscribed, done = Session(), threading.Event(), threading.Event()
@@ -349,8 +385,10 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     h = np.asarray(PARAMS.h, dtype=float)
     for t, msg in actuation.items():
         i = (t - T0_NS) // PERIOD_NS
-        expected = [None, None] if i % 10 == 9 else pytest.approx(phi_of(i), abs=1e-15)
-        assert msg["phi_cmd"] == expected  # a no-command tick is null, not NaN (invalid JSON)
+        if i // 5 % 10 == 9:  # a no-command tick has no phi_cmd (JSON has no NaN; a gap in the plot)
+            assert "phi_cmd" not in msg and "phi_unsat" not in msg, msg
+        else:
+            assert msg["phi_cmd"] == pytest.approx(phi_of(i), abs=1e-15)
         assert msg["phi_ss"] == [0.7, 0.9] and msg["saturated"] == (i % 7 == 0)
         assert msg["phi_min"] == pytest.approx(np.minimum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15)
         assert msg["phi_max"] == pytest.approx(np.maximum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15)
@@ -361,6 +399,7 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
         assert [msg["q"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(q, abs=1e-15)
         assert [msg["q_des"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(Q_DES, abs=1e-15)
     phi_present = {t for _, t, _ in session.received["/live/phi_present"]}
+    assert sum("phi_cmd" not in m for m in actuation.values()) >= 1  # a no-command tick was seen
     assert phi_present <= set(graph.published["phi_present"])
     assert len(phi_present) >= 0.5 * len(graph.published["phi_present"])  # best effort at 100 Hz, loaded machine
 
@@ -379,15 +418,19 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     panels = layout["configById"]
     assert {k.split("!")[0] for k in panels} >= {"3D", "Plot"}
     assert set(panels["3D!hsa_scene"]["topics"]) == {"/live/scene"}
-    latest = {topic: json.loads(msgs[-1][2]) for topic, msgs in session.received.items() if topic != "/live/scene"}
-    paths = [p["value"] for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]]
-    paths += [c["topicPath"] for k, c in panels.items() if "topicPath" in c]
-    for path in paths:
-        topic, _, rest = path.partition(".")
-        value = latest[topic]
-        for key, index in re.findall(r"([A-Za-z_]+)(?:\[(\d+)\])?", rest):
-            value = value[key] if index == "" else value[key][int(index)]
-        assert value is not None or path.endswith("phi_cmd[0]") or path.endswith("phi_cmd[1]"), path
+    checking = time.monotonic()
+    report = run_viewer_check(viewer_check, session, layout)
+    checking = time.monotonic() - checking
+    assert set(report["channels"]) == set(EXPECTED)
+    failed = {t: c["error"] for t, c in report["channels"].items() if not c["ok"]}
+    assert not failed, failed  # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
+    paths = {(p["panel"], p["path"]): p for p in report["paths"]}
+    plot_paths = {(k, p["value"]) for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]}
+    assert plot_paths | {(k, c["topicPath"]) for k, c in panels.items() if "topicPath" in c} <= set(paths)
+    assert {k for k, _ in paths} == set(panels)  # every panel of the layout is checked
+    assert all(p["ok"] for p in paths.values()), [p for p in paths.values() if not p["ok"]]
+    print(f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with data "
+          f"({checking:.1f} s)")
 
 
 def test_a_taken_port_is_refused_in_one_line(live_node) -> None:
@@ -423,9 +466,10 @@ def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
 
 
 @pytest.mark.slow
-def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
+def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> None:
     """sim.launch.yaml live:=true on a 2-step schedule: a client sees the simulated robot, the tracking of the
-    sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends with 0 with the graph."""
+    sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends with 0 with the graph; the real
+    viewer's code finds data at every path of the shipped layout."""
     points = [0.0, 0.112, 0.004, 0.114]  # two reachable FPU targets [m]
     config = tmp_path / "sequencer.yaml"
     config.write_text(json.dumps({"/**": {"ros__parameters": {
@@ -457,12 +501,15 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path) -> None:
     tracking = [json.loads(p) for _, _, p in session.received["/live/tracking"]]
     targets = {(m["p_des"]["x"], m["p_des"]["y"]) for m in tracking}
     assert {(0.0, 0.112), (0.004, 0.114)} <= {(round(x, 6), round(y, 6)) for x, y in targets if x is not None}
-    last = [m["e_norm"] for m in tracking if m["p_des"]["x"] is not None and round(m["p_des"]["x"], 6) == 0.004]
+    last = [m.get("e_norm") for m in tracking if m["p_des"]["x"] is not None and round(m["p_des"]["x"], 6) == 0.004]
     assert last and last[0] is not None and min(e for e in last if e is not None) < 0.5 * last[0], last
     final = [e for e in last[-20:] if e is not None]  # the simulated robot moved towards the last target (load-proof)
     scenes = session.received["/live/scene"]
     span = (scenes[-1][0] - scenes[0][0]) if len(scenes) > 1 else 0.0
     assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (len(scenes), span)  # wall rate ≤ 25 Hz (+ setpoints)
+    layout = json.loads((Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text())
+    report = run_viewer_check(viewer_check, session, layout)
+    assert all(c["ok"] for c in report["channels"].values()) and all(p["ok"] for p in report["paths"]), report
     print(f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, {len(tracking)} ticks, "
           f"final ‖e‖ {final[-1] * 1e3:.2f} mm")
 

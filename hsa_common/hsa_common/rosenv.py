@@ -22,7 +22,8 @@ from typing import IO, MutableMapping, NoReturn
 
 DISCOVERY_RANGE = "LOCALHOST"
 DOMAIN_MIN, DOMAIN_MAX = 1, 101
-"""Domains reserved for a run that has none: below Linux's ephemeral ports (docs/launch.md), 0 left to interactive use."""
+"""Domains reserved for a run that has none: below Linux's ephemeral ports (docs/launch.md); 0 is left to interactive
+use."""
 USER_DOMAINS = (range(0, 102), range(215, 233))
 """Domains a user may set: those the ROS 2 docs give as clear of Linux's default ephemeral ports (32768-60999) for
 Fast DDS's ports 7400 + 250 * domain + ...; 232 is the last whose ports fit in 16 bits (docs/launch.md)."""
@@ -53,9 +54,9 @@ def parse_domain_id(text: str) -> int:
 
 
 def _lock(domain: int) -> IO[str] | None:
-    """Take the machine-wide lock of ``domain`` (writing our pid into it), or return None if another process holds it."""
+    """Take the machine-wide lock of ``domain`` (writing our pid into it); None if another process holds it."""
     _LOCK_DIR.mkdir(parents=True, exist_ok=True)
-    handle = open(_LOCK_DIR / f"{domain}.lock", "a+")  # noqa: SIM115 - kept open on purpose; "a+" keeps the holder's pid
+    handle = open(_LOCK_DIR / f"{domain}.lock", "a+")  # noqa: SIM115 - kept open on purpose; "a+" keeps a holder's pid
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

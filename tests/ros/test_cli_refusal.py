@@ -52,13 +52,16 @@ def user_env(domain: str, tmp_path: Path) -> dict[str, str]:
     return {**env, "ROS_DOMAIN_ID": domain, "TMPDIR": str(tmp_path)}
 
 
-def test_hsa_launch_refuses_a_bad_user_domain_in_one_line(tmp_path: Path) -> None:
+@pytest.mark.parametrize("cmd", [["-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"), "--print"],
+                                 [str(LAUNCH / "run_sim_experiment.py"), "--out", "out"]])
+def test_a_bad_user_domain_is_refused_in_one_line(tmp_path: Path, cmd: list[str]) -> None:
     """ROS_DOMAIN_ID=150 (Linux's ephemeral ports) is refused before anything starts, not replaced by a reserved one."""
-    done = subprocess.run([sys.executable, "-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"), "--print"],
-                          capture_output=True, text=True, timeout=120, cwd=tmp_path, env=user_env("150", tmp_path))
+    done = subprocess.run([sys.executable, *cmd], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env=user_env("150", tmp_path))
     assert done.returncode == 2 and done.stdout == "", done.stdout[-2000:]
     assert done.stderr.count("\n") == 1 and "ROS_DOMAIN_ID='150'" in done.stderr, done.stderr[-2000:]
     assert "Traceback" not in done.stderr
+    assert not (tmp_path / "out").exists()
 
 
 def test_hsa_launch_runs_its_nodes_on_the_user_domain(tmp_path: Path) -> None:

@@ -100,7 +100,7 @@ def play(bag: Path, *args: str) -> tuple[float, int]:
         [str(BIN / "bag_player"), str(bag), "--wait-for-subscribers", "30", "--delay", "0.5", *args],
         env=rosenv.ros_environment(), capture_output=True, text=True, timeout=600,
     )  # fmt: skip
-    match = re.search(r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stdout)
+    match = re.search(r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stderr)  # its logger
     if proc.returncode != 0 or match is None:
         raise RuntimeError(f"bag_player failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return float(match.group(2)), int(match.group(1))

@@ -135,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     bag = args.out / "bag"
     if bag.exists():
         parser.error(f"{bag} exists; choose another --out")
+    domain = rosenv.apply()  # the user's ROS_DOMAIN_ID, or a reserved one; a bad one is refused before --out is made
     args.out.mkdir(parents=True, exist_ok=True)
-    domain = rosenv.apply()
     launch_args = {
         "material": args.material, "controller": args.controller, "ee_integral": str(args.ee_integral).lower(),
         "disturbance": args.disturbance, "setpoint_rate": str(args.setpoint_rate), "bag_dir": str(bag),

@@ -3,6 +3,7 @@
 # all hsa-ros packages installed. Each stage is skipped when its inputs are unchanged (stamps in .venv/.hsa_stamps).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"  # the digests' globs (hsa_msgs/msg/*.msg, ...) name files of the checkout, whatever the caller's directory
 V="$ROOT/.venv"
 PY="${HSA_PYTHON:-python3}"
 STAMPS="$V/.hsa_stamps"
@@ -15,7 +16,7 @@ exec 9> "$ROOT/build/.bootstrap.lock"
 flock 9
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
-digest() { (cd "$ROOT" && cat "$@" 2>/dev/null | sha256sum | cut -d' ' -f1); }
+digest() { cat "$@" | sha256sum | cut -d' ' -f1; }  # a missing input is an error with its name, not an empty hash
 fresh() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
 mark() { mkdir -p "$STAMPS" && printf '%s' "$2" > "$STAMPS/$1"; }
 

@@ -28,6 +28,9 @@
   instants of their own), after every message before it has been taken and the instant's timers have run. ``--rate``,
   ``--clock HZ`` and ``--busy-wait-ms`` do not apply. An instant not finished within ``barrier_timeout`` s of wall
   time (10× that for the start) is an ERROR naming what holds it, and the player exits 1.
+* **Output.** Progress goes through the node's logger (stderr, which ``ros2 launch`` shows on the screen; stdout
+  it sends to the log file only): ``ready`` once the publishers exist, then ``playing …`` and ``published …``.
+  Refusals before the node exists (bag, arguments) are one line ``bag_player: …`` on stderr.
 * **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 1 after a lockstep barrier timeout, 2 for a bad bag,
   argument or parameter.
 """
@@ -175,7 +178,7 @@ class Player:
             self.stop.wait(0.05)
         missing = [n for n, p in awaited.items() if p.get_subscription_count() == 0]
         if missing:
-            print(f"bag_player: no subscriber for {', '.join(missing)}; playing anyway", flush=True)
+            self.node.get_logger().warning(f"no subscriber for {', '.join(missing)}; playing anyway")
 
     def play(self) -> Result:
         """Publish the selected messages, pass after pass; return counts and timing."""
@@ -294,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             params = declare(node, SPECS)
         except ParameterValidationError as exc:
-            print(f"bag_player: {exc}", file=sys.stderr)
+            node.get_logger().fatal(f"refusing to start: {exc}")
             return 2
         playback = None
         if lockstep.enabled(node):
@@ -308,11 +311,13 @@ def main(argv: list[str] | None = None) -> int:
         span = (bag.end - player.first) / 1e9
         topics = ", ".join(player.topics)
         pace = f"in lockstep with {list(barrier.expected)}" if playback is not None else f"at rate {options.rate}"
-        print(f"playing {path}: {topics}; {span:.3f} s of bag time {pace}", flush=True)
+        logger = node.get_logger()
+        logger.info("ready")  # publishers and lockstep subscriptions exist, as every node's runner logs it
+        logger.info(f"playing {path}: {topics}; {span:.3f} s of bag time {pace}")
         result = player.play()
         summary = "lockstep" if playback is not None else f"latest {result.max_late * 1e3:.2f} ms behind schedule"
-        print(f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; {summary}",
-              flush=True)
+        logger.info(f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; "
+                    f"{summary}")
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -3,9 +3,10 @@
 * Streams (mocap, planar state, motor states): sensor-data profile, best effort, keep last 5. Late data is useless.
 * Commands (actuation): reliable, keep last 1 — never a queue of stale goals (reference_ros_graph.md §6, weakness 3).
 * Setpoints and the E-stop state: reliable and transient-local, keep last 1, so a late joiner gets the current one.
-* Services (``plan_setpoint``, server and clients): reliable, keep all. rclpy's default (keep last 10) let DDS overwrite
-  queued requests in a burst: of 200 back-to-back requests 12 were answered. With keep all no request or response is
-  overwritten; a full reader history makes the client's send fail loudly instead.
+* Services (``plan_setpoint``, the server and every client): reliable, keep all. With rclpy's default (keep last 10)
+  a burst of requests overwrites queued requests in the server's histories and answers in the client's own; with keep
+  all none is overwritten, and a full reader history makes the client's send fail loudly instead. A client passes
+  ``qos_profile=SERVICE`` to ``create_client`` (docs/nodes/hsa_planner_node.md, "Bursts and service QoS").
 Every publisher and subscription is created with ``OVERRIDABLE`` so a lab can change reliability/depth/durability by
 the standard ``qos_overrides.<topic>.<publisher|subscription>.<policy>`` parameters.
 """

@@ -158,7 +158,7 @@ def test_bad_measurements_never_reach_the_controller(graph, ros_node) -> None:
 def test_bad_setpoints_are_refused_and_the_previous_one_stays(graph, ros_node) -> None:
     infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
     diagnostics = DiagnosticsLog(ros_node)
-    client = ros_node.create_client(PlanSetpoint, f"{NS}/plan_setpoint")
+    client = ros_node.create_client(PlanSetpoint, f"{NS}/plan_setpoint", qos_profile=qos.SERVICE)
     assert client.wait_for_service(timeout_sec=10.0)
     requests = {
         "NaN target": (PlanSetpoint.Request(x=math.nan, y=0.12), PlanSetpoint.Response.STATUS_INVALID_REQUEST),

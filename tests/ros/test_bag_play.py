@@ -38,7 +38,7 @@ from hsa_bag import player
 from hsa_bag.bagio import Bag
 from hsa_bag.msgtypes import TypeRegistry
 from hsa_bag.storage import SplitBagWriter, read_metadata
-from hsa_common import lockstep, qos, runner
+from hsa_common import lockstep, qos, rosenv, runner
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import ControllerInfo, PlanarState
 from tests.ros.conftest import start_process, stop_process, wait_for_line
@@ -301,3 +301,16 @@ def test_lockstep_missing_participant_fails_the_start(bag: Path) -> None:
     assert proc.returncode == 1, out
     assert "lockstep barrier before simulated time started not finished after" in out, out
     assert "waiting for participants ['/hsa/nobody']" in out and "published 0 messages" in out, out
+
+
+def test_progress_goes_through_the_node_logger(bag: Path) -> None:
+    """ready, playing and published are logger lines on stderr (what ros2 launch shows); nothing is printed to stdout,
+    which ros2 launch sends to the log file only."""
+    exe = find_executable("hsa_bag", "bag_player")
+    done = subprocess.run([exe, str(bag), "--topics", INFO, "--rate", "4"], env=rosenv.ros_environment(),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == ""
+    lines = [line for line in done.stderr.splitlines() if "[bag_player]: " in line]
+    assert [line.split("]: ", 1)[1].split(" ")[0] for line in lines] == ["ready", "playing", "published"], done.stderr
+    assert "[INFO]" in lines[0] and "published 80 messages in 1 pass(es)" in lines[2], done.stderr

@@ -1,13 +1,16 @@
 """The ROS-side CLIs (hsa_launch, hsa_analyze, bag_player, run_sim_experiment.py) refuse bad arguments up front: one
-line on stderr, exit status 2, nothing started."""
+line on stderr, exit status 2, nothing started. A user's ROS_DOMAIN_ID is run on or refused, never replaced."""
 
 from __future__ import annotations
 
+import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from hsa_common import rosenv
 from hsa_common.launcher import find_executable
@@ -41,3 +44,33 @@ def test_bad_arguments_are_refused_in_one_line(tmp_path: Path, cmd: list[str], m
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr[-2000:]
     assert "Traceback" not in done.stdout + done.stderr
     assert not (tmp_path / "out").exists()
+
+
+def user_env(domain: str, tmp_path: Path) -> dict[str, str]:
+    """A user's shell that set ROS_DOMAIN_ID (no hsa-ros parent); domain locks in a private TMPDIR."""
+    env = {k: v for k, v in os.environ.items() if k not in ("HSA_ROS_ENV", "ROS_DOMAIN_ID")}
+    return {**env, "ROS_DOMAIN_ID": domain, "TMPDIR": str(tmp_path)}
+
+
+@pytest.mark.parametrize("cmd", [["-m", "hsa_common.launcher", str(LAUNCH / "sim.launch.yaml"), "--print"],
+                                 [str(LAUNCH / "run_sim_experiment.py"), "--out", "out"]])
+def test_a_bad_user_domain_is_refused_in_one_line(tmp_path: Path, cmd: list[str]) -> None:
+    """ROS_DOMAIN_ID=150 (Linux's ephemeral ports) is refused before anything starts, not replaced by a reserved one."""
+    done = subprocess.run([sys.executable, *cmd], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env=user_env("150", tmp_path))
+    assert done.returncode == 2 and done.stdout == "", done.stdout[-2000:]
+    assert done.stderr.count("\n") == 1 and "ROS_DOMAIN_ID='150'" in done.stderr, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_hsa_launch_runs_its_nodes_on_the_user_domain(tmp_path: Path) -> None:
+    """With ROS_DOMAIN_ID=7 the launched process's rclpy context is on domain 7."""
+    probe = "import rclpy; rclpy.init(); print('domain', rclpy.get_default_context().get_domain_id(), flush=True)"
+    graph = tmp_path / "probe.launch.yaml"
+    graph.write_text(yaml.safe_dump({"launch": [{"executable": {
+        "cmd": shlex.join([sys.executable, "-c", probe]), "name": "probe", "output": "screen"}}]}))
+    done = subprocess.run([sys.executable, "-m", "hsa_common.launcher", str(graph)], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path, env=user_env("7", tmp_path))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "domain 7\n" in done.stdout, done.stdout[-2000:]

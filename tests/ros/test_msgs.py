@@ -7,6 +7,7 @@ import time
 import numpy as np
 import pytest
 
+from hsa_common import qos
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 from hsa_msgs.srv import CalibrateRestStrain, PlanSetpoint
 
@@ -31,7 +32,7 @@ def test_message_and_service_between_processes(peer, ros_node) -> None:
     peer("msgs_peer")
     received: list[PlanarState] = []
     ros_node.create_subscription(PlanarState, "state", received.append, 10)
-    client = ros_node.create_client(PlanSetpoint, "plan")
+    client = ros_node.create_client(PlanSetpoint, "plan", qos_profile=qos.SERVICE)
     assert client.wait_for_service(timeout_sec=10.0), "plan service of the peer process not discovered"
 
     deadline = time.monotonic() + 10.0

@@ -56,7 +56,7 @@ def _sequencer(ns: str, *params: str) -> object:
 def test_plan_setpoint_service(planner, ros_node) -> None:
     diagnostics: list[DiagnosticArray] = []
     ros_node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
-    client = ros_node.create_client(PlanSetpoint, "/plan_setpoint")
+    client = ros_node.create_client(PlanSetpoint, "/plan_setpoint", qos_profile=qos.SERVICE)
     assert client.wait_for_service(timeout_sec=10.0)
 
     ok = client.call(PlanSetpoint.Request(x=P_DES[0], y=P_DES[1]), timeout_sec=10.0)

@@ -42,15 +42,16 @@ def group_of(name: str) -> str | None:
     return member.group(1) if member else None
 
 
-def owned_by(pid: int | str) -> set[str]:
+def owned_by(pid: int | str, directory: Path = SHM_DIR) -> set[str]:
     """The groups whose lock file process ``pid`` holds open: its participant's segment and the ports it reads."""
-    return {group_of(name) for name in used_by(pid) if name.endswith(("_el", "_sl"))}
+    return {group_of(name) for name in used_by(pid, directory) if name.endswith(("_el", "_sl"))}
 
 
-def used_by(pid: int | str) -> set[str]:
-    """Names of the Fast DDS files in /dev/shm that process ``pid`` maps or has open (empty if it cannot be read)."""
+def used_by(pid: int | str, directory: Path = SHM_DIR) -> set[str]:
+    """Names of the Fast DDS files in ``directory`` that process ``pid`` maps or has open (empty if it cannot be
+    read)."""
     names: set[str] = set()
-    prefix = f"{SHM_DIR}/"
+    prefix = f"{directory}/"
     try:
         with open(f"/proc/{pid}/maps") as maps:
             for line in maps:
@@ -69,24 +70,24 @@ def used_by(pid: int | str) -> set[str]:
     return {name for name in names if _MEMBER.match(name)}
 
 
-def in_use() -> set[str]:
-    """Names of the Fast DDS files in /dev/shm that any live process maps or has open."""
+def in_use(directory: Path = SHM_DIR) -> set[str]:
+    """Names of the Fast DDS files in ``directory`` that any live process maps or has open."""
     names: set[str] = set()
     for entry in os.listdir("/proc"):
         if entry.isdigit():
-            names |= used_by(entry)
+            names |= used_by(entry, directory)
     return names
 
 
-def owned() -> set[str]:
+def owned(directory: Path = SHM_DIR) -> set[str]:
     """The groups whose lock file a live process holds open."""
-    return {group_of(name) for name in in_use() if name.endswith(("_el", "_sl"))}
+    return {group_of(name) for name in in_use(directory) if name.endswith(("_el", "_sl"))}
 
 
-def remove_unused(grace: float = GRACE) -> list[str]:
+def remove_unused(grace: float = GRACE, directory: Path = SHM_DIR) -> list[str]:
     """Remove the Fast DDS file groups no live process uses (rules in the module docstring); the names removed."""
     try:
-        entries = os.listdir(SHM_DIR)
+        entries = os.listdir(directory)
     except OSError:
         return []
     groups: dict[str, list[str]] = defaultdict(list)
@@ -94,30 +95,31 @@ def remove_unused(grace: float = GRACE) -> list[str]:
         base = group_of(name)
         if base is not None:
             groups[base].append(name)
-    used = in_use()
+    used = in_use(directory)
     removed: list[str] = []
     for base, names in groups.items():
-        locks = [name for name in names if name.endswith(("_el", "_sl"))]
-        if used.intersection(locks or names) or not _old_and_ours(names, grace):
+        locks = [directory / name for name in names if name.endswith(("_el", "_sl"))]
+        paths = [directory / name for name in names]
+        if used.intersection(path.name for path in locks or paths) or not _old_and_ours(paths, grace):
             continue
         with _PortMutex(base) as free:
-            if not free or any(_locked(name) for name in locks):
+            if not free or any(_locked(lock) for lock in locks):
                 continue
             for name in sorted(names, key=lambda n: n.startswith("sem.")):  # the semaphore last
                 try:
-                    os.remove(SHM_DIR / name)
+                    os.remove(directory / name)
                     removed.append(name)
                 except FileNotFoundError:
                     pass
     return removed
 
 
-def _old_and_ours(names: list[str], grace: float) -> bool:
+def _old_and_ours(paths: list[Path], grace: float) -> bool:
     """Every file is ours and older than ``grace`` seconds."""
     newest = time.time() - grace
-    for name in names:
+    for path in paths:
         try:
-            stat = os.stat(SHM_DIR / name)
+            stat = os.stat(path)
         except FileNotFoundError:
             continue
         if stat.st_uid != os.getuid() or max(stat.st_mtime, stat.st_ctime) > newest:
@@ -125,10 +127,10 @@ def _old_and_ours(names: list[str], grace: float) -> bool:
     return True
 
 
-def _locked(name: str) -> bool:
-    """Whether another process holds an flock on the lock file ``name`` (Fast DDS: its owner is alive)."""
+def _locked(path: Path) -> bool:
+    """Whether another process holds an flock on the lock file (Fast DDS: its owner is alive)."""
     try:
-        fd = os.open(SHM_DIR / name, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
     except FileNotFoundError:
         return False
     try:

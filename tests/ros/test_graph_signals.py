@@ -73,11 +73,15 @@ class Graph:
         self.files = {name for name in os.listdir(fastdds_shm.SHM_DIR) if fastdds_shm.group_of(name) in owned}
         assert self.files, "the driver owns no Fast DDS shared-memory file"
 
-    def hang_up(self) -> None:
-        """Close the terminal: the kernel sends SIGHUP to its session leader, the launcher."""
+    def stop_reading(self) -> None:
+        """Stop draining the terminal (before it is closed)."""
         self._open = False
         self._reader.join(timeout=2.0)
+
+    def hang_up(self) -> None:
+        """Close the terminal: the kernel sends SIGHUP to its session leader, the launcher."""
         os.close(self.master)
+        self.master = -1
 
     def ended(self) -> bool:
         """Every process of the graph has ended (the launcher is reaped here; a reparented child counts when dead)."""
@@ -111,7 +115,8 @@ class Graph:
             if alive(pid):
                 os.kill(pid, signal.SIGKILL)
         self.launcher.wait(timeout=10.0)
-        if self._open:
+        self.stop_reading()
+        if self.master >= 0:
             self.hang_up()
         self.emulator.stop()
 
@@ -138,6 +143,7 @@ def test_hangup_and_a_killed_launcher_turn_torque_off_and_end_the_graph_and_its_
         figures["graph_sigkill"] = f"{len(removed)} unused files removed, none of the three live graphs'"
         for case in cases[:3]:
             graph = graphs[case]
+            graph.stop_reading()
             sent = time.monotonic()
             if case == "launcher_sigkill":
                 graph.launcher.kill()

@@ -26,6 +26,7 @@ Fast DDS shared-memory files that no live process uses (left by killed processes
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import re
@@ -34,6 +35,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import termios
 import threading
 import time
 from collections import deque
@@ -286,6 +288,8 @@ class Launcher:
         """A stop signal: forward SIGINT to the children at once (torque-off must not wait for the poll loop)."""
         self._stop_requested = True
         self._interrupt([p for p in self.procs if p.popen is not None and p.popen.poll() is None])
+        if signum == signal.SIGHUP:
+            _leave_dead_terminal()
 
     def _interrupt(self, procs: list[Process]) -> None:
         """SIGINT each process once: a second one could land in its interpreter teardown, where it kills."""
@@ -363,6 +367,19 @@ class Launcher:
             if _failure(code):
                 worst = worst or _exit_status(code)
         return worst
+
+
+def _leave_dead_terminal() -> None:
+    """Point stdout and stderr at /dev/null where they are a terminal that was hung up (EIO): the rest of the process
+    (the launcher's report, run_sim_experiment.py's analysis) then runs to its end instead of failing on a write."""
+    for fd in (1, 2):
+        try:
+            termios.tcgetattr(fd)
+        except termios.error as exc:
+            if exc.args[0] == errno.EIO:  # a pipe or a file answers ENOTTY
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, fd)
+                os.close(null)
 
 
 def _print(line: str, stream: str) -> None:

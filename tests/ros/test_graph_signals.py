@@ -156,6 +156,8 @@ def test_hangup_and_a_killed_launcher_turn_torque_off_and_end_the_graph_and_its_
             off = torque_off_time(graph.emulator, sent)
             assert off is not None and torque(graph.emulator) == {False}, f"{case}: torque stayed on\n{graph.text()}"
             assert not graph.unreleased(), f"{case}: Fast DDS files left in /dev/shm: {graph.unreleased()}"
+            if case != "launcher_sigkill":  # it reported to a closed terminal and still stopped the graph cleanly
+                assert graph.launcher.returncode == 0, f"{case}: launcher exit {graph.launcher.returncode}"
             figures[case] = f"torque off {(off - sent) * 1e3:.1f} ms, every process gone {gone:.2f} s after it"
     finally:
         for graph in graphs.values():

@@ -12,6 +12,7 @@ progress line per step; the nodes' output goes to ``<out>/graph.log`` unless ``-
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
@@ -112,6 +113,9 @@ def _gains_file(text: str) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the graph, then analyse its bag; exit code 0 only if both succeeded."""
+    for sig in (signal.SIGHUP, signal.SIGQUIT):  # a closed terminal ends the run like Ctrl-C (unless nohup); the
+        if signal.getsignal(sig) != signal.SIG_IGN:  # launcher's own handlers take over while the graph runs
+            signal.signal(sig, signal.default_int_handler)
     configure_jax()
     parser = cli.ArgumentParser(prog="run_sim_experiment.py", description=__doc__.splitlines()[0])
     parser.add_argument("--material", choices=["fpu", "epu"], default="fpu")

@@ -16,13 +16,17 @@ A node's executable is ``<prefix>/lib/<pkg>/<exec>`` on AMENT_PREFIX_PATH, as ``
 (tools/bootstrap.sh lays the venv out that way). Every process gets the project ROS environment (hsa_core.rosenv) and
 stays in the launcher's process group, so SIGINT to the group stops all of them. Fail fast: a process that exits
 non-zero while the graph runs stops the graph; the launcher names it with its last error line and exits with its
-code. On SIGINT/SIGTERM to the launcher, or when an ``on_exit: shutdown`` process ends, the launcher sends SIGINT to
-every child, then SIGTERM after ``--sigterm-timeout`` and SIGKILL after ``--sigkill-timeout``; nothing is orphaned.
+code. On SIGINT, SIGTERM, SIGHUP (terminal closed) or SIGQUIT to the launcher, or when an ``on_exit: shutdown``
+process ends, the launcher sends SIGINT to every child, then SIGTERM after ``--sigterm-timeout`` and SIGKILL after
+``--sigkill-timeout``. A launcher killed outright cannot: its children get SIGTERM from the kernel then
+(``HSA_PARENT_PID``, :mod:`hsa_common.parent_death`). Before starting and after stopping, the launcher removes the
+Fast DDS shared-memory files that no live process uses (left by killed processes; :mod:`hsa_common.fastdds_shm`).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import re
@@ -31,6 +35,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import termios
 import threading
 import time
 from collections import deque
@@ -40,13 +45,15 @@ from typing import Any, BinaryIO
 
 import yaml
 
-from hsa_common import rosenv
+from hsa_common import fastdds_shm, parent_death, rosenv
 from hsa_core import cli
 
 _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+"""Signals that stop the graph (SIGHUP only where it was not ignored at start, as under nohup)."""
 
 # The keys the real parsers read (launch 3.4.3 ExecuteProcess/DeclareLaunchArgument/SetLaunchConfiguration.parse,
 # launch_ros 0.26.6 Node.parse; launch_yaml refuses any other key of an action with "Unexpected key(s) found in").
@@ -278,9 +285,11 @@ class Launcher:
         self._interrupted: set[int] = set()  # pids of the children sent SIGINT
 
     def _request_stop(self, signum: int, _frame: object) -> None:
-        """SIGINT/SIGTERM: forward SIGINT to the children at once (torque-off must not wait for the poll loop)."""
+        """A stop signal: forward SIGINT to the children at once (torque-off must not wait for the poll loop)."""
         self._stop_requested = True
         self._interrupt([p for p in self.procs if p.popen is not None and p.popen.poll() is None])
+        if signum == signal.SIGHUP:
+            _leave_dead_terminal()
 
     def _interrupt(self, procs: list[Process]) -> None:
         """SIGINT each process once: a second one could land in its interpreter teardown, where it kills."""
@@ -292,8 +301,11 @@ class Launcher:
     def run(self) -> int:
         """Start everything, wait for a stop condition, stop everything; return the failed or worst exit code."""
         env = rosenv.ros_environment()  # inherits this process's reserved domain (rosenv.apply in main)
-        signal.signal(signal.SIGINT, self._request_stop)
-        signal.signal(signal.SIGTERM, self._request_stop)
+        env[parent_death.PARENT_ENV] = str(os.getpid())  # the children's check that this launcher still lives
+        for sig in STOP_SIGNALS:
+            if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
+                signal.signal(sig, self._request_stop)
+        self._remove_unused_shm()
         for proc in self.procs:
             self._say(f"[launch] starting {proc.name}: {shlex.join(proc.cmd)}")
             proc.popen = subprocess.Popen(proc.cmd, env=env, stderr=subprocess.PIPE, stdout=self.log)
@@ -308,9 +320,10 @@ class Launcher:
             time.sleep(0.05)
         if failed is not None:
             failed.pump.join(timeout=2.0)  # its last lines, before they are named
-            print(f"[launch] error: {failed.name} exited with {failed.popen.returncode}: {failed.message()}; "
-                  f"stopping the graph", file=sys.stderr, flush=True)
+            _print(f"[launch] error: {failed.name} exited with {failed.popen.returncode}: {failed.message()}; "
+                   f"stopping the graph", "stderr")
         worst = self.stop()
+        self._remove_unused_shm()
         return _exit_status(failed.popen.returncode) if failed is not None else worst
 
     def _say(self, line: str) -> None:
@@ -319,7 +332,17 @@ class Launcher:
             self.log.write(line.encode() + b"\n")
             self.log.flush()
         else:
-            print(line, flush=True)
+            _print(line, "stdout")
+
+    def _remove_unused_shm(self) -> None:
+        """Remove the Fast DDS shared-memory files no live process uses (best effort: it never stops a launch)."""
+        try:
+            removed = fastdds_shm.remove_unused()
+        except OSError as exc:
+            self._say(f"[launch] could not check /dev/shm for unused Fast DDS files: {exc}")
+            return
+        if removed:
+            self._say(f"[launch] removed {len(removed)} Fast DDS shared-memory files that no live process uses")
 
     def stop(self) -> int:
         """SIGINT all children, escalate after timeouts, and report how each ended."""
@@ -344,6 +367,28 @@ class Launcher:
             if _failure(code):
                 worst = worst or _exit_status(code)
         return worst
+
+
+def _leave_dead_terminal() -> None:
+    """Point stdout and stderr at /dev/null where they are a terminal that was hung up (EIO): the rest of the process
+    (the launcher's report, run_sim_experiment.py's analysis) then runs to its end instead of failing on a write."""
+    for fd in (1, 2):
+        try:
+            termios.tcgetattr(fd)
+        except termios.error as exc:
+            if exc.args[0] == errno.EIO:  # a pipe or a file answers ENOTTY
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, fd)
+                os.close(null)
+
+
+def _print(line: str, stream: str) -> None:
+    """Print a line to sys.``stream``; once the terminal is closed (EIO) the stream goes to /dev/null instead: a
+    hung-up terminal must neither stop the launcher half-way through stopping the graph nor fail its exit."""
+    try:
+        print(line, file=getattr(sys, stream), flush=True)
+    except OSError:
+        setattr(sys, stream, open(os.devnull, "w"))  # noqa: SIM115 - for the rest of the process
 
 
 def _failure(code: int | None) -> bool:

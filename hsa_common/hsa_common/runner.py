@@ -1,18 +1,23 @@
 """Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown that always runs.
 
-``run(MyNode)`` returns the process exit code: 0 after SIGINT/SIGTERM or when the node shuts its context down, 2 when
+``run(MyNode)`` returns the process exit code: 0 after a stop signal or when the node shuts its context down, 2 when
 the parameters are refused at start (the error names the parameter, or the parameter file rcl cannot parse), 1 after
-an uncaught exception. In every case the node's ``on_shutdown()`` hook runs before the process exits — the driver
-turns torque off there.
+an uncaught exception or when the launcher that started it has already ended. In every case the node's
+``on_shutdown()`` hook runs before the process exits — the driver turns torque off there.
+
+Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) all stop the
+node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. The node also stops when the process that
+started it ends, even by SIGKILL: the kernel sends it SIGTERM then (:mod:`hsa_common.parent_death`).
 
 Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python ``SingleThreadedExecutor`` for
 our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
-SIGINT/SIGTERM only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
+The stop signals only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
 interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
 Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority (``TEARDOWN_NICE``): when a whole graph stops
 at once on two cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind them.
 
-After its hook and rclpy's shutdown a node leaves with ``os._exit``: what must persist is persisted by then, and the
+After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its Fast DDS
+shared-memory files from /dev/shm) a node leaves with ``os._exit``: what must persist is persisted by then, and the
 interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1 s without it), past the launcher's SIGTERM.
 rclpy's shutdown itself is bounded (``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so
 past the limit the node prints every thread's stack and a C-level timer ends it with its exit code
@@ -44,10 +49,11 @@ from rclpy.executors import (
     TimeoutException,
 )
 from rclpy.experimental import EventsExecutor
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from hsa_common import exit_deadline, lockstep, rosenv
+from hsa_common import exit_deadline, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError
 
 TEARDOWN_NICE = 5
@@ -63,6 +69,8 @@ milliseconds, but beside busy processes a planner_node once hung in it until the
 SIGKILLed two other nodes after the same 25 s)."""
 TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+"""Signals that stop a node like Ctrl-C (torque off first)."""
 STUCK_AFTER = 10.0
 """[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
 well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
@@ -75,11 +83,16 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     """Create the node with ``node_factory``, spin it until shutdown and end the process with its exit code (see the
     module docstring); returns only when the node could not be created."""
     rosenv.ensure_for_node()
+    tie = parent_death.tie_to_parent(signal.SIGTERM)  # before the SIGHUP handler: an ignored SIGHUP means nohup
     stop: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    for sig in STOP_SIGNALS:
+        if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
+            signal.signal(sig, lambda signum, _frame: stop.append(signum))
     watch_stop()
     logger = rclpy.logging.get_logger(name)
+    if tie is parent_death.Tie.ORPHANED:
+        logger.fatal(f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already ended")
+        return 1
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RCLError as exc:  # malformed command line or parameter file: rcl names it
@@ -128,11 +141,16 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
             faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
         exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else int(getattr(node, "exit_code", 0)))
         node.destroy_node()
+        if isinstance(node, LifecycleNode):
+            node._state_machine.destroy_when_not_in_use()  # holds the node handle; rclpy's destroy_node leaves it
         rclpy.try_shutdown()
         faulthandler.cancel_dump_traceback_later()
     code = int(getattr(node, "exit_code", 0))
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except OSError:
+            pass  # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
     os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
 
 
@@ -156,7 +174,7 @@ def spin_lockstep(executor: Executor, participant: lockstep.Participant | None, 
 
 
 def watch_stop() -> None:
-    """Arm the stuck-stop report: a thread that learns of the first SIGINT/SIGTERM from the interpreter's wakeup fd,
+    """Arm the stuck-stop report: a thread that learns of the first stop signal from the interpreter's wakeup fd,
     which the C-level handler writes even while the main thread is blocked in rcl or DDS and runs no Python."""
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)

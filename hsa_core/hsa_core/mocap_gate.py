@@ -12,8 +12,9 @@ in this order; the first that fails rejects the sample and leaves the state unch
 ``duplicate``    stamp equal to the newest accepted stamp
 ``out_of_order`` stamp older than the newest accepted stamp
 ``no_base``      the frame chain needs a measured base pose and none was accepted yet (:attr:`BaseMode.WAITING`)
-``base_stale``   the frame chain needs a measured base pose and none was accepted for base_timeout
-                 (:attr:`BaseMode.STALE`): a stale base is never used
+``base_stale``   the frame chain needs a measured base pose and the newest accepted one is more than base_timeout
+                 older than this sample's stamp, or none arrived for base_timeout (:attr:`BaseMode.STALE`): a stale
+                 base is never used
 ``workspace``    χ_ee outside the plausibility box
 ``jump``         χ_ee moved faster than max_speed / max_angular_speed since the newest accepted sample
 
@@ -97,7 +98,7 @@ class Sample(NamedTuple):
 
 
 class Verdict(NamedTuple):
-    """Outcome of one check: reason is None (and chiee set for a platform sample) when accepted, else reason and text."""
+    """Outcome of one check: reason None when accepted (chiee set for a platform sample), else the reason and a text."""
 
     reason: str | None
     text: str
@@ -137,18 +138,23 @@ class MocapGate:
         self.base_stamp_ns, self.base_at_ns = sample.stamp_ns, now_ns
         return Verdict(None, "")
 
-    def base_mode(self, now_ns: int) -> BaseMode:
-        """Whether the frame chain has a usable base pose at ``now_ns`` (see :class:`BaseMode`)."""
+    def base_mode(self, now_ns: int, stamp_ns: int | None = None) -> BaseMode:
+        """Whether the frame chain has a usable base pose at ``now_ns`` (see :class:`BaseMode`), for a platform sample
+        stamped ``stamp_ns`` if given."""
         self._follow_clock(now_ns)
         if not self.chain.use_base_orientation:
             return BaseMode.FIXED
         if self.base is None:
             return BaseMode.WAITING
-        return BaseMode.STALE if self.base_silence(now_ns) > self.config.base_timeout else BaseMode.LIVE
+        return BaseMode.STALE if self.base_age(now_ns, stamp_ns) > self.config.base_timeout else BaseMode.LIVE
 
-    def base_silence(self, now_ns: int) -> float:
-        """[s] since the newest accepted base sample (later of its arrival and stamp); inf if none."""
-        return _silence(now_ns, self.base_at_ns, self.base_stamp_ns)
+    def base_age(self, now_ns: int, stamp_ns: int | None = None) -> float:
+        """[s] since the newest accepted base sample (later of its arrival and stamp), and at least its stamp's lag
+        behind ``stamp_ns`` if given (one mocap clock: no offset; no queueing delay); inf if none."""
+        age = _silence(now_ns, self.base_at_ns, self.base_stamp_ns)
+        if stamp_ns is None or self.base_stamp_ns is None:
+            return age
+        return max(age, (stamp_ns - self.base_stamp_ns) * 1e-9)
 
     def silence(self, now_ns: int) -> float:
         """[s] since the newest accepted platform sample (later of its arrival and stamp); inf if none."""
@@ -170,11 +176,11 @@ class MocapGate:
         verdict = self._stamp_verdict(sample, now_ns, self.last_stamp_ns)
         if verdict is not None:
             return verdict
-        mode = self.base_mode(now_ns)
+        mode = self.base_mode(now_ns, sample.stamp_ns)
         if mode is BaseMode.WAITING:
             return Verdict("no_base", "no valid base pose yet")
         if mode is BaseMode.STALE:
-            return Verdict("base_stale", f"no valid base pose for {self.base_silence(now_ns):.3g} s "
+            return Verdict("base_stale", f"newest valid base pose {self.base_age(now_ns, sample.stamp_ns):.3g} s old "
                                          f"(base_timeout {self.config.base_timeout} s)")
         base_position, base_quaternion = self.base if mode is BaseMode.LIVE else (self.base_position, None)
         chiee = mocap.world_to_planar(base_position, sample.position, sample.quaternion, self.chain, base_quaternion)

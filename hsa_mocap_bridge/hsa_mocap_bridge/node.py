@@ -242,11 +242,11 @@ class MocapBridge(Node):
             "last_rejection": self._last_base_rejection,
         }
         if mode is not BaseMode.WAITING:
-            values["time_since_last_base_s"] = round(self._gate.base_silence(now), 4)
+            values["time_since_last_base_s"] = round(self._gate.base_age(now), 4)
         level, message = {
             BaseMode.WAITING: (WARN, "waiting: no valid base pose yet, platform poses dropped (no_base)"),
             BaseMode.LIVE: (OK, "live: measured base pose in use"),
-            BaseMode.STALE: (ERROR, f"stale: no valid base pose for {self._gate.base_silence(now):.3g} s, platform "
+            BaseMode.STALE: (ERROR, f"stale: no valid base pose for {self._gate.base_age(now):.3g} s, platform "
                                     "poses dropped (base_stale)"),
         }[mode]
         self._base_level = log_level_change(self.get_logger(), self._base_level, level, message)

@@ -165,6 +165,17 @@ def test_a_stale_base_is_never_used_and_a_fresh_one_restores_the_stream():
     assert g.check(sample(now), now + 1_000_000).reason is None
 
 
+def test_a_base_pose_processed_late_is_judged_by_its_stamp():
+    """A base sample that waited in a queue arrives fresh by the clock, but the platform sample it would be combined
+    with is stamped more than base_timeout after it: that base is stale for it."""
+    g = based(base_timeout=0.25)
+    now = T0 + 400_000_000
+    assert g.base_sample(sample(T0 + 100_000_000, (0.0, 0.0, 0.0)), now).reason is None  # 0.3 s in a queue
+    assert g.check(sample(T0 + 340_000_000), now).reason is None  # 0.24 s after the base's stamp
+    verdict = g.check(sample(T0 + 360_000_000), now + 1_000_000)  # 0.26 s after it
+    assert verdict.reason == "base_stale" and "0.26 s old" in verdict.text
+
+
 def test_clock_going_back_drops_the_base_too():
     g = based()
     restart = T0 - 10 * 10**9

@@ -134,11 +134,13 @@ class SetpointValidator:
 
 
 class DelayGate:
-    """Flags samples delayed by more than max_lag [s] beyond the promptest of the last `history` arrivals.
+    """Flags samples delayed by more than max_lag [s] beyond the promptest of the last `history` timely arrivals.
 
     latency = arrival time - stamp (any constant clock offset cancels); a sample is late when its latency exceeds the
-    minimum latency of the last `history` arrivals (late ones included, so a permanent latency step is accepted again
-    after `history` samples) by more than max_lag. Times are int nanoseconds.
+    reference, the minimum latency of the last `history` samples that were not late, by more than max_lag. A late
+    sample becomes a reference only as part of a new steady level: `history` late samples in a row whose latencies stay
+    within max_lag of each other (a permanent latency step, e.g. a clock stepped at the source) replace the reference.
+    A stall's backlog never does: its latencies fall by about a sample period per sample. Times are int nanoseconds.
     """
 
     def __init__(self, max_lag: float, history: int) -> None:
@@ -148,20 +150,27 @@ class DelayGate:
         self.max_lag_ns = int(max_lag * 1e9)
         self._latencies: deque[tuple[int, int]] = deque()  # (index, latency) with increasing latencies: running min
         self._history = history
-        self._index = 0
+        self._index = 0  # timely samples seen
+        self._level: tuple[int, int, int] | None = None  # late samples in a row: (count, lowest, highest latency)
 
-    def lag(self, stamp_ns: int, arrival_ns: int) -> float:
-        """Record one arrival; return its lag [s] behind the promptest recent sample (0 for the promptest)."""
+    def late(self, stamp_ns: int, arrival_ns: int) -> bool:
+        """Record one arrival; True if it is more than max_lag behind the reference (never when disabled)."""
         latency = arrival_ns - stamp_ns
+        if self.max_lag_ns > 0 and self._latencies and latency - self._latencies[0][1] > self.max_lag_ns:
+            count, low, high = self._level or (0, latency, latency)
+            low, high = min(low, latency), max(high, latency)
+            if high - low > self.max_lag_ns:  # not one level: start a new run at this sample
+                count, low, high = 0, latency, latency
+            if count + 1 < self._history:
+                self._level = (count + 1, low, high)
+                return True
+            self._latencies.clear()  # a steady new level: it is the reference from now on
+            latency = low
+        self._level = None
         while self._latencies and self._latencies[-1][1] >= latency:
             self._latencies.pop()
         self._latencies.append((self._index, latency))
         while self._latencies[0][0] <= self._index - self._history:
             self._latencies.popleft()
         self._index += 1
-        return (latency - self._latencies[0][1]) * 1e-9
-
-    def late(self, stamp_ns: int, arrival_ns: int) -> bool:
-        """Record one arrival; True if it is more than max_lag behind (never when the gate is disabled)."""
-        lag = self.lag(stamp_ns, arrival_ns)
-        return self.max_lag_ns > 0 and lag * 1e9 > self.max_lag_ns
+        return False

@@ -6,7 +6,9 @@ full (after start-up or a stamp gap) ``velocity_valid`` is false and both rates 
 the estimator rejects (non-finite, duplicate or out-of-order stamps) produce no ``state`` and are counted on
 /diagnostics. So are samples whose state would go out more than ``max_lag`` later, relative to their stamp, than the
 promptest of the last second (hsa_core.validation.DelayGate: samples queued, or in flight, while this node was
-stalled, which would otherwise come out as an old state with a valid velocity); they still enter the window. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
+stalled, which would otherwise come out as an old state with a valid velocity); they still enter the window. The gate
+judges before ``publish()``: a node stopped inside the write still delivers that state late, so consumers judge age
+by stamp. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
 """
 
 from __future__ import annotations

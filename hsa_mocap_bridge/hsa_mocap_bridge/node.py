@@ -1,10 +1,10 @@
 """mocap_bridge: motion-capture PoseStamped of the platform (and base) rigid bodies → validated planar pose ``ee_pose``.
 
 Each platform sample goes through the check chain of ``hsa_core.mocap_gate`` (frame_id, non-finite values, quaternion,
-stale/future/duplicate/out-of-order stamp against the node clock, missing base, workspace box, jump), is projected to
-χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published with its mocap stamp in frame
-``hsa_base``. Every drop is counted per reason on /diagnostics and logged at most every 5 s. Parameters and topics:
-docs/nodes/hsa_mocap_bridge.md.
+stale/future/duplicate/out-of-order stamp against the node clock, missing or stale base, workspace box, jump), is
+projected to χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published with its mocap stamp in frame
+``hsa_base``. Base samples (``use_base_pose``) go through the same frame, value and stamp checks. Every drop is counted
+per reason on /diagnostics and logged at most every 5 s. Parameters and topics: docs/nodes/hsa_mocap_bridge.md.
 """
 
 from __future__ import annotations
@@ -21,11 +21,12 @@ from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_lev
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core import mocap
-from hsa_core.mocap_gate import MAX_FUTURE, REASONS, GateConfig, MocapGate, Sample
+from hsa_core.mocap_gate import BASE_REASONS, MAX_FUTURE, REASONS, BaseMode, GateConfig, Health, MocapGate, Sample
 from hsa_core.rate_meter import RateMeter
 from hsa_msgs.msg import PlanarPoseStamped
 
 FRAME_ID = "hsa_base"
+GAP_PERIODS = 3  # nominal mocap periods of silence reported as WARN
 
 
 def _unit_quaternion(value: list[float]) -> str | None:
@@ -75,6 +76,8 @@ SPECS = (
               low=0.0, high=1.0),
     ParamSpec("stale_timeout", 0.25, "[s] diagnostics ERROR when no sample was accepted for this long",
               low=0.001, high=60.0),
+    ParamSpec("base_timeout", 0.25, "[s] with use_base_pose: platform samples are dropped (base_stale) when no base "
+              "sample was accepted for this long", low=0.001, high=60.0),
     ParamSpec("max_jump", 0.02,
               "[m] largest plausible EE position change per mocap period, scaled by the time since the last "
               "accepted sample; 0 disables", low=0.0, high=1.0),
@@ -113,11 +116,12 @@ class MocapBridge(Node):
         self._gate: MocapGate | None = None
         self._configure()
         guard_updates(self, SPECS, self._update)
-        self._counts = dict.fromkeys(("received", "published", "base_received", "base_rejected", *REASONS), 0)
-        self._last_rejection = ""
-        self._last_accepted_at: int | None = None  # node-clock time [ns] the newest accepted sample arrived
+        self._counts = dict.fromkeys(("received", "published", *REASONS), 0)
+        self._base_counts = dict.fromkeys(("received", "accepted", *BASE_REASONS), 0)
+        self._last_rejection = self._last_base_rejection = ""
         self._rest: str | None = None  # rest-check result: None = pending, "" = fine, else the problem
         self._level: bytes | None = None  # diagnostics level last reported
+        self._base_level: bytes | None = None
         self._rates = RateMeter(self.get_clock().now().nanoseconds)
         self._pub = self.create_publisher(
             PlanarPoseStamped, "ee_pose", qos.SENSOR, qos_overriding_options=qos.overridable())
@@ -128,27 +132,28 @@ class MocapBridge(Node):
                                      qos_overriding_options=qos.overridable())
         self._diagnostics = Diagnostics(self, self._p["diagnostics_period"], hardware_id="mocap")
         self._diagnostics.add("platform", self._report)
+        if self._p["use_base_pose"]:
+            self._diagnostics.add("base", self._base_report)
         if self._p["rest_check"]:
             self._diagnostics.add("rest pose", self._rest_report)
 
     def _configure(self) -> None:
         """Build the check chain (bounds, frame chain, workspace box) from the current parameter values, keeping the
-        references (newest accepted stamp and pose, base pose) of the previous one."""
+        references (newest accepted stamps, poses and arrival times) of the previous one."""
         p = self._p
         rate = p["mocap_rate"]  # bounds per period → speed bounds; a bound of 0 disables (→ inf)
         config = GateConfig(
             frame_id=p["frame_id"], quaternion_tolerance=p["quaternion_tolerance"], max_age=p["max_age"],
             max_future=p["max_future"], max_speed=p["max_jump"] * rate or math.inf,
             max_angular_speed=p["max_jump_angle"] * rate or math.inf,
-            workspace=mocap.WorkspaceBox(tuple(p["workspace_x"]), tuple(p["workspace_y"]), tuple(p["workspace_theta"])))
+            workspace=mocap.WorkspaceBox(tuple(p["workspace_x"]), tuple(p["workspace_y"]), tuple(p["workspace_theta"])),
+            base_timeout=p["base_timeout"], gap_timeout=GAP_PERIODS / rate, stale_timeout=p["stale_timeout"])
         chain = mocap.MocapConfig(tuple(p["base_quaternion"]), tuple(p["base_offset"]), tuple(p["marker_offset"]),
                                   use_base_orientation=p["use_base_pose"])
-        gate = MocapGate(config, chain, tuple(p["base_position"]))
-        if self._gate is not None:
-            old = self._gate
-            gate.base, gate.last_stamp_ns, gate.last_chiee, gate.time_resets = (
-                old.base, old.last_stamp_ns, old.last_chiee, old.time_resets)
-        self._gate = gate
+        if self._gate is None:
+            self._gate = MocapGate(config, chain, tuple(p["base_position"]))
+        else:
+            self._gate.reconfigure(config, chain, tuple(p["base_position"]))
 
     def _update(self, changes: dict[str, Any]) -> None:
         """Apply accepted run-time parameter updates."""
@@ -156,21 +161,27 @@ class MocapBridge(Node):
         self._configure()
 
     def _on_base(self, msg: PoseStamped) -> None:
-        """Keep the newest valid base pose."""
-        problem = self._gate.base_sample(_sample(msg))
-        if problem:
-            self._counts["base_rejected"] += 1
-            self._last_rejection = f"base: {problem}"
-            self.get_logger().warning(f"dropped base sample ({problem})", throttle_duration_sec=5.0)
+        """Check one base sample; the gate keeps the newest accepted one."""
+        self._base_counts["received"] += 1
+        now = self.get_clock().now().nanoseconds
+        mode = self._gate.base_mode(now)
+        verdict = self._gate.base_sample(_sample(msg), now)
+        if verdict.reason is not None:
+            self._base_counts[verdict.reason] += 1
+            self._last_base_rejection = f"{verdict.reason}: {verdict.text}"
+            self.get_logger().warning(f"dropped base sample ({self._last_base_rejection}); counts on /diagnostics",
+                                      throttle_duration_sec=5.0)
             return
-        if self._counts["base_received"] == 0:
-            self.get_logger().info(f"receiving base poses on {self._p['base_topic']}")
-        self._counts["base_received"] += 1
+        if mode is not BaseMode.LIVE:
+            self.get_logger().info(f"receiving base poses on {self._p['base_topic']}"
+                                   + (" again: platform poses used again" if mode is BaseMode.STALE else ""))
+        self._base_counts["accepted"] += 1
 
     def _on_platform(self, msg: PoseStamped) -> None:
         """Check, project and publish one platform sample, or count why it was dropped."""
         self._counts["received"] += 1
         now = self.get_clock().now().nanoseconds
+        first = self._gate.last_at_ns is None
         verdict = self._gate.check(_sample(msg), now)
         if verdict.reason is not None:
             self._counts[verdict.reason] += 1
@@ -180,9 +191,8 @@ class MocapBridge(Node):
             return
         if self._p["rest_check"] and self._rest is None:
             self._check_rest(verdict.chiee)
-        if self._last_accepted_at is None:
+        if first:
             self.get_logger().info(f"receiving platform poses on {self._p['platform_topic']}")
-        self._last_accepted_at = now
         out = PlanarPoseStamped()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = FRAME_ID
@@ -200,7 +210,7 @@ class MocapBridge(Node):
             self.get_logger().info(f"rest-pose check passed: {np.round(chiee, 4).tolist()}")
 
     def _report(self) -> Report:
-        """Staleness level, counts per drop reason, rates and the age of the newest accepted sample."""
+        """Platform stream health, counts per drop reason, rates and the age of the newest accepted sample."""
         now = self.get_clock().now().nanoseconds
         counts = {name: self._counts[name] for name in ("received", "published")}
         rates = self._rates.rates(now, counts)
@@ -209,22 +219,37 @@ class MocapBridge(Node):
             "input_rate_hz": round(rates["received"], 1), "output_rate_hz": round(rates["published"], 1),
             "last_rejection": self._last_rejection, "clock_resets": self._gate.time_resets,
         }
-        if self._p["use_base_pose"]:
-            values.update(base_received=self._counts["base_received"], base_rejected=self._counts["base_rejected"])
-        if self._last_accepted_at is None:
-            level, message = WARN, "no valid platform pose yet"
-        else:
-            silence = (now - self._last_accepted_at) * 1e-9
-            values["time_since_last_sample_s"] = round(silence, 4)
-            if self._gate.last_stamp_ns is not None:  # None right after the clock went back
-                values["last_sample_age_s"] = round((now - self._gate.last_stamp_ns) * 1e-9, 4)
-            if silence > self._p["stale_timeout"]:
-                level, message = ERROR, f"stale: no valid platform pose for {silence:.3g} s"
-            elif silence > 3.0 / self._p["mocap_rate"]:
-                level, message = WARN, f"no valid platform pose for {silence:.3g} s"
-            else:
-                level, message = OK, "publishing ee_pose"
+        health = self._gate.health(now)
+        if health is not Health.WAITING:
+            values["time_since_last_sample_s"] = round(self._gate.silence(now), 4)
+            values["last_sample_age_s"] = round((now - self._gate.last_stamp_ns) * 1e-9, 4)
+        level, message = {
+            Health.WAITING: (WARN, "no valid platform pose yet"),
+            Health.LIVE: (OK, "publishing ee_pose"),
+            Health.GAP: (WARN, f"no valid platform pose for {self._gate.silence(now):.3g} s"),
+            Health.STALE: (ERROR, f"stale: no valid platform pose for {self._gate.silence(now):.3g} s"),
+        }[health]
         self._level = log_level_change(self.get_logger(), self._level, level, message)
+        return Report(level, message, values)
+
+    def _base_report(self) -> Report:
+        """Base mode (waiting, live, stale), counts per drop reason and the silence of the base stream."""
+        now = self.get_clock().now().nanoseconds
+        mode = self._gate.base_mode(now)
+        values: dict[str, object] = {
+            "mode": mode.value, "received": self._base_counts["received"], "accepted": self._base_counts["accepted"],
+            **{f"rejected_{reason}": self._base_counts[reason] for reason in BASE_REASONS},
+            "last_rejection": self._last_base_rejection,
+        }
+        if mode is not BaseMode.WAITING:
+            values["time_since_last_base_s"] = round(self._gate.base_age(now), 4)
+        level, message = {
+            BaseMode.WAITING: (WARN, "waiting: no valid base pose yet, platform poses dropped (no_base)"),
+            BaseMode.LIVE: (OK, "live: measured base pose in use"),
+            BaseMode.STALE: (ERROR, f"stale: no valid base pose for {self._gate.base_age(now):.3g} s, platform "
+                                    "poses dropped (base_stale)"),
+        }[mode]
+        self._base_level = log_level_change(self.get_logger(), self._base_level, level, message)
         return Report(level, message, values)
 
     def _rest_report(self) -> Report:

@@ -1,4 +1,5 @@
-"""Tests of hsa_core.mocap_gate: every rule of the bridge's check chain, and recovery from one bad stamp (issue 10)."""
+"""Tests of hsa_core.mocap_gate: every rule of the bridge's check chain, recovery from one bad stamp (issue 10), the
+base stream's checks and timeout (issue 22) and the silence of a stream in lockstep simulated time (issue 24)."""
 
 import math
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 from hsa_core.mocap import MocapConfig, WorkspaceBox, planar_to_world
-from hsa_core.mocap_gate import GateConfig, MocapGate, Sample
+from hsa_core.mocap_gate import BaseMode, GateConfig, Health, MocapGate, Sample
 
 T0 = 1_700_000_000_000_000_000  # [ns] a realistic epoch stamp
 PERIOD = 5_000_000  # [ns] 200 Hz
@@ -114,14 +115,98 @@ def test_clock_that_went_back_is_followed_from_its_first_sample(gate):
 
 def test_no_base_until_a_valid_base_pose():
     g = MocapGate(GateConfig(), MocapConfig(use_base_orientation=True))
+    assert g.base_mode(T0) is BaseMode.WAITING
     assert g.check(sample(T0), T0).reason == "no_base"
-    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), IDENTITY, frame_id="map")) is not None  # wrong frame
-    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0))) is not None  # quaternion
+    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), IDENTITY, frame_id="map"), T0).reason == "frame"
+    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0)), T0).reason == "quaternion"
     assert g.check(sample(T0), T0).reason == "no_base"
-    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), IDENTITY)) is None
+    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0), IDENTITY), T0).reason is None
+    assert g.base_mode(T0) is BaseMode.LIVE
     verdict = g.check(sample(T0), T0)
     assert verdict.reason is None
     np.testing.assert_allclose(verdict.chiee, [0.0, 0.110, 0.0], atol=1e-12)
+
+
+def based(base_timeout: float = 0.25) -> MocapGate:
+    """A gate on a measured base that has accepted one base and one platform sample at T0."""
+    g = MocapGate(GateConfig(base_timeout=base_timeout), MocapConfig(use_base_orientation=True))
+    assert g.base_sample(sample(T0, (0.0, 0.0, 0.0)), T0 + 1_000_000).reason is None
+    assert g.check(sample(T0), T0 + 1_000_000).reason is None
+    return g
+
+
+@pytest.mark.parametrize("stamp, reason", [(5_000_000, "stale"),  # 1970, the incident of issue 22
+                                           (T0 + PERIOD + 400_000_000, "future"), (T0 - PERIOD, "out_of_order"),
+                                           (T0, "duplicate")])
+def test_base_samples_get_the_stamp_checks_and_never_move_the_base(stamp, reason):
+    g = based()
+    now = T0 + PERIOD + 1_000_000
+    shifted = (0.0, 0.0, 0.005)  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted (issue 22)
+    assert [g.base_sample(sample(stamp + k, shifted), now).reason for k in range(10 if reason == "stale" else 1)] \
+        == [reason] * (10 if reason == "stale" else 1)
+    assert g.base == ((0.0, 0.0, 0.0), IDENTITY)
+    verdict = g.check(sample(T0 + PERIOD), now)
+    assert verdict.reason is None
+    np.testing.assert_allclose(verdict.chiee, [0.0, 0.110, 0.0], atol=1e-12)
+
+
+def test_a_stale_base_is_never_used_and_a_fresh_one_restores_the_stream():
+    g = based(base_timeout=0.25)
+    stamps = [T0 + k * PERIOD for k in range(1, 100)]  # 0.5 s of platform samples, no base sample
+    reasons = [g.check(sample(s), s + 1_000_000).reason for s in stamps]
+    cut = next(k for k, r in enumerate(reasons) if r is not None)
+    assert (stamps[cut] + 1_000_000 - (T0 + 1_000_000)) * 1e-9 > 0.25  # used up to its timeout, never beyond
+    assert (stamps[cut - 1] + 1_000_000 - (T0 + 1_000_000)) * 1e-9 <= 0.25
+    assert set(reasons[cut:]) == {"base_stale"}
+    assert g.base_mode(stamps[-1] + 1_000_000) is BaseMode.STALE
+    now = stamps[-1] + PERIOD
+    assert g.base_sample(sample(now - 1_000_000, (0.0, 0.0, 0.0)), now).reason is None  # the base is back
+    assert g.base_mode(now) is BaseMode.LIVE
+    assert g.check(sample(now), now + 1_000_000).reason is None
+
+
+def test_a_base_pose_processed_late_is_judged_by_its_stamp():
+    """A base sample that waited in a queue arrives fresh by the clock, but the platform sample it would be combined
+    with is stamped more than base_timeout after it: that base is stale for it."""
+    g = based(base_timeout=0.25)
+    now = T0 + 400_000_000
+    assert g.base_sample(sample(T0 + 100_000_000, (0.0, 0.0, 0.0)), now).reason is None  # 0.3 s in a queue
+    assert g.check(sample(T0 + 340_000_000), now).reason is None  # 0.24 s after the base's stamp
+    verdict = g.check(sample(T0 + 360_000_000), now + 1_000_000)  # 0.26 s after it
+    assert verdict.reason == "base_stale" and "0.26 s old" in verdict.text
+
+
+def test_clock_going_back_drops_the_base_too():
+    g = based()
+    restart = T0 - 10 * 10**9
+    assert g.check(sample(restart), restart).reason == "no_base"  # the old time line's base is not used
+    assert g.time_resets == 1 and g.base_mode(restart) is BaseMode.WAITING
+    assert g.base_sample(sample(restart, (0.0, 0.0, 0.0)), restart).reason is None
+    assert g.check(sample(restart + PERIOD), restart + PERIOD).reason is None
+
+
+def test_platform_health_by_silence():
+    g = MocapGate(GateConfig())
+    assert g.health(T0) is Health.WAITING
+    assert g.check(sample(T0), T0 + 1_000_000).reason is None
+    assert g.health(T0 + 15_000_000) is Health.LIVE
+    assert g.health(T0 + 17_000_000) is Health.GAP  # > 3 periods since it arrived
+    assert g.health(T0 + 252_000_000) is Health.STALE
+
+
+def test_lockstep_arrival_on_the_last_instant_is_no_gap():
+    """Lockstep simulated time (issue 24; hsa_core.sim_lockstep): /clock moves only at timer instants, every 25 ms;
+    a sample becomes available 6 ms after its stamp and is processed with the clock of the newest instant (hence
+    max_future 0.06 s in clock_lockstep.yaml). A report at an instant, before that instant's samples, reads LIVE."""
+    g = MocapGate(GateConfig(max_future=0.06))
+    instant, latency = 25_000_000, 6_000_000
+    clock = 0
+    for k in range(200):  # 1 s of simulated time
+        available = k * PERIOD + latency
+        while clock + instant < available:  # the instants before this sample: a report at each
+            clock += instant
+            assert g.health(T0 + clock) is Health.LIVE, (k, clock)
+        assert g.check(sample(T0 + k * PERIOD), T0 + clock).reason is None
 
 
 def test_workspace_box(gate):

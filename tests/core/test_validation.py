@@ -93,6 +93,23 @@ def test_delay_gate_drops_samples_held_in_a_queue_and_accepts_a_new_latency() ->
     assert not DelayGate(0.0, 10).late(0, 10**12)  # disabled
 
 
+@pytest.mark.parametrize("spacing_ms", [0.5, 4.0])  # how fast the stalled node works through its backlog
+def test_delay_gate_drops_a_whole_backlog_longer_than_its_history(spacing_ms) -> None:
+    """Issue 22: a 2 s stall of a node with a deep input queue (400 samples queued, history 200); the old gate let the
+    backlog become its own reference after 200 late samples and passed states 1-1.4 s old with a valid velocity."""
+    ms = 1_000_000
+    gate = DelayGate(0.1, history=200)
+    t = 0
+    for _ in range(300):
+        t += 5 * ms
+        assert not gate.late(t, t + 3 * ms)
+    resume = t + 2000 * ms
+    backlog = [gate.late(t + k * 5 * ms, resume + int(k * spacing_ms * ms)) for k in range(1, 401)]
+    assert all(backlog), f"{backlog.count(False)} of 400 samples of the backlog passed"
+    fresh = resume + 400 * int(spacing_ms * ms)
+    assert not any(gate.late(fresh + k * 5 * ms, fresh + k * 5 * ms + 3 * ms) for k in range(10))
+
+
 @pytest.mark.parametrize("kind", list(ControllerKind))
 def test_integrators_stay_finite_and_bounded_by_design(params, kind: ControllerKind) -> None:
     c = Controller(kind, params)

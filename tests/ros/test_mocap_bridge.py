@@ -1,4 +1,5 @@
-"""mocap_bridge as a real process: 200 Hz mocap poses → exact planar poses, drops counted per reason, parameters."""
+"""mocap_bridge as a real process: 200 Hz mocap poses → exact planar poses, drops counted per reason, parameters; the
+measured base pose checked like the platform pose and never used stale (issue 22)."""
 
 from __future__ import annotations
 
@@ -30,8 +31,12 @@ COMMON = ("qos_overrides./mocap/platform/pose.subscription.depth:=100",  # no qu
           "diagnostics_period:=0.2")
 RECEIVE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 STATUS = "mocap_bridge: platform"
-TILTED_TOPICS = ("platform_topic:=/tilted/platform/pose", "base_topic:=/tilted/base/pose")
-REASONS = ("non_finite", "quaternion", "stale", "future", "duplicate", "out_of_order", "no_base", "workspace", "jump")
+TILTED_TOPICS = ("platform_topic:=/tilted/platform/pose", "base_topic:=/tilted/base/pose",
+                 "qos_overrides./tilted/platform/pose.subscription.depth:=100",
+                 "qos_overrides./tilted/base/pose.subscription.depth:=100")
+REASONS = ("non_finite", "quaternion", "stale", "future", "duplicate", "out_of_order", "no_base", "base_stale",
+           "workspace", "jump")
+TILTED, TILTED_BASE = "tilted_bridge: platform", "tilted_bridge: base"
 
 Values = dict[str, str]
 
@@ -235,34 +240,125 @@ def test_refused_run_time_update_keeps_the_old_value(bridges, ros_node) -> None:
         assert set_one("workspace_y", [0.06, 0.18]).successful  # the shared bridge serves other tests
 
 
+def _tilted_base() -> tuple[tuple[float, float, float], np.ndarray]:
+    """World position and quaternion of a tilted, turned base body."""
+    turn = np.array([[math.cos(0.1), -math.sin(0.1), 0.0], [math.sin(0.1), math.cos(0.1), 0.0], [0.0, 0.0, 1.0]])
+    return (0.5, 1.3, 0.2), mocap.matrix_to_quaternion(turn @ mocap.rotation_x(0.05))
+
+
+def stream_frames(node: Node, frames: Sequence[Callable[[int], Sequence[tuple[object, PoseStamped]]]],
+                  period: float = 0.005) -> list[int]:
+    """Publish frame k's (publisher, message) pairs, made from the node clock's time, at one frame per period (wall
+    clock); return the stamps used."""
+    start, stamps = time.monotonic(), []
+    for k, frame in enumerate(frames):
+        delay = start + k * period - time.monotonic()
+        if delay > 0.0:
+            time.sleep(delay)
+        stamps.append(node.get_clock().now().nanoseconds)
+        for pub, msg in frame(stamps[-1]):
+            pub.publish(msg)  # type: ignore[attr-defined]
+    return stamps
+
+
 def test_measured_base_pose_with_tilt(bridges, ros_node) -> None:
-    name = "tilted_bridge: platform"
     pub, received, diagnostics = _setup(ros_node, "/tilted", "/tilted/platform/pose")
     base_pub = ros_node.create_publisher(PoseStamped, "/tilted/base/pose", qos.SENSOR)
-    base = (0.5, 1.3, 0.2)
-    turn = np.array([[math.cos(0.1), -math.sin(0.1), 0.0], [math.sin(0.1), math.cos(0.1), 0.0], [0.0, 0.0, 1.0]])
-    base_quaternion = mocap.matrix_to_quaternion(turn @ mocap.rotation_x(0.05))  # a tilted, turned base body
+    base, base_quaternion = _tilted_base()
     config = mocap.MocapConfig(use_base_orientation=True)
     chiee = _trajectory(200)
     platform = [mocap.planar_to_world(c, base, config, base_quaternion) for c in chiee]
 
     # without a base pose, platform samples are dropped as no_base
-    baseline = prime(ros_node, pub, diagnostics, lambda t: pose_msg(t, *platform[0]), name=name)
+    baseline = prime(ros_node, pub, diagnostics, lambda t: pose_msg(t, *platform[0]), name=TILTED)
     t0 = ros_node.get_clock().now().nanoseconds
     stream(pub, [pose_msg(t0 + k * PERIOD_NS, *platform[k]) for k in range(5)])
-    _, values = status(diagnostics, lambda s, v: delta(v, baseline, "received") == 5, name=name)
+    _, values = status(diagnostics, lambda s, v: delta(v, baseline, "received") == 5, name=TILTED)
     assert delta(values, baseline, "rejected_no_base") == 5 and values["published"] == "0"
+    waiting, _ = status(diagnostics, name=TILTED_BASE)
+    assert waiting.level == DiagnosticStatus.WARN and "waiting" in waiting.message
 
-    prime(ros_node, base_pub, diagnostics, lambda t: pose_msg(t, base, base_quaternion), key="base_received",
-          name=name)
+    prime(ros_node, base_pub, diagnostics, lambda t: pose_msg(t, base, base_quaternion), key="accepted",
+          name=TILTED_BASE)
+    known: dict[int, np.ndarray] = {}
+
     t0 = ros_node.get_clock().now().nanoseconds
-    known = {t0 + k * PERIOD_NS: c for k, c in enumerate(chiee)}
-    stream(pub, [pose_msg(t, *pose) for t, pose in zip(known, platform)])
+
+    def frame(k: int) -> Callable[[int], list[tuple[object, PoseStamped]]]:
+        def make(_: int) -> list[tuple[object, PoseStamped]]:  # stamps on the 200 Hz grid: exact jump bounds
+            t = t0 + k * PERIOD_NS
+            known[t] = chiee[k]
+            return [(base_pub, pose_msg(t, base, base_quaternion)), (pub, pose_msg(t, *platform[k]))]
+        return make
+
+    stream_frames(ros_node, [frame(k) for k in range(200)])
     assert wait_until(lambda: len(received) >= 150, 10.0), f"only {len(received)} of 200 poses arrived"
     for msg in received:
         np.testing.assert_allclose(_planar(msg), known[stamp_ns(msg)], rtol=0.0, atol=1e-9)
-    _, values = status(diagnostics, name=name, after_ns=ros_node.get_clock().now().nanoseconds)
-    assert values["rejected_jump"] == values["rejected_workspace"] == values["base_rejected"] == "0"
+    _, values = status(diagnostics, name=TILTED, after_ns=ros_node.get_clock().now().nanoseconds)
+    assert values["rejected_jump"] == values["rejected_workspace"] == "0"
+    live, values = status(diagnostics, lambda s, v: s.level == DiagnosticStatus.OK, name=TILTED_BASE, after_ns=t0)
+    assert values["mode"] == "live"
+    assert all(values[f"rejected_{reason}"] == "0" for reason in ("frame", "stale", "future", "out_of_order"))
+
+
+def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node) -> None:
+    """Issue 22: base poses stamped 1970, 0.4 s ahead or out of order, 5 mm off, are dropped and counted; without base
+    poses for base_timeout (0.25 s) the bridge stops publishing (base mode stale, ERROR) and resumes when they
+    return."""
+    from tests.ros.faults import fault  # faults imports this module
+
+    pub, received, diagnostics = _setup(ros_node, "/tilted", "/tilted/platform/pose")
+    base_pub = ros_node.create_publisher(PoseStamped, "/tilted/base/pose", qos.SENSOR)
+    base, base_quaternion = _tilted_base()
+    shifted = (*base[:2], base[2] + 0.005)  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted
+    rest = mocap.planar_to_world(mocap.REST_POSE, base, mocap.MocapConfig(use_base_orientation=True), base_quaternion)
+    bad = {"stale": lambda t: t % 10**9,  # 1970
+           "future": lambda t: t + 400_000_000, "out_of_order": lambda t: t - 2_000_000}
+
+    def frame(with_base: bool, with_bad: bool = False) -> Callable[[int], list[tuple[object, PoseStamped]]]:
+        def make(t: int) -> list[tuple[object, PoseStamped]]:
+            pairs = [(base_pub, pose_msg(t, base, base_quaternion))] if with_base else []
+            if with_bad:
+                pairs += [(base_pub, pose_msg(stamp(t), shifted, base_quaternion)) for stamp in bad.values()]
+            return [*pairs, (pub, pose_msg(t, *rest))]
+        return make
+
+    before = prime(ros_node, base_pub, diagnostics, lambda t: pose_msg(t, base, base_quaternion), key="accepted",
+                   name=TILTED_BASE)
+    received.clear()
+    sent = stream_frames(ros_node, [frame(True, True)] * 100)
+    _, values = status(diagnostics, name=TILTED_BASE, after_ns=sent[-1] + 300_000_000)
+    rejected = {reason: delta(values, before, f"rejected_{reason}") for reason in bad}
+    assert all(n >= 50 for n in rejected.values()), (rejected, values)  # best effort: a loaded machine may lose some
+    assert delta(values, before, "accepted") + sum(rejected.values()) == delta(values, before, "received"), values
+    assert delta(values, before, "accepted") <= 100, values  # the genuine ones at most
+    assert wait_until(lambda: len(received) >= 90, 10.0), f"only {len(received)} of 100 poses arrived"
+    for msg in received:  # the shifted base poses never entered the frame chain
+        np.testing.assert_allclose(_planar(msg), mocap.REST_POSE, rtol=0.0, atol=1e-9)
+
+    platform_before = status(diagnostics, name=TILTED, after_ns=ros_node.get_clock().now().nanoseconds)[1]
+    received.clear()
+    last_base = stream_frames(ros_node, [frame(True)])[-1]
+    silent = stream_frames(ros_node, [frame(False)] * 120)  # 0.6 s of platform poses without a base pose
+    stale, values = status(diagnostics, lambda s, v: s.level == DiagnosticStatus.ERROR, name=TILTED_BASE,
+                           after_ns=silent[-1])
+    assert values["mode"] == "stale" and "stale" in stale.message, stale.message
+    _, platform_values = status(diagnostics, name=TILTED, after_ns=silent[-1])
+    assert delta(platform_values, platform_before, "rejected_base_stale") > 0, platform_values
+    late = [(stamp_ns(m) - last_base) * 1e-9 for m in received if stamp_ns(m) - last_base > 250_000_000]
+    assert not late, f"platform poses published {late[:3]} s after the last base pose (base_timeout 0.25 s)"
+    last_out = max(((stamp_ns(m) - last_base) * 1e-9 for m in received), default=float("nan"))
+
+    n = len(received)
+    back = stream_frames(ros_node, [frame(True)] * 60)
+    assert wait_until(lambda: len(received) > n + 30, 10.0), "publishing did not resume with the base poses"
+    live, _ = status(diagnostics, lambda s, v: s.level == DiagnosticStatus.OK, name=TILTED_BASE, after_ns=back[-1])
+    assert "live" in live.message
+    fault("base poses stamped 1970, +0.4 s or out of order, 5 mm off", f"dropped {rejected}, 0 used, ee_pose exact",
+          "next valid base sample")
+    fault("no base pose for 0.6 s (base_timeout 0.25 s)", f"base mode stale (ERROR); last ee_pose stamped "
+          f"{last_out:.3f} s after the last base pose", "with the first valid base sample")
 
 
 def test_bad_start_parameters_exit_2_naming_the_parameter() -> None:

@@ -7,7 +7,8 @@ Lockstep makes the graph a deterministic function of its configuration, whatever
   the commanded φ agrees tick by tick to 1e-9 rad and the metrics table is the same;
 * the bag holds every message: every mocap sample (one per 5 ms of simulated time) and the ee_pose and state
   derived from it, every controller tick and every driver read (25 ms), stamped and logged in simulated time, a
-  tick's and a read's messages at their own instant.
+  tick's and a read's messages at their own instant;
+* a healthy run reads OK: no node reports WARN or worse on /diagnostics.
 """
 
 from __future__ import annotations
@@ -106,3 +107,19 @@ def test_the_bag_holds_every_message_in_simulated_time(sim_run) -> None:
     assert latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS  # logged in simulated time
     for timed in ("/hsa/phi_present", "/hsa/controller_info"):  # a timer's messages are logged at its instant
         np.testing.assert_array_equal(log_times[timed], stamps[timed], err_msg=timed)
+
+
+def test_a_healthy_run_reports_no_warning(sim_run) -> None:
+    """Issue 24: every /diagnostics report of the run is OK (the bridge read WARN 'no valid platform pose for 0.025 s'
+    at every report: it measured silence on the lockstep clock, which stands still between timer instants)."""
+    problems, reports = [], 0
+    with Bag(sim_run) as bag:
+        store = bag.typestore("/diagnostics")
+        for _, log_time, raw in bag.messages(["/diagnostics"]):
+            for s in store.deserialize_cdr(raw, bag.topic("/diagnostics").msgtype).status:
+                reports += 1
+                level = s.level if isinstance(s.level, int) else ord(s.level)
+                if level != 0:
+                    problems.append(f"{log_time * 1e-9:.3f} s {s.name}: {s.message}")
+    assert reports >= STEPS * STEP_PERIOD, f"only {reports} statuses recorded"
+    assert not problems, f"{len(problems)} statuses not OK, first: {problems[:5]}"

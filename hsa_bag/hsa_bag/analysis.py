@@ -311,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
                 contour=args.contour, csv=args.csv, npz=args.npz, phi_max=args.phi_max, name=name, progress=True,
             )  # fmt: skip
             for skipped_topic, count in skipped_messages(result.log).items():
-                print(f"hsa_analyze: {path}: skipped {count} undecodable message(s) on {skipped_topic}", file=sys.stderr)
+                print(f"hsa_analyze: {path}: skipped {count} undecodable message(s) on {skipped_topic}",
+                      file=sys.stderr)
             print(result.report)
             results.append(result)
         files = [f for r in results for f in r.files] + (overlay(results, out, args.phi_max) if several else [])

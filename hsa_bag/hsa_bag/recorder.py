@@ -57,8 +57,9 @@ SPECS = (
     ParamSpec("topics", Parameter.Type.STRING_ARRAY,
               "topics to record (relative names resolve in the node namespace); unset or empty = every topic on "
               "the graph except /rosout, /parameter_events and hidden topics", read_only=True),
-    ParamSpec("output", "", "bag directory to create; empty = out/bags/<YYYYmmdd-HHMMSS> (relative to the working "
-              "directory); an existing path is refused", read_only=True),
+    ParamSpec("output", "", "bag directory to create (an existing one is refused); ending in '/': a new "
+              "<YYYYmmdd-HHMMSS> directory inside it (_2, _3, ... if taken), so every start gets its own bag; "
+              "empty = out/bags/ (relative to the working directory)", read_only=True),
     ParamSpec("max_bag_size", 0, "[bytes] start a new split before a file would exceed this; 0 = never",
               low=0, high=2**62, read_only=True),
     ParamSpec("max_bag_duration", 0.0, "[s] start a new split after this much receive time; 0 = never",
@@ -72,9 +73,21 @@ SPECS = (
 )  # fmt: skip
 
 
-def default_output() -> Path:
-    """out/bags/<local date-time>, relative to the working directory."""
-    return Path("out", "bags", time.strftime("%Y%m%d-%H%M%S"))
+DEFAULT_OUTPUT = "out/bags/"
+
+
+def output_path(output: str, stamp: str | None = None) -> Path:
+    """The bag directory that parameter ``output`` names: the path itself; for a value ending in '/' (or empty:
+    ``DEFAULT_OUTPUT``) a directory ``<stamp>`` inside it (default: the local date-time), or ``<stamp>_2``, ... if
+    that is taken."""
+    if output and not output.endswith("/"):
+        return Path(output)
+    parent = Path(output or DEFAULT_OUTPUT)
+    stamp = stamp or time.strftime("%Y%m%d-%H%M%S")
+    path, k = parent / stamp, 2
+    while path.exists():
+        path, k = parent / f"{stamp}_{k}", k + 1
+    return path
 
 
 def is_hidden(topic: str) -> bool:
@@ -109,7 +122,7 @@ class BagRecorder(Node):
         self._wanted = {self.resolve_topic_name(t) for t in params["topics"] or [] if t}
         self._types = TypeRegistry()
         self._bag = SplitBagWriter(
-            Path(params["output"]) if params["output"] else default_output(),
+            output_path(params["output"]),
             self._types.store,
             max_bytes=params["max_bag_size"],
             max_duration=round(params["max_bag_duration"] * 1e9),
@@ -120,7 +133,8 @@ class BagRecorder(Node):
             self._bag.open()
         except FileExistsError as exc:
             raise ParameterValidationError(
-                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it"
+                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it (a new path, or "
+                f"'{self._bag.path}/' for a new date-time bag inside it)"
             ) from exc
         self.lockstep_clock = lockstep.LeadClock(self)  # log times; lockstep instants wait until it is there
         self._recording: dict[str, Recording] = {}

@@ -47,15 +47,15 @@ def test_malformed_messages_are_left_out_of_the_bag_and_print_no_error_blocks(ro
         find_executable("hsa_bag", "bag_recorder"), "--ros-args", "-p", f"output:={bag}",
         "-p", f"topics:=[{STATE}, {SETPOINT}]"]))  # fmt: skip
     controller = NodeProcess("controller_node", ["-r", f"__ns:={NS}", "-p", "driver_timeout:=0.0"])
-    recorder.wait_ready()
-    controller.wait_ready()
     diagnostics = DiagnosticsLog(ros_node)
     pubs = {STATE: ros_node.create_publisher(PlanarState, STATE, RELIABLE),
             SETPOINT: ros_node.create_publisher(Setpoint, SETPOINT, LATCHED)}  # fmt: skip
     good = {STATE: serialize_message(PlanarState()), SETPOINT: serialize_message(Setpoint())}
-    assert wait_until(lambda: all(p.get_subscription_count() == 2 for p in pubs.values()), 30.0)
-    time.sleep(1.0)  # the recorder subscribes on discovery: give both subscriptions time to match back
     try:
+        recorder.wait_ready()
+        controller.wait_ready()
+        assert wait_until(lambda: all(p.get_subscription_count() == 2 for p in pubs.values()), 30.0)
+        time.sleep(1.0)  # the recorder subscribes on discovery: give both subscriptions time to match back
         for k in range(N_BAD):
             for topic, pub in pubs.items():  # alternating types: each malformed take sets a different error text
                 pub.publish(malformed(good[topic], k))

@@ -15,7 +15,8 @@ decoded with the definition stored in the bag:
   ``trajectory_length`` (the largest ``Setpoint.trajectory_length`` seen), and where the bag tells: ``material``
   (the kinematics node's diagnostics) and ``setup`` (``sim`` if a ``sim_node`` reported diagnostics, ``robot`` if the
   Dynamixel driver did without it); the bag's ``custom_data`` keys ``material`` and ``setup`` take precedence;
-  ``phi_max`` [rad] of the material's parameter file.
+  ``phi_max`` [rad] of the material's parameter file; ``skipped <topic>``: how many messages of that topic did not
+  decode (malformed CDR that a recorder stored raw) and were left out.
 
 ``hsa_analyze RUN [RUN ...] [--out DIR] [--duration S] [--csv] [--npz] [--topic T] [--contour] [--phi-max RAD]
 [--name N]``: a RUN is a bag (directory or .mcap file) or the NPZ log of an offline experiment (``hsa_experiment``'s
@@ -29,7 +30,8 @@ step figure is left out, and the Cartesian path drawn as a line, for contour run
 for step runs (experiments.md §4) and the whole run for contours; ``--duration 0`` keeps everything, and so does a
 duration beyond the last tick (the last step then ends one tick period after its last tick). A bad bag (truncated
 file, missing metadata, topic or type definition, no tracking tick) exits with code 2 and a message naming what is
-missing; so does a bad argument, in one line. Long bags show a progress bar (tqdm, on a terminal).
+missing; so does a bad argument, in one line. A message that does not decode is no reason to lose the run: it is
+skipped, and one line per topic on stderr says how many were. Long bags show a progress bar (tqdm, on a terminal).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ CONTOUR_MIN_POINTS = 20  # a setpoint trajectory longer than this is a contour, 
 PROGRESS_MIN_MESSAGES = 20_000  # about 8 min of 40 Hz ticks
 FIGURES = "figures"  # subdirectory of a run's output that holds its figures
 GENERIC_STEMS = ("log", "run", "bag")  # file or directory names that say nothing: the run is named by its parent
+SKIPPED = "skipped "  # RunLog meta key prefix: undecodable messages left out, per topic
 
 
 def _pose(p: object) -> tuple[float, float, float]:
@@ -80,11 +83,9 @@ def _measured_phi(bag: Bag) -> tuple[np.ndarray, np.ndarray] | None:
     info = bag.topics.get(PHI_TOPIC)
     if info is None or info.msgtype != PLANAR_ACTUATION or info.count == 0:
         return None
-    store = bag.typestore(PHI_TOPIC)
-    samples = sorted(
-        (stamp_ns(msg.header.stamp), tuple(msg.phi))
-        for msg in (store.deserialize_cdr(raw, PLANAR_ACTUATION) for _, _, raw in bag.messages([PHI_TOPIC]))
-    )
+    samples = sorted((stamp_ns(msg.header.stamp), tuple(msg.phi)) for _, msg in bag.decoded(PHI_TOPIC))
+    if not samples:
+        return None
     return np.array([s for s, _ in samples], dtype=np.int64), np.array([p for _, p in samples], dtype=np.float64)
 
 
@@ -93,10 +94,9 @@ def _setup_meta(bag: Bag) -> dict[str, str]:
     meta: dict[str, str] = {}
     info = bag.topics.get(DIAGNOSTICS_TOPIC)
     if info is not None and info.msgtype == DIAGNOSTIC_ARRAY:
-        store = bag.typestore(DIAGNOSTICS_TOPIC)
         nodes: set[str] = set()
-        for _, _, raw in bag.messages([DIAGNOSTICS_TOPIC]):
-            for status in store.deserialize_cdr(raw, DIAGNOSTIC_ARRAY).status:
+        for _, msg in bag.decoded(DIAGNOSTICS_TOPIC):
+            for status in msg.status:
                 node = status.name.partition(":")[0]
                 nodes.add(node)
                 if node == "kinematics_node" and "material" not in meta:
@@ -132,8 +132,7 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
         trajectory_length = 0
         ee_integral = False
         show = progress and info.count >= PROGRESS_MIN_MESSAGES
-        for _, _, raw in tqdm(bag.messages([topic]), total=info.count, unit="msg", disable=None if show else True):
-            msg = store.deserialize_cdr(raw, CONTROLLER_INFO)
+        for _, msg in tqdm(bag.decoded(topic), total=info.count, unit="msg", disable=None if show else True):
             if msg.state != tracking:
                 continue
             rows.setdefault(stamp_ns(msg.header.stamp), (
@@ -145,9 +144,11 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
             ee_integral = ee_integral or bool(np.any(np.asarray(msg.z_ee) != 0.0))
         measured = _measured_phi(bag)
         setup = _setup_meta(bag)
+        skipped = dict(bag.skipped)
     if len(rows) < 2:
+        undecodable = f", {skipped[topic]} of them undecodable," if topic in skipped else ""
         raise BagError(
-            f"{path}: topic {topic} has {info.count} messages but {len(rows)} tick(s) in STATE_TRACKING "
+            f"{path}: topic {topic} has {info.count} messages{undecodable} but {len(rows)} tick(s) in STATE_TRACKING "
             "(at least 2 are needed)"
         )
     stamps = np.array(sorted(rows), dtype=np.int64)
@@ -161,6 +162,7 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
     meta = {
         "bag": str(path), "topic": topic, "controller": ",".join(sorted(controllers)),
         "ee_integral": str(ee_integral).lower(), "trajectory_length": str(trajectory_length), **setup,
+        **{f"{SKIPPED}{name}": str(count) for name, count in sorted(skipped.items())},
     }  # fmt: skip
     if "material" in meta:
         meta.update(_phi_max_meta(meta["material"]))
@@ -179,6 +181,11 @@ def load_run(path: Path | str, topic: str = TOPIC, progress: bool = False) -> Ru
         return RunLog.load_npz(path)
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise BagError(f"{path}: not a RunLog NPZ file ({exc})") from exc
+
+
+def skipped_messages(log: RunLog) -> dict[str, int]:
+    """Topic → how many of its messages did not decode and were left out of the run (from the RunLog's meta)."""
+    return {key[len(SKIPPED):]: int(value) for key, value in log.meta.items() if key.startswith(SKIPPED)}
 
 
 def run_name(path: Path | str) -> str:
@@ -303,6 +310,9 @@ def main(argv: list[str] | None = None) -> int:
                 path, out / name if several else out, topic=args.topic, duration=args.duration,
                 contour=args.contour, csv=args.csv, npz=args.npz, phi_max=args.phi_max, name=name, progress=True,
             )  # fmt: skip
+            for skipped_topic, count in skipped_messages(result.log).items():
+                print(f"hsa_analyze: {path}: skipped {count} undecodable message(s) on {skipped_topic}",
+                      file=sys.stderr)
             print(result.report)
             results.append(result)
         files = [f for r in results for f in r.files] + (overlay(results, out, args.phi_max) if several else [])

@@ -5,7 +5,9 @@ yields the files of a split bag one after the other, and nothing forces another 
 (ecosystem.md §2 item 10), so :meth:`Bag.messages` merges the files' streams by timestamp; within one file rosbags'
 MCAP reader already merges the chunks in timestamp order. Messages are decoded with the definitions stored in the
 bag itself, so no ROS installation is needed. Every failure raises :class:`BagError` naming the file, topic or type
-at fault.
+at fault; a single message that does not decode with its topic's definition (malformed CDR, as a recorder that
+stores raw bytes may have kept) is not a failure of the bag: :meth:`Bag.decoded` skips it and counts it in
+:attr:`Bag.skipped`.
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ from collections.abc import Collection, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinitionFormat, Qos
 from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 from ruamel.yaml import YAMLError
@@ -80,6 +84,7 @@ class Bag:
         else:
             raise BagError(f"{self.path}: not a bag (expected a rosbag2 directory or an .mcap file)")
         self._readers: list[Reader] = []
+        self.skipped: dict[str, int] = {}  # topic -> messages :meth:`decoded` could not decode
         try:
             for file in self.files:
                 self._readers.append(_open_file(file, self.path))
@@ -136,6 +141,19 @@ class Bag:
             if conns:
                 streams.append((conn.topic, t, data) for conn, t, data in reader.messages(conns, start=start))
         return heapq.merge(*streams, key=lambda item: item[1])
+
+    def decoded(self, name: str) -> Iterator[tuple[int, Any]]:
+        """(timestamp [ns], decoded message) of topic ``name`` in timestamp order; a message that does not decode is
+        skipped and counted in ``skipped[name]``."""
+        store = self.typestore(name)
+        msgtype = self.topic(name).msgtype
+        for _, timestamp, raw in self.messages([name]):
+            try:
+                msg = store.deserialize_cdr(raw, msgtype)
+            except SerdeError:
+                self.skipped[name] = self.skipped.get(name, 0) + 1
+                continue
+            yield timestamp, msg
 
     def typestore(self, name: str) -> Typestore:
         """A typestore that decodes topic ``name``: the definition stored in the bag, else the Jazzy one."""

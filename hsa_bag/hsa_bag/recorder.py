@@ -10,6 +10,12 @@ simulated time does not start before every listed topic is subscribed, and the b
 message published on them is in the bag. Types come from the Jazzy typestore and from the ``.msg`` files that
 interface packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
 
+**Only what decodes is recorded.** Raw bytes are not decoded by the middleware, so malformed CDR (truncated,
+garbage, a string that is not UTF-8) would reach the bag and break its readers. Each message is decoded with the very
+definition written into the bag (the rosbags typestore) before it is written; one that does not decode is left out
+and counted per topic: on /diagnostics (``undecodable <topic>``, WARN), in a WARN line at most every
+``UNDECODABLE_LOG_PERIOD``, in the final summary line and in the bag's ``custom_data`` (``hsa_bag.undecodable``).
+
 **Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with ``use_sim_time``)
 read in the subscription callback, in ns; in lockstep the lead clock's instant where that is ahead
 (:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before /clock). Header stamps inside the
@@ -34,6 +40,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSCompatibility, QoSProfile, qos_check_compatible
 from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
+from rosbags.serde import SerdeError
 
 from hsa_bag.msgtypes import TypeRegistry, UnknownTypeError, message_class
 from hsa_bag.qos import subscription_profile, to_bag
@@ -43,13 +50,16 @@ from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 
 EXCLUDED = frozenset({"/rosout", "/parameter_events", "/clock"})
+UNDECODABLE_LOG_PERIOD = 5.0  # [s] steady time between two WARN lines about undecodable messages
+UNDECODABLE_KEY = "hsa_bag.undecodable"  # custom_data key: "<topic>: <count>, ..." of the messages left out
 
 SPECS = (
     ParamSpec("topics", Parameter.Type.STRING_ARRAY,
               "topics to record (relative names resolve in the node namespace); unset or empty = every topic on "
               "the graph except /rosout, /parameter_events and hidden topics", read_only=True),
-    ParamSpec("output", "", "bag directory to create; empty = out/bags/<YYYYmmdd-HHMMSS> (relative to the working "
-              "directory); an existing path is refused", read_only=True),
+    ParamSpec("output", "", "bag directory to create (an existing one is refused); ending in '/': a new "
+              "<YYYYmmdd-HHMMSS> directory inside it (_2, _3, ... if taken), so every start gets its own bag; "
+              "empty = out/bags/ (relative to the working directory)", read_only=True),
     ParamSpec("max_bag_size", 0, "[bytes] start a new split before a file would exceed this; 0 = never",
               low=0, high=2**62, read_only=True),
     ParamSpec("max_bag_duration", 0.0, "[s] start a new split after this much receive time; 0 = never",
@@ -63,9 +73,21 @@ SPECS = (
 )  # fmt: skip
 
 
-def default_output() -> Path:
-    """out/bags/<local date-time>, relative to the working directory."""
-    return Path("out", "bags", time.strftime("%Y%m%d-%H%M%S"))
+DEFAULT_OUTPUT = "out/bags/"
+
+
+def output_path(output: str, stamp: str | None = None) -> Path:
+    """The bag directory that parameter ``output`` names: the path itself; for a value ending in '/' (or empty:
+    ``DEFAULT_OUTPUT``) a directory ``<stamp>`` inside it (default: the local date-time), or ``<stamp>_2``, ... if
+    that is taken."""
+    if output and not output.endswith("/"):
+        return Path(output)
+    parent = Path(output or DEFAULT_OUTPUT)
+    stamp = stamp or time.strftime("%Y%m%d-%H%M%S")
+    path, k = parent / stamp, 2
+    while path.exists():
+        path, k = parent / f"{stamp}_{k}", k + 1
+    return path
 
 
 def is_hidden(topic: str) -> bool:
@@ -78,6 +100,7 @@ class Recording:
     """A topic being recorded: bag handle, message class, subscription and the publishers (gids) its QoS suits."""
 
     handle: int
+    msgtype: str
     message_class: type
     profile: QoSProfile
     subscription: Subscription
@@ -99,7 +122,7 @@ class BagRecorder(Node):
         self._wanted = {self.resolve_topic_name(t) for t in params["topics"] or [] if t}
         self._types = TypeRegistry()
         self._bag = SplitBagWriter(
-            Path(params["output"]) if params["output"] else default_output(),
+            output_path(params["output"]),
             self._types.store,
             max_bytes=params["max_bag_size"],
             max_duration=round(params["max_bag_duration"] * 1e9),
@@ -110,11 +133,14 @@ class BagRecorder(Node):
             self._bag.open()
         except FileExistsError as exc:
             raise ParameterValidationError(
-                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it"
+                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it (a new path, or "
+                f"'{self._bag.path}/' for a new date-time bag inside it)"
             ) from exc
         self.lockstep_clock = lockstep.LeadClock(self)  # log times; lockstep instants wait until it is there
         self._recording: dict[str, Recording] = {}
         self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
+        self._undecodable: dict[str, int] = {}  # topic -> messages left out because they do not decode
+        self._undecodable_logged = -UNDECODABLE_LOG_PERIOD  # steady time [s] of the last WARN about them
         lockstep.wall_timer(self, params["discovery_period"], self._discover)  # discovery is a wall-clock matter
         self.create_timer(params["flush_period"], self._bag.flush)
         Diagnostics(self).add("recording", self._report)
@@ -167,9 +193,9 @@ class BagRecorder(Node):
         profiles = [o.qos_profile for o in offers]
         handle = self._bag.add_topic(topic, msgtype, [to_bag(p) for p in profiles])
         profile = subscription_profile(profiles)
-        sub = self.create_subscription(cls, topic, partial(self._write, handle), profile, raw=True)
+        sub = self.create_subscription(cls, topic, partial(self._write, topic), profile, raw=True)
         self._recording[topic] = Recording(
-            handle, cls, profile, sub, frozenset(bytes(o.endpoint_gid) for o in offers)
+            handle, msgtype, cls, profile, sub, frozenset(bytes(o.endpoint_gid) for o in offers)
         )
         self.get_logger().info(f"recording {topic} [{msgtype}] ({describe(profile)}; {len(offers)} publisher(s))")
 
@@ -187,13 +213,35 @@ class BagRecorder(Node):
         self.destroy_subscription(rec.subscription)
         rec.profile = subscription_profile(profiles)
         rec.subscription = self.create_subscription(
-            rec.message_class, topic, partial(self._write, rec.handle), rec.profile, raw=True
+            rec.message_class, topic, partial(self._write, topic), rec.profile, raw=True
         )
         self.get_logger().warning(f"re-subscribed {topic} ({describe(rec.profile)}): a new publisher offers less")
 
-    def _write(self, handle: int, data: bytes) -> None:
-        """Subscription callback: the serialized message goes into the bag, stamped with the receive time."""
-        self._bag.write(handle, self.lockstep_clock.now_ns(), data)
+    def _write(self, topic: str, data: bytes) -> None:
+        """Subscription callback: the serialized message goes into the bag, stamped with the receive time, if it
+        decodes with the bag's definition; otherwise it is counted (see the module docstring)."""
+        rec = self._recording[topic]
+        try:
+            self._types.store.deserialize_cdr(data, rec.msgtype)
+        except SerdeError as exc:
+            self._left_out(topic, exc)
+            return
+        self._bag.write(rec.handle, self.lockstep_clock.now_ns(), data)
+
+    def _left_out(self, topic: str, exc: SerdeError) -> None:
+        """Count an undecodable message of ``topic``, note the counts in the bag and warn (throttled)."""
+        self._undecodable[topic] = self._undecodable.get(topic, 0) + 1
+        self._bag.set_custom_data(UNDECODABLE_KEY, self._undecodable_summary())
+        now = time.monotonic()
+        if now - self._undecodable_logged >= UNDECODABLE_LOG_PERIOD:
+            self._undecodable_logged = now
+            self.get_logger().warning(
+                f"not recording undecodable messages ({self._undecodable_summary()} so far); last on {topic}: {exc}"
+            )
+
+    def _undecodable_summary(self) -> str:
+        """'<topic>: <count>, ...' of the messages left out because they do not decode."""
+        return ", ".join(f"{topic}: {count}" for topic, count in sorted(self._undecodable.items()))
 
     def _report(self) -> Report:
         """Diagnostics: bag, file, counts; WARN while some topic cannot be recorded."""
@@ -205,18 +253,23 @@ class BagRecorder(Node):
             "messages": self._bag.message_count,
             "topics": len(self._recording),
         }
+        values.update({f"undecodable {t}": n for t, n in sorted(self._undecodable.items())})
+        problems = []
         if self._skipped:
             values.update({f"skipped {t}": why for t, why in self._skipped.items()})
-            return Report(WARN, f"{len(self._skipped)} topic(s) not recorded", values)
-        return Report(OK, "recording", values)
+            problems.append(f"{len(self._skipped)} topic(s) not recorded")
+        if self._undecodable:
+            problems.append(f"{sum(self._undecodable.values())} undecodable message(s) left out")
+        return Report(WARN, "; ".join(problems), values) if problems else Report(OK, "recording", values)
 
     def on_shutdown(self) -> None:
         """Close the bag (summary, footer, final metadata.yaml) and say where it is."""
         self._bag.close()
         files = ", ".join(p.name for p in self._bag.files) if self._bag.info else "no file"
+        left_out = f"; left out undecodable messages: {self._undecodable_summary()}" if self._undecodable else ""
         rclpy.logging.get_logger("hsa_bag.recorder").info(  # not the node logger: its /rosout publisher is gone
             f"wrote {self._bag.message_count} messages on {len(self._recording)} topic(s) to "
-            f"{self._bag.path.resolve()} ({files})"
+            f"{self._bag.path.resolve()} ({files}){left_out}"
         )
 
 

@@ -118,6 +118,10 @@ class SplitFile:
         self._writer.metapath = directory / f".{stem}.{METADATA}"  # close() leaves this file's own metadata here
         self.first_timestamp: int | None = None  # of the first message written
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set a ``custom_data`` entry of this file's metadata (written at close)."""
+        self._writer.set_custom_data(key, value)
+
     def add_connection(self, topic: Topic, typestore: Typestore) -> Connection:
         """Register a topic in this file (its schema from ``typestore``, its offered QoS in the channel metadata)."""
         return self._writer.add_connection(
@@ -231,6 +235,13 @@ class SplitBagWriter:
         self.topics.append(topic)
         self._connections.append(connection)
         return len(self.topics) - 1
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set a ``custom_data`` entry; the open split and every later one carry it, so the bag's metadata.yaml (the
+        last split's) has the latest value."""
+        self.custom_data[key] = value
+        if self._file is not None:
+            self._file.set_custom_data(key, value)
 
     def set_qos(self, handle: int, qos: Sequence[Qos]) -> None:
         """Replace the offered QoS profiles of a topic; they are stored from the next split on."""

@@ -54,6 +54,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from hsa_common import exit_deadline, lockstep, parent_death, rosenv
+from hsa_common.middleware_errors import MiddlewareErrors
 from hsa_common.parameters import ParameterValidationError
 
 TEARDOWN_NICE = 5
@@ -110,13 +111,15 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         participant = lockstep.Participant(node)
     executor = SingleThreadedExecutor() if in_lockstep else make_executor()
     executor.add_node(node)
+    errors = MiddlewareErrors(node)  # a malformed incoming message: one throttled line, not rcutils' stderr block
     failed = True  # until the spin ends in an orderly stop
     try:
         node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
         if in_lockstep:
-            spin_lockstep(executor, participant, stop)
+            spin_lockstep(executor, participant, stop, errors)
         while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_PERIOD)
+            errors.check()
         failed = False
     except ExternalShutdownException:
         failed = False  # the node shut its context down (e.g. the sequencer's exit_on_finish)
@@ -154,8 +157,14 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
 
 
-def spin_lockstep(executor: Executor, participant: lockstep.Participant | None, stop: list[int]) -> None:
-    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a participant)."""
+def spin_lockstep(
+    executor: Executor,
+    participant: lockstep.Participant | None,
+    stop: list[int],
+    errors: MiddlewareErrors | None = None,
+) -> None:
+    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a participant).
+    ``errors`` (if given) is checked after each callback."""
     idle = False
     while not stop and rclpy.ok():
         try:
@@ -169,6 +178,8 @@ def spin_lockstep(executor: Executor, participant: lockstep.Participant | None, 
             return
         idle = False
         handler()
+        if errors is not None:
+            errors.check()
         if handler.exception() is not None:
             raise handler.exception()
 

@@ -324,6 +324,42 @@ def test_npz_that_is_not_a_runlog_is_refused(tmp_path: Path, capsys) -> None:
     assert code == 2 and "not a RunLog NPZ file" in err
 
 
+def garbage(k: int) -> bytes:
+    """The k-th of four malformed CDR payloads: truncated, garbage, encapsulation only, invalid UTF-8 in a string."""
+    good = bytes(info_msg(0, TRACKING, (0.0, 0.0), (0.0, 0.0), 0))
+    return [good[: len(good) // 2], b"\x00\x01\x00\x00" + b"\xff" * 40, b"\x00\x01\x00\x00",
+            good[:16] + b"\xff\xfe" + good[18:]][k % 4]  # fmt: skip
+
+
+def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path, capsys) -> None:
+    spoiled = {analysis.TOPIC: 7, "/hsa/phi_present": 5, "/diagnostics": 3}
+    t0 = step_response()[0][0]
+    bag = SplitBagWriter(tmp_path / "spoiled", STORE)  # the recorder's writer, malformed payloads among the real ones
+    bag.open()
+    with Bag(write_full_bag(tmp_path / "clean")) as clean:
+        handles = {name: bag.add_topic(name, info.msgtype, []) for name, info in clean.topics.items()}
+        for topic, t, raw in clean.messages():
+            bag.write(handles[topic], t, raw)
+    for topic, count in spoiled.items():
+        for k in range(count):
+            bag.write(handles[topic], t0 + k * 1_000_000_000 + 123, garbage(k))
+    bag.close()
+
+    out = tmp_path / "report"
+    assert analysis.main([str(tmp_path / "spoiled"), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert f"{expected([N] * 4)['rmse'] * 1e3:.2f}" in captured.out  # the run is whole
+    lines = captured.err.splitlines()
+    for topic, count in spoiled.items():
+        assert sum(f"skipped {count} undecodable message(s) on {topic}" in line for line in lines) == 1, lines
+    log = analysis.runlog_from_bag(tmp_path / "spoiled")
+    reference = analysis.runlog_from_bag(tmp_path / "clean")
+    np.testing.assert_array_equal(log.chiee, reference.chiee)
+    np.testing.assert_array_equal(log.phi_meas, reference.phi_meas)
+    assert log.meta["setup"] == "sim" and log.meta["material"] == "epu"
+    assert analysis.skipped_messages(log) == spoiled and analysis.skipped_messages(reference) == {}
+
+
 # --- bad bags ------------------------------------------------------------------------------------------------------
 
 

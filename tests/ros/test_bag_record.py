@@ -8,6 +8,7 @@ is readable up to the last flush, and complete after bag_recover), and the refus
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import threading
@@ -246,3 +247,13 @@ def test_existing_output_is_refused(recorder, tmp_path: Path) -> None:
     output = proc.stdout.read() if proc.stdout else ""
     assert "parameter 'output'" in output and "refusing to overwrite" in output
     assert list((tmp_path / "taken").iterdir()) == []
+    assert f"'{tmp_path / 'taken'}/' for a new date-time bag inside it" in output
+
+
+def test_output_ending_in_a_slash_gets_a_new_bag_per_start(recorder, tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    for _ in range(2):  # a graph started twice with the same bag_dir (the launch files' default ends in '/')
+        assert stop_process(recorder(f"{runs}/")) == 0
+    bags = sorted(runs.iterdir())
+    assert len(bags) == 2 and all((bag / "metadata.yaml").is_file() for bag in bags), bags
+    assert all(re.fullmatch(r"\d{8}-\d{6}(_2)?", bag.name) for bag in bags), bags

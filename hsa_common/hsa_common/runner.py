@@ -6,7 +6,9 @@ an uncaught exception or when the launcher that started it has already ended. In
 ``on_shutdown()`` hook runs before the process exits — the driver turns torque off there.
 
 Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) all stop the
-node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. The node also stops when the process that
+node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A stop signal that arrives while the node is still
+being created (parameter checks, JAX compilation) ends the process at once with exit 0: construction never touches
+the hardware (the driver enables torque from the executor), so there is nothing to stop yet. The node also stops when the process that
 started it ends, even by SIGKILL: the kernel sends it SIGTERM then (:mod:`hsa_common.parent_death`).
 
 Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python ``SingleThreadedExecutor`` for
@@ -86,25 +88,40 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     rosenv.ensure_for_node()
     tie = parent_death.tie_to_parent(signal.SIGTERM)  # before the SIGHUP handler: an ignored SIGHUP means nohup
     stop: list[int] = []
+    starting = threading.Event()
+    starting.set()
+
+    def on_stop(signum: int, _frame: object) -> None:
+        stop.append(signum)
+        if starting.is_set():
+            raise StopBeforeReady(signum)  # unwinds the node's construction: nothing is running yet
+
     for sig in STOP_SIGNALS:
         if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
-            signal.signal(sig, lambda signum, _frame: stop.append(signum))
+            signal.signal(sig, on_stop)
     watch_stop()
     logger = rclpy.logging.get_logger(name)
     if tie is parent_death.Tie.ORPHANED:
         logger.fatal(f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already ended")
         return 1
     try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    except RCLError as exc:  # malformed command line or parameter file: rcl names it
-        logger.fatal(f"refusing to start: {exc}")
-        return 2
-    try:
-        node = node_factory()
-    except ParameterValidationError as exc:
-        logger.fatal(f"refusing to start: {exc}")
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        except RCLError as exc:  # malformed command line or parameter file: rcl names it
+            logger.fatal(f"refusing to start: {exc}")
+            return 2
+        try:
+            node = node_factory()
+        except ParameterValidationError as exc:
+            logger.fatal(f"refusing to start: {exc}")
+            rclpy.try_shutdown()
+            return 2
+        starting.clear()
+    except StopBeforeReady:
+        logger.info("stopped before ready")
         rclpy.try_shutdown()
-        return 2
+        sys.stderr.flush()
+        os._exit(0)  # skip the interpreter's teardown (JAX/XLA), as after a normal stop
     in_lockstep = lockstep.enabled(node)
     participant = None
     if in_lockstep and not getattr(node, "lockstep_coordinator", False):
@@ -155,6 +172,11 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         except OSError:
             pass  # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
     os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
+
+
+class StopBeforeReady(BaseException):
+    """A stop signal arrived while the node was being created (a BaseException, like KeyboardInterrupt, so that no
+    ``except Exception`` in the construction swallows it)."""
 
 
 def spin_lockstep(

@@ -47,3 +47,19 @@ def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None
             proc.kill()
     assert proc.returncode == 5, output
     assert "Timeout (0:00:05)!" in output and "in destroy_node" in output, output
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -> None:
+    """A stop signal while the node is still being created ends it with exit 0, without waiting for the construction
+    (a simulator compiling its world once needed the launcher's SIGTERM escalation)."""
+    proc = start_process([sys.executable, str(PEERS / "slow_start.py")])
+    try:
+        wait_for_line(proc, "constructing")
+        proc.send_signal(sig)
+        output, _ = proc.communicate(timeout=40)  # the construction alone lasts 60 s
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, output
+    assert "stopped before ready" in output and "ready\n" not in output.replace("before ready", ""), output

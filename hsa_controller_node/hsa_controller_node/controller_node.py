@@ -9,11 +9,13 @@ logged at most once per `rejection_log_period`.
 Every decision of a tick is hsa_core.control_loop.ControlLoop (the offline experiment runs the same one), around the
 mode state machine hsa_core.supervision.Supervisor, fed by this node with the node clock (the clock of the state
 stamps): E-stop (latched `estop` true) -> nothing is sent, the integrators were reset; no setpoint, no driver heartbeat
-(`phi_present`) within `driver_timeout`, or no usable state -> nothing is sent; a state whose stamp is older than
+(`phi_present`) within `driver_timeout`, the driver's servos without torque (latched `torque` false), or no usable
+state -> nothing is sent; a state whose stamp is older than
 `stale_timeout` -> the last command is re-published unchanged and the controller is not stepped (no integral wind-up)
 for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the motors); otherwise
 the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports every
-tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate and stay
+tick. Setpoints cost O(1) each on arrival and at most a few checks per tick, the newest winning
+(hsa_core.control_loop), so a setpoint flood cannot stall the tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate and stay
 finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
 """
 
@@ -77,6 +79,8 @@ class ControllerNode(Node):
         if p["driver_timeout"] > 0.0:
             self.create_subscription(PlanarActuation, "phi_present", self._on_driver, qos.SENSOR,
                                      qos_overriding_options=qos.overridable())
+            self.create_subscription(Bool, "torque", self._on_torque, qos.LATCHED,
+                                     qos_overriding_options=qos.overridable())
         self.create_timer(1.0 / p["rate"], self._tick)
         report = ControlReport(self._loop, self._kind.value, p["rate"])
         Diagnostics(self, p["diagnostics_period"]).add("control loop", lambda: report(self._now_ns()))
@@ -99,6 +103,12 @@ class ControllerNode(Node):
     def _on_driver(self, _msg: PlanarActuation) -> None:
         """A phi_present sample: the driver is alive."""
         self._loop.heartbeat(self._now_ns())
+
+    def _on_torque(self, msg: Bool) -> None:
+        """The driver's torque state: while off, nothing is sent and the integrators are frozen (mode torque off)."""
+        on = bool(msg.data)
+        if self._loop.driver_torque(on):
+            self.get_logger().info("driver reports torque on" if on else "driver reports torque off")
 
     def _on_state(self, msg: PlanarState) -> None:
         """Hand a state to the loop (plausible, velocity_valid, newest stamp, not in the future); refusals are logged
@@ -172,7 +182,7 @@ class ControllerNode(Node):
 
     def _log_transition(self, tick: Tick) -> None:
         """Log a mode change once (INFO back to tracking, WARN entering the hold, ERROR when commands stop for missing
-        states or a lost driver)."""
+        states, a lost driver or the driver's torque off)."""
         change, log = tick.transition, self.get_logger()
         text = f"{change.old.value} -> {change.new.value}"
         age, silence = tick.decision.age_s, tick.decision.driver_silence_s
@@ -186,6 +196,9 @@ class ControllerNode(Node):
         elif change.new is Mode.DRIVER_LOST:
             log.error(f"{text}: no phi_present from the driver for {silence:.3f} s; no command is sent, integrators "
                       "frozen until it returns")
+        elif change.new is Mode.TORQUE_OFF:
+            log.error(f"{text}: the driver reports its servos' torque off; no command is sent, integrators frozen "
+                      "until torque is on again")
         else:  # start-up, and E-stop changes (logged as ERROR/WARN when the estop message arrives)
             log.info(text)
 

@@ -6,8 +6,9 @@ setpoints (each with its own index and stamp) at ``--rate`` per second for ``--s
 The tick times are the header stamps of ``controller_info`` (one per tick, the node clock = the wall clock);
 the figures over the flood window: tick rate, longest gap between two ticks, ticks not tracking, /diagnostics reports
 per second, and the controller's setpoint counters (received, activated, superseded, rejected) from its last report.
-Each scenario runs quiet and beside two ``python3 -c "while 1: pass"`` processes (started and killed by PID here).
-The machine's load average is recorded: on a shared machine the "quiet" runs are not quiet.
+Each scenario runs quiet and beside two ``python3 -c "while 1: pass"`` processes (started and killed by PID here),
+and the same window without a flood beside the two processes is the control: what the machine's load alone does to
+the tick. The machine's load average is recorded: on a shared machine the "quiet" runs are not quiet.
 Writes benchmarks/results/setpoint_flood.json (``--baseline FILE`` embeds an earlier result, e.g. of the code before
 the fix run with that checkout's interpreter).
 
@@ -135,13 +136,18 @@ class Bench:
 
 
 def scenario(bench: Bench, rate: float, seconds: float, n_burners: int) -> dict[str, object]:
-    """One flood, quiet or beside n_burners busy processes: the tick figures over the flood window."""
+    """One flood (none with rate 0), quiet or beside n_burners busy processes: the tick figures over its window."""
     with burners(n_burners) as pids:
         time.sleep(1.0)
         load = os.getloadavg()[0]
         before = bench.reports[-1][1] if bench.reports else {}
         n_infos, n_reports = len(bench.infos), len(bench.reports)
-        t0, t1, sent = bench.flood(rate, seconds)
+        if rate > 0.0:
+            t0, t1, sent = bench.flood(rate, seconds)
+        else:
+            t0, sent = time.monotonic(), 0
+            time.sleep(seconds)
+            t1 = time.monotonic()
         time.sleep(2.0)  # the last reports
     infos = [(arrival, deserialize_message(raw, ControllerInfo)) for arrival, raw in bench.infos[n_infos:]]
     window = [m for arrival, m in infos if t0 <= arrival <= t1]
@@ -162,7 +168,7 @@ def scenario(bench: Bench, rate: float, seconds: float, n_burners: int) -> dict[
         "diagnostics_reports_per_s": round(len(in_window) / (t1 - t0), 2),
         "tick_rate_reported_hz": [values.get("tick rate [Hz]") for values in in_window],
         "counters_delta": {k: int(after[k]) - int(before.get(k, 0)) for k in COUNTERS if k in after},
-        "newest_setpoint_tracked": bool(newest is not None and newest.trajectory_index == sent - 1),
+        "newest_setpoint_tracked": bool(newest is not None and newest.trajectory_index == sent - 1) if sent else None,
     }
 
 
@@ -194,6 +200,7 @@ def main() -> int:
         time.sleep(2.0)
         result["quiet"] = scenario(bench, args.rate, args.seconds, 0)
         result["two_busy_processes"] = scenario(bench, args.rate, args.seconds, 2)
+        result["two_busy_processes_no_flood"] = scenario(bench, 0.0, args.seconds, 2)
     finally:
         bench.close()
         rclpy.shutdown()

@@ -15,8 +15,8 @@ state -> nothing is sent; a state whose stamp is older than
 for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the motors); otherwise
 the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports every
 tick. Setpoints cost O(1) each on arrival and at most a few checks per tick, the newest winning
-(hsa_core.control_loop), so a setpoint flood cannot stall the tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate and stay
-finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
+(hsa_core.control_loop), so a setpoint flood cannot stall the tick. The math is hsa_core.control's Controller,
+compiled in the constructor; the integrators use dt = 1/rate and stay finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ limits around the configured neutral ticks (parameter or persisted calibration, 
 rate-limited whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM, uncaught
 exceptions and the E-stop (latched until ``clear_estop``); torque is enabled only while the servos answer, report no
 hardware error and their present positions are sane, and a torque-on that failed on the bus is retried with backoff;
-the latched ``torque`` topic says whether phi_cmd moves the servos; a command watchdog holds or relaxes the motors; bus errors are
-counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
+the latched ``torque`` topic says whether phi_cmd moves the servos; a command watchdog holds or relaxes the motors;
+bus errors are counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
 docs/nodes/hsa_dynamixel_driver.md.
 
 ROS wiring only: the decisions are `hsa_core.servo_supervision.ServoSupervisor`'s, the bus I/O around them

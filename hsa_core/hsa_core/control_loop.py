@@ -162,6 +162,12 @@ class ControlLoop:
             self.counters.superseded_setpoints += 1
         self._intake.append((stamp_ns, setpoint, tag))
 
+    def drop_setpoints(self, count: int) -> None:
+        """count setpoints were received and replaced by newer ones before they were handed in (a caller that keeps
+        only the newest SETPOINT_INTAKE undecoded messages between ticks): counted as received and superseded."""
+        self.counters.received_setpoints += count
+        self.counters.superseded_setpoints += count
+
     @property
     def pending_setpoints(self) -> int:
         """Setpoints received and not yet checked (at most SETPOINT_INTAKE)."""

@@ -111,6 +111,8 @@ def test_a_setpoint_flood_costs_the_tick_a_bounded_number_of_checks_and_the_newe
     for k in range(100):  # stamped in the future: kept, but never more than the intake holds
         loop.receive_setpoint(10**12 + k, flood[k], f"future {k}")
     assert loop.pending_setpoints == SETPOINT_INTAKE and c.superseded_setpoints == 9_999 + 100 - SETPOINT_INTAKE
+    loop.drop_setpoints(7)  # dropped undecoded by the caller: received and superseded
+    assert (c.received_setpoints, c.superseded_setpoints) == (10_107, 9_999 + 100 - SETPOINT_INTAKE + 7)
 
 
 def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the_check_budget() -> None:

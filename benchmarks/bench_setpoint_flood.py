@@ -5,7 +5,9 @@ state at 200 Hz and the FPU worked-example setpoint by this process; once it tra
 setpoints (each with its own index and stamp) at ``--rate`` per second for ``--seconds`` on its ``setpoint`` topic.
 The tick times are the header stamps of ``controller_info`` (one per tick, the node clock = the wall clock);
 the figures over the flood window: tick rate, longest gap between two ticks, ticks not tracking, /diagnostics reports
-per second, and the controller's setpoint counters (received, activated, superseded, rejected) from its last report.
+per second, the CPU time the controller process used per second of the window (/proc: the flood's cost, which the
+machine's load does not change much, unlike the tick figures), and the controller's setpoint counters (received,
+activated, superseded, rejected) from its last report.
 Each scenario runs quiet and beside two ``python3 -c "while 1: pass"`` processes (started and killed by PID here),
 and the same window without a flood beside the two processes is the control: what the machine's load alone does to
 the tick. The machine's load average is recorded: on a shared machine the "quiet" runs are not quiet.
@@ -135,19 +137,27 @@ class Bench:
         self.node.destroy_node()
 
 
-def scenario(bench: Bench, rate: float, seconds: float, n_burners: int) -> dict[str, object]:
+def cpu_s(pid: int) -> float:
+    """User + system CPU time [s] of process pid so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def scenario(bench: Bench, rate: float, seconds: float, n_burners: int, pid: int) -> dict[str, object]:
     """One flood (none with rate 0), quiet or beside n_burners busy processes: the tick figures over its window."""
     with burners(n_burners) as pids:
         time.sleep(1.0)
         load = os.getloadavg()[0]
         before = bench.reports[-1][1] if bench.reports else {}
         n_infos, n_reports = len(bench.infos), len(bench.reports)
+        cpu0 = cpu_s(pid)
         if rate > 0.0:
             t0, t1, sent = bench.flood(rate, seconds)
         else:
             t0, sent = time.monotonic(), 0
             time.sleep(seconds)
             t1 = time.monotonic()
+        cpu1 = cpu_s(pid)
         time.sleep(2.0)  # the last reports
     infos = [(arrival, deserialize_message(raw, ControllerInfo)) for arrival, raw in bench.infos[n_infos:]]
     window = [m for arrival, m in infos if t0 <= arrival <= t1]
@@ -160,6 +170,7 @@ def scenario(bench: Bench, rate: float, seconds: float, n_burners: int) -> dict[
     return {
         "burners": n_burners, "burner_pids": pids, "load_average_1min_at_start": round(load, 2),
         "setpoints_sent": sent, "flood_s": round(t1 - t0, 3), "setpoints_per_s": round(sent / (t1 - t0), 1),
+        "controller_cpu_s_per_s": round((cpu1 - cpu0) / (t1 - t0), 3),
         "ticks": len(window),
         "tick_rate_hz": round((len(stamps) - 1) / (stamps[-1] - stamps[0]), 2) if len(stamps) > 1 else 0.0,
         "longest_gap_ms": round(1e3 * float(np.max(gaps)), 1),
@@ -198,9 +209,9 @@ def main() -> int:
         if not bench.tracking():
             raise RuntimeError("controller_node never tracked")
         time.sleep(2.0)
-        result["quiet"] = scenario(bench, args.rate, args.seconds, 0)
-        result["two_busy_processes"] = scenario(bench, args.rate, args.seconds, 2)
-        result["two_busy_processes_no_flood"] = scenario(bench, 0.0, args.seconds, 2)
+        result["quiet"] = scenario(bench, args.rate, args.seconds, 0, controller.pid)
+        result["two_busy_processes"] = scenario(bench, args.rate, args.seconds, 2, controller.pid)
+        result["two_busy_processes_no_flood"] = scenario(bench, 0.0, args.seconds, 2, controller.pid)
     finally:
         bench.close()
         rclpy.shutdown()

@@ -145,7 +145,7 @@ class ControlLoop:
         self.mode = Mode.WAITING_FOR_SETPOINT
         self.last_outage_s = math.nan  # time without tracking before the latest return to tracking [s]
         self.active_tag: Any = None  # tag of the active setpoint
-        self._intake: deque[tuple[int, Setpoint, Any]] = deque()  # received setpoints not yet due, arrival order
+        self._intake: deque[tuple[int, Setpoint, Any]] = deque()  # received setpoints not yet checked, arrival order
         self._newest: tuple[int, Measurement] | None = None  # stamp and values of the newest usable state
         self._held: Command | None = None
         self._last_tick: int | None = None

@@ -216,7 +216,8 @@ class ServoSupervisor:
         if not self.torque_due():
             self._end_retries()
             return None
-        delay = min(self.retry_period * 2.0 ** self.torque_failures, max(self.retry_max, self.retry_period))
+        doublings = min(self.torque_failures, 64)  # beyond any retry_max/retry_period ratio; no float overflow
+        delay = min(self.retry_period * 2.0 ** doublings, max(self.retry_max, self.retry_period))
         self.torque_failures += 1
         self.retry_at = now + delay
         return delay

@@ -290,6 +290,8 @@ def test_a_failed_torque_on_is_retried_with_backoff_until_it_comes_on() -> None:
     assert sup.retry_at is None and not sup.torque_retry_due(now + 10.0)
     _failed_torque_on(sup)
     assert sup.torque_failed(problem, 20.0) == 0.25  # a new failure starts the backoff again
+    for k in range(2000):  # hours of failures: the delay stays at retry_max
+        assert sup.torque_failed(problem, 30.0 + k) == ((0.5, 1.0)[k] if k < 2 else 1.5)
 
 
 @pytest.mark.parametrize("end", ["refusal", "set_torque(false)", "E-stop", "bus lost", "deactivate"])

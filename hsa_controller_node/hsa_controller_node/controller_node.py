@@ -9,20 +9,25 @@ logged at most once per `rejection_log_period`.
 Every decision of a tick is hsa_core.control_loop.ControlLoop (the offline experiment runs the same one), around the
 mode state machine hsa_core.supervision.Supervisor, fed by this node with the node clock (the clock of the state
 stamps): E-stop (latched `estop` true) -> nothing is sent, the integrators were reset; no setpoint, no driver heartbeat
-(`phi_present`) within `driver_timeout`, or no usable state -> nothing is sent; a state whose stamp is older than
+(`phi_present`) within `driver_timeout`, the driver's servos without torque (latched `torque` false), or no usable
+state -> nothing is sent; a state whose stamp is older than
 `stale_timeout` -> the last command is re-published unchanged and the controller is not stepped (no integral wind-up)
 for at most `hold_timeout`, after which nothing is sent (the driver's command watchdog holds the motors); otherwise
 the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports every
-tick. The math is hsa_core.control's Controller, compiled in the constructor; the integrators use dt = 1/rate and stay
-finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
+tick. A setpoint costs O(1) on arrival (its serialized message is kept, at most SETPOINT_INTAKE of them); the tick
+decodes the kept ones and checks at most a few, the newest winning (hsa_core.control_loop), so a setpoint flood
+cannot stall the tick. The math is hsa_core.control's Controller,
+compiled in the constructor; the integrators use dt = 1/rate and stay finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from std_msgs.msg import Bool
 
@@ -35,7 +40,7 @@ from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info,
 from hsa_controller_node.parameters import SPECS, check_combination
 from hsa_controller_node.report import ControlReport
 from hsa_core.control import Controller, ControllerKind, ee_gains_from_parameters, gains_from_parameters, retune
-from hsa_core.control_loop import ControlLoop, Tick
+from hsa_core.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.planning import Setpoint as CoreSetpoint
 from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
@@ -65,17 +70,20 @@ class ControllerNode(Node):
         guard_updates(self, SPECS, self._apply)
         self._motor_map = load_wiring_param(p["wiring_file"]).motor_map(params)  # motor_goal_angles, as the driver maps
         self._last_info: ControllerInfo | None = None  # info of the newest tracking tick
+        self._setpoints: deque[bytes] = deque()  # serialized setpoints received since the last tick, newest last
         self._cmd_pub = self.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND,
                                               qos_overriding_options=qos.overridable())
         self._info_pub = self.create_publisher(ControllerInfo, "controller_info", qos.INFO,
                                                qos_overriding_options=qos.overridable())
         self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,
                                  qos_overriding_options=qos.overridable())
-        self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED,
+        self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED, raw=True,
                                  qos_overriding_options=qos.overridable())
         self.create_subscription(Bool, "estop", self._on_estop, qos.LATCHED, qos_overriding_options=qos.overridable())
         if p["driver_timeout"] > 0.0:
             self.create_subscription(PlanarActuation, "phi_present", self._on_driver, qos.SENSOR,
+                                     qos_overriding_options=qos.overridable())
+            self.create_subscription(Bool, "torque", self._on_torque, qos.LATCHED,
                                      qos_overriding_options=qos.overridable())
         self.create_timer(1.0 / p["rate"], self._tick)
         report = ControlReport(self._loop, self._kind.value, p["rate"])
@@ -100,6 +108,12 @@ class ControllerNode(Node):
         """A phi_present sample: the driver is alive."""
         self._loop.heartbeat(self._now_ns())
 
+    def _on_torque(self, msg: Bool) -> None:
+        """The driver's torque state: while off, nothing is sent and the integrators are frozen (mode torque off)."""
+        on = bool(msg.data)
+        if self._loop.driver_torque(on):
+            self.get_logger().info("driver reports torque on" if on else "driver reports torque off")
+
     def _on_state(self, msg: PlanarState) -> None:
         """Hand a state to the loop (plausible, velocity_valid, newest stamp, not in the future); refusals are logged
         at most once per rejection_log_period."""
@@ -110,11 +124,21 @@ class ControllerNode(Node):
             self.get_logger().warning(f"rejected state: {problem} ({sum(self._loop.rejections.states.values())} so "
                                       "far)", throttle_duration_sec=self._p["rejection_log_period"])
 
-    def _on_setpoint(self, msg: Setpoint) -> None:
-        """Queue a setpoint; the first tick after its stamp activates it (hsa_core.control_loop)."""
-        setpoint = CoreSetpoint(convert.planar_pose(msg.chiee_des), convert.configuration(msg.q_des),
-                                np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error)
-        self._loop.receive_setpoint(convert.stamp_ns(msg.header.stamp), setpoint, msg)
+    def _on_setpoint(self, raw: bytes) -> None:
+        """Keep a serialized setpoint for the next tick, O(1); beyond SETPOINT_INTAKE the oldest is superseded."""
+        self._setpoints.append(raw)
+        if len(self._setpoints) > SETPOINT_INTAKE:
+            self._setpoints.popleft()
+            self._loop.drop_setpoints(1)
+
+    def _hand_setpoints(self) -> None:
+        """Decode the kept setpoints and queue them in arrival order; the first tick after its stamp activates one
+        (hsa_core.control_loop)."""
+        while self._setpoints:
+            msg = deserialize_message(self._setpoints.popleft(), Setpoint)
+            setpoint = CoreSetpoint(convert.planar_pose(msg.chiee_des), convert.configuration(msg.q_des),
+                                    np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error)
+            self._loop.receive_setpoint(convert.stamp_ns(msg.header.stamp), setpoint, msg)
 
     def _on_estop(self, msg: Bool) -> None:
         """E-stop state from the driver: on entry the loop resets the integrators and drops the held command."""
@@ -129,6 +153,7 @@ class ControllerNode(Node):
     def _tick(self) -> None:
         """One control period: the loop decides; publish the new or held command and the tick's info, and log."""
         now = self.get_clock().now()
+        self._hand_setpoints()
         before = self._loop.active_tag, self._loop.counters.rejected_setpoints
         tick = self._loop.tick(now.nanoseconds)
         self._log_activations(tick, *before)
@@ -172,7 +197,7 @@ class ControllerNode(Node):
 
     def _log_transition(self, tick: Tick) -> None:
         """Log a mode change once (INFO back to tracking, WARN entering the hold, ERROR when commands stop for missing
-        states or a lost driver)."""
+        states, a lost driver or the driver's torque off)."""
         change, log = tick.transition, self.get_logger()
         text = f"{change.old.value} -> {change.new.value}"
         age, silence = tick.decision.age_s, tick.decision.driver_silence_s
@@ -186,6 +211,9 @@ class ControllerNode(Node):
         elif change.new is Mode.DRIVER_LOST:
             log.error(f"{text}: no phi_present from the driver for {silence:.3f} s; no command is sent, integrators "
                       "frozen until it returns")
+        elif change.new is Mode.TORQUE_OFF:
+            log.error(f"{text}: the driver reports its servos' torque off; no command is sent, integrators frozen "
+                      "until torque is on again")
         else:  # start-up, and E-stop changes (logged as ERROR/WARN when the estop message arrives)
             log.info(text)
 

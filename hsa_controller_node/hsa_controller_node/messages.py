@@ -18,10 +18,11 @@ FRAME_ID = "hsa_base"
 INFO_STATE = {
     Mode.WAITING_FOR_SETPOINT: ControllerInfo.STATE_WAITING_FOR_SETPOINT, Mode.TRACKING: ControllerInfo.STATE_TRACKING,
     Mode.HOLD: ControllerInfo.STATE_HOLD_STALE, Mode.ESTOP: ControllerInfo.STATE_STOPPED,
+    Mode.TORQUE_OFF: ControllerInfo.STATE_TORQUE_OFF,
     **{m: ControllerInfo.STATE_WAITING_FOR_STATE
        for m in (Mode.WAITING_FOR_DRIVER, Mode.WAITING_FOR_STATE, Mode.STALE, Mode.DRIVER_LOST)},
 }
-"""controller_info state of each mode (hsa_msgs has no driver constants: those ticks send nothing, as WAITING_FOR_STATE)."""
+"""controller_info state of each mode (the other driver modes send nothing, as WAITING_FOR_STATE)."""
 NOTHING_SENT = np.full(2, math.nan)
 """φ fields of the info on ticks that send no command."""
 

@@ -28,8 +28,11 @@ class ControlReport:
         age, silence = loop.supervisor.age_s(now_ns), loop.supervisor.driver_silence_s(now_ns)
         mode = loop.mode
         values = {
-            "mode": mode.value, "estop": loop.supervisor.estop, "controller": self._controller,
+            "mode": mode.value, "estop": loop.supervisor.estop,
+            "driver torque": "off" if loop.supervisor.torque_off else "on or not reported",
+            "controller": self._controller,
             "tick rate [Hz]": f"{rate:.1f}", "nominal rate [Hz]": f"{self._rate:g}", **vars(loop.counters),
+            "pending_setpoints": loop.pending_setpoints,
             "rejected_states": sum(rejected.states.values()),
             **{f"rejected_states {reason}": n for reason, n in sorted(rejected.states.items())},
             **{f"rejected_setpoints {reason}": n for reason, n in sorted(rejected.setpoints.items())},
@@ -46,6 +49,8 @@ class ControlReport:
         if mode is Mode.DRIVER_LOST:
             return Report(ERROR, f"driver lost: no phi_present for {silence:.3g} s, no command is sent, integrators "
                                  "frozen", values)
+        if mode is Mode.TORQUE_OFF:
+            return Report(ERROR, "driver torque off: no command is sent, integrators frozen", values)
         if mode is Mode.STALE:
             return Report(ERROR, f"stale: newest state {age:.3g} s old, no command is sent", values)
         if mode is Mode.HOLD:

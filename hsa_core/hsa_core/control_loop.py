@@ -5,12 +5,16 @@ Events come in with the time passed in as int nanoseconds on the clock of the st
 
 * `receive_setpoint(stamp, setpoint, tag)` queues a setpoint; the first tick *after* its stamp activates it (a tick at
   the very instant it was stamped still uses the previous one, whichever arrived first: deterministic under simulated
-  time). Activation runs the optional physical check, then `Controller.set_setpoint`; a refused setpoint leaves the
-  previous one active;
+  time). The newest wins, at a bounded cost per tick whatever the setpoint rate: the intake keeps the newest
+  SETPOINT_INTAKE setpoints, and a tick checks its due setpoints from the newest back, at most SETPOINT_CHECKS of
+  them, and activates the first that passes the optional physical check and `Controller.set_setpoint`; the newer
+  ones it refused are counted as rejected, the older ones (and those the intake dropped) as superseded, unchecked.
+  A refused setpoint leaves the previous one active;
 * `state(stamp, now, ...)` checks plausibility (hsa_core.validation.state_problem) and order (the Supervisor); an
   accepted state with valid velocities becomes the newest measurement;
-* `heartbeat(now)` (driver alive) and `set_estop(active)`: entering the E-stop resets the integrators and drops the
-  held command, so it can never be re-sent after the stop.
+* `heartbeat(now)` (driver alive), `driver_torque(on)` (whether the driver's servos take commands) and
+  `set_estop(active)`: entering the E-stop resets the integrators and drops the held command, so it can never be
+  re-sent after the stop.
 
 `tick(now)` activates the due setpoints, asks the Supervisor (hsa_core.supervision) and then:
 
@@ -21,7 +25,7 @@ Events come in with the time passed in as int nanoseconds on the clock of the st
 * otherwise nothing is sent and the integrators are frozen (HOLD with nothing to hold is reported as STALE).
 
 A mode change is returned once (`Transition`, with the time without tracking on a return to tracking) and counted
-(entries into HOLD, STALE and DRIVER_LOST); `counters` and `rejections` are cumulative.
+(entries into HOLD, STALE, DRIVER_LOST and TORQUE_OFF); `counters` and `rejections` are cumulative.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
@@ -44,6 +48,10 @@ from hsa_core.validation import q_bounds, state_problem
 
 DEADLINE_FACTOR = 1.5
 """A tick that starts more than 1.5 periods after the previous one counts as a deadline miss."""
+SETPOINT_INTAKE = 16
+"""Setpoints kept between two ticks; a newer arrival drops the oldest (superseded)."""
+SETPOINT_CHECKS = 4
+"""Due setpoints a tick checks at most, newest first; older due ones are superseded unchecked."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,10 +106,13 @@ class Counters:
     stale_stops: int = 0  # entries into STALE
     estop_events: int = 0
     driver_lost_events: int = 0
+    torque_off_events: int = 0  # entries into TORQUE_OFF
     refused_ticks: int = 0
     saturated: int = 0
-    setpoints: int = 0
+    received_setpoints: int = 0
+    setpoints: int = 0  # activated
     rejected_setpoints: int = 0
+    superseded_setpoints: int = 0  # replaced by a newer one before they were checked
 
 
 @dataclasses.dataclass
@@ -134,7 +145,7 @@ class ControlLoop:
         self.mode = Mode.WAITING_FOR_SETPOINT
         self.last_outage_s = math.nan  # time without tracking before the latest return to tracking [s]
         self.active_tag: Any = None  # tag of the active setpoint
-        self._queue: list[tuple[int, Setpoint, Any]] = []  # received setpoints not yet active
+        self._intake: deque[tuple[int, Setpoint, Any]] = deque()  # received setpoints not yet checked, arrival order
         self._newest: tuple[int, Measurement] | None = None  # stamp and values of the newest usable state
         self._held: Command | None = None
         self._last_tick: int | None = None
@@ -143,8 +154,24 @@ class ControlLoop:
         self._rate, self._window_compute = RateMeter(start_ns), []
 
     def receive_setpoint(self, stamp_ns: int, setpoint: Setpoint, tag: Any = None) -> None:
-        """Queue a setpoint stamped stamp_ns; the first tick after the stamp activates it."""
-        self._queue.append((stamp_ns, setpoint, tag))
+        """Queue a setpoint stamped stamp_ns, O(1); the first tick after the stamp activates it unless a newer one
+        supersedes it. A full intake drops its oldest setpoint (superseded)."""
+        self.counters.received_setpoints += 1
+        if len(self._intake) == SETPOINT_INTAKE:
+            self._intake.popleft()
+            self.counters.superseded_setpoints += 1
+        self._intake.append((stamp_ns, setpoint, tag))
+
+    def drop_setpoints(self, count: int) -> None:
+        """count setpoints were received and replaced by newer ones before they were handed in (a caller that keeps
+        only the newest SETPOINT_INTAKE undecoded messages between ticks): counted as received and superseded."""
+        self.counters.received_setpoints += count
+        self.counters.superseded_setpoints += count
+
+    @property
+    def pending_setpoints(self) -> int:
+        """Setpoints received and not yet checked (at most SETPOINT_INTAKE)."""
+        return len(self._intake)
 
     def state(self, stamp_ns: int, now_ns: int, q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
               chiee_dot: ArrayLike, velocity_valid: bool = True) -> str | None:
@@ -162,6 +189,10 @@ class ControlLoop:
     def heartbeat(self, now_ns: int) -> None:
         """The driver showed it is alive."""
         self.supervisor.driver_heartbeat(now_ns)
+
+    def driver_torque(self, on: bool) -> bool:
+        """Whether the driver's servos take commands (torque on); True when it changed."""
+        return self.supervisor.driver_torque(on)
 
     def set_estop(self, active: bool) -> bool:
         """E-stop state from the driver; True when it changed. Entering it resets the integrators, drops the hold."""
@@ -201,26 +232,40 @@ class ControlLoop:
         self.counters.ticks += 1
 
     def _activate(self, now_ns: int) -> tuple[Activation, ...]:
-        """Activate the queued setpoints stamped before now_ns, in arrival order; refusals are counted."""
-        done = []
-        while self._queue and self._queue[0][0] < now_ns:
-            _, setpoint, tag = self._queue.pop(0)
-            problem = self._check(setpoint) if self._check is not None else None
-            if problem is None:
-                try:
-                    self.controller.set_setpoint(setpoint)
-                except ValueError as exc:
-                    problem = str(exc)
+        """Activate the newest setpoint stamped before now_ns that passes the checks (at most SETPOINT_CHECKS tried,
+        newest first); returns the tried ones in arrival order. Refusals are counted, the untried due ones superseded.
+        """
+        due = [entry for entry in self._intake if entry[0] < now_ns]
+        if not due:
+            return ()
+        self._intake = deque(entry for entry in self._intake if entry[0] >= now_ns)
+        tried: list[Activation] = []
+        for _, setpoint, tag in reversed(due[-SETPOINT_CHECKS:]):
+            problem = self._problem(setpoint)
+            tried.append(Activation(tag, problem))
             if problem is None:
                 self.active_tag = tag
                 self.supervisor.setpoint_accepted()
                 self.counters.setpoints += 1
-            else:
+                break
+        self.counters.superseded_setpoints += len(due) - len(tried)
+        tried.reverse()
+        for activation in tried:
+            if activation.problem is not None:
                 self.counters.rejected_setpoints += 1
-                self.rejections.setpoints[problem.split(":")[0]] += 1
-                self.rejections.last_setpoint = problem
-            done.append(Activation(tag, problem))
-        return tuple(done)
+                self.rejections.setpoints[activation.problem.split(":")[0]] += 1
+                self.rejections.last_setpoint = activation.problem
+        return tuple(tried)
+
+    def _problem(self, setpoint: Setpoint) -> str | None:
+        """Why a setpoint is refused (physical check, then the law's own checks), or None: it is active now."""
+        problem = self._check(setpoint) if self._check is not None else None
+        if problem is None:
+            try:
+                self.controller.set_setpoint(setpoint)
+            except ValueError as exc:
+                problem = str(exc)
+        return problem
 
     def _step(self, now_ns: int, decision: Decision, activated: tuple[Activation, ...]) -> Tick:
         """Step the law on the newest state; its command is held from now on. A refusal sends nothing."""
@@ -256,4 +301,6 @@ class ControlLoop:
             self.counters.stale_stops += 1
         elif mode is Mode.DRIVER_LOST:
             self.counters.driver_lost_events += 1
+        elif mode is Mode.TORQUE_OFF:
+            self.counters.torque_off_events += 1
         return Transition(old, mode, outage)

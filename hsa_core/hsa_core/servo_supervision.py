@@ -11,6 +11,11 @@ seconds passed in explicitly; `ServoSupervisor` keeps the state and answers what
   torque-on; commands are ignored and ``set_torque(true)`` refused meanwhile;
 * link: a port error or ``error_limit`` consecutive failed cycles lose the bus; a reconnect reports the outage and
   re-enables torque only if it is wanted, not relaxed and not E-stopped;
+* torque-on retry: a torque-on that torque is due for and that failed on the bus (`torque_failed`, not a refusal by
+  the checks) is tried again after a delay that starts at ``retry_period`` and doubles with each failure in a row up
+  to ``retry_max`` (`torque_retry_due`); a refusal, a success, a lost link or torque no longer due ends the retries;
+* `takes_commands`: whether a phi_cmd moves the servos now (torque on) or switches torque on when it arrives (relaxed
+  by the watchdog); the driver publishes it for the controller, which leaves tracking while it is false;
 * start-up positions: the first torque-on after configure with a configured neutral needs every motor within
   ``neutral_tolerance`` of it unless the servos were still held (``neutral_check``); every torque-on needs the present
   positions inside the goal limits widened by ``neutral_tolerance``; a first calibration is refused on held servos;
@@ -98,6 +103,8 @@ class ServoSupervisor:
     error_limit: int  # consecutive failed cycles that lose the bus
     tolerance: float  # neutral_tolerance [rad]
     describe_error: Callable[[int], str]  # Hardware Error Status bits -> text
+    retry_period: float = 0.25  # first delay [s] before a failed torque-on is tried again
+    retry_max: float = 5.0  # largest delay [s] between torque-on retries (at least retry_period)
     active: bool = False
     link_up: bool = False
     torque_on: bool = False
@@ -119,6 +126,8 @@ class ServoSupervisor:
     held: bool = False  # every servo still had torque on at the first connection (a driver restart)
     startup_checked: bool = False
     uncalibrated: str | None = None  # why there is no trustworthy neutral (torque stays off), or None
+    torque_failures: int = 0  # torque-on attempts failed on the bus in a row
+    retry_at: float | None = None  # when the failed torque-on is tried again, None: no retry pending
 
     # ---------------------------------------------------------------- lifecycle and link
     def configured(self, neutral_known: bool) -> None:
@@ -137,6 +146,7 @@ class ServoSupervisor:
     def deactivate(self) -> None:
         """Deactivate (also cleanup, shutdown, error): torque no longer wanted."""
         self.active = self.torque_wanted = self.relaxed = False
+        self._end_retries()
 
     def released(self) -> None:
         """The bus was closed and the node deactivated."""
@@ -178,11 +188,15 @@ class ServoSupervisor:
     def link_lost(self, problem: str, now: float) -> None:
         """The bus was lost (torque already switched off where possible): reconnect until it answers."""
         self.link_up, self.bus_problem, self.lost_at = False, problem, now
+        self._end_retries()  # the reconnect tries torque on itself
 
     # ---------------------------------------------------------------- torque
-    def torque_enabled(self) -> None:
-        """Torque came on holding the present positions."""
+    def torque_enabled(self) -> int:
+        """Torque came on holding the present positions; returns the failed attempts before it (retries end)."""
         self.torque_on, self.relaxed, self.note = True, False, "on"
+        failures = self.torque_failures
+        self._end_retries()
+        return failures
 
     def torque_disabled(self, reason: str) -> bool:
         """Torque was switched off for ``reason``; True when it had been on."""
@@ -190,13 +204,47 @@ class ServoSupervisor:
         return was_on
 
     def torque_refused(self, problem: str) -> bool:
-        """Torque stays off for ``problem``; True when the reason changed (log it once)."""
+        """Torque stays off for ``problem`` (a refusal: no retry); True when the reason changed (log it once)."""
         changed, self.note = problem != self.note, problem
+        self._end_retries()
         return changed
+
+    def torque_failed(self, problem: str, now: float) -> float | None:
+        """A torque-on failed on the bus at ``now`` [s]: while torque is due, retry after the returned delay [s]
+        (retry_period, doubled per failure in a row, at most retry_max); None: not due, no retry."""
+        self.note = problem
+        if not self.torque_due():
+            self._end_retries()
+            return None
+        doublings = min(self.torque_failures, 64)  # beyond any retry_max/retry_period ratio; no float overflow
+        delay = min(self.retry_period * 2.0 ** doublings, max(self.retry_max, self.retry_period))
+        self.torque_failures += 1
+        self.retry_at = now + delay
+        return delay
+
+    def torque_retry_due(self, now: float) -> bool:
+        """Whether the failed torque-on is to be tried again now (its delay is over and torque is still due)."""
+        if self.retry_at is None or self.torque_on:
+            return False
+        if not self.torque_due():
+            self._end_retries()
+            return False
+        return now >= self.retry_at
+
+    def _end_retries(self) -> None:
+        """No torque-on retry pending; the next failure starts from retry_period again."""
+        self.torque_failures, self.retry_at = 0, None
+
+    def takes_commands(self) -> bool:
+        """Whether a phi_cmd moves the servos: torque on, or off only by the watchdog's relax (a command switches it
+        on again)."""
+        return self.torque_on or (self.relaxed and self.torque_wanted and self.active and self.link_up
+                                  and self.estop is None)
 
     def torque_unwanted(self) -> None:
         """Torque off on request (set_torque(false)): it stays off, also across reconnects, until asked again."""
         self.torque_wanted = False
+        self._end_retries()
 
     def set_torque_refusal(self) -> Answer | None:
         """set_torque(true): the answer without trying (refused, or already on), or None: try torque on now."""

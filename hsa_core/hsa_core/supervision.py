@@ -1,13 +1,15 @@
 """Controller supervision (planning_and_control.md §5, issue 10) as a pure state machine: events in, decision out.
 
 The node (or any loop) reports events with the time passed in explicitly (int nanoseconds on one clock, the one the
-state stamps use): a setpoint accepted, a state received (with its stamp), a driver heartbeat, the E-stop state. Each
-control tick asks `tick(now)` for the decision, in this priority:
+state stamps use): a setpoint accepted, a state received (with its stamp), a driver heartbeat, the driver's torque
+state, the E-stop state. Each control tick asks `tick(now)` for the decision, in this priority:
 
 1. E-stop active -> ESTOP, send nothing (the integrators are reset when the E-stop is entered);
 2. no setpoint yet -> WAITING_FOR_SETPOINT;
 3. driver watched (driver_timeout > 0): no heartbeat yet -> WAITING_FOR_DRIVER; none for driver_timeout ->
-   DRIVER_LOST; send nothing, integrators frozen, until heartbeats return;
+   DRIVER_LOST; send nothing, integrators frozen, until heartbeats return; the driver reports its servos' torque
+   off (not merely relaxed by its watchdog) -> TORQUE_OFF; send nothing, integrators frozen, until it is on again
+   (no report yet counts as on: a driver that never reports is judged by its heartbeats alone);
 4. no usable state yet -> WAITING_FOR_STATE;
 5. state age (tick time - its stamp; tick time - its arrival when stamps are not on this clock) <= stale_timeout ->
    TRACKING (step the law); <= hold_timeout and a command was sent before -> HOLD (re-send the last command,
@@ -37,6 +39,7 @@ class Mode(str, enum.Enum):
     HOLD = "holding (stale)"
     STALE = "stale (no command)"
     DRIVER_LOST = "driver lost"
+    TORQUE_OFF = "driver torque off"
     ESTOP = "stopped (E-stop)"
 
 
@@ -94,6 +97,7 @@ class Supervisor:
         self._stamp: int | None = None  # stamp of the newest accepted state
         self._arrival: int | None = None  # when it arrived
         self._heartbeat: int | None = None
+        self.torque_off = False  # the driver reported its servos' torque off
         self._commanded = False  # a command was sent since start or the last E-stop (a hold needs one)
 
     def setpoint_accepted(self) -> None:
@@ -112,6 +116,11 @@ class Supervisor:
     def driver_heartbeat(self, now_ns: int) -> None:
         """The driver showed it is alive (a phi_present sample)."""
         self._heartbeat = now_ns
+
+    def driver_torque(self, on: bool) -> bool:
+        """The driver reported whether its servos take commands (torque on); True when that changed."""
+        changed, self.torque_off = self.torque_off == on, not on
+        return changed
 
     def set_estop(self, active: bool) -> bool:
         """E-stop state from the driver; True when it is entered (the caller then resets the integrators)."""
@@ -150,6 +159,8 @@ class Supervisor:
                 return Mode.WAITING_FOR_DRIVER, Action.NONE
             if now_ns - self._heartbeat > self._driver:
                 return Mode.DRIVER_LOST, Action.NONE
+            if self.torque_off:
+                return Mode.TORQUE_OFF, Action.NONE
         if self._stamp is None:
             return Mode.WAITING_FOR_STATE, Action.NONE
         age_ns = now_ns - (self._stamp if self.config.stamp_clock else self._arrival)

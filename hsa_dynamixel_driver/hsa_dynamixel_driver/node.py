@@ -4,8 +4,9 @@ Safety (planning_and_control.md §5, §7; ecosystem.md §2): goals are clipped t
 limits around the configured neutral ticks (parameter or persisted calibration, never a value read at start) and
 rate-limited whatever arrives; torque goes off on deactivate, cleanup, shutdown, error, SIGINT/SIGTERM, uncaught
 exceptions and the E-stop (latched until ``clear_estop``); torque is enabled only while the servos answer, report no
-hardware error and their present positions are sane; a command watchdog holds or relaxes the motors; bus errors are
-counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
+hardware error and their present positions are sane, and a torque-on that failed on the bus is retried with backoff;
+the latched ``torque`` topic says whether phi_cmd moves the servos; a command watchdog holds or relaxes the motors;
+bus errors are counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
 docs/nodes/hsa_dynamixel_driver.md.
 
 ROS wiring only: the decisions are `hsa_core.servo_supervision.ServoSupervisor`'s, the bus I/O around them
@@ -66,6 +67,8 @@ class DynamixelDriver(LifecycleNode):
             self.create_service(Trigger, f"reboot_{dxl_id}", lambda req, res, i=dxl_id: self._on_reboot([i], res))
         self._pub_estop = self.create_publisher(Bool, "estop", qos.LATCHED)
         self._pub_estop.publish(Bool(data=False))
+        self._pub_torque = self.create_publisher(Bool, "torque", qos.LATCHED)
+        self._torque_reported: bool | None = None  # the value last published on `torque`
         self.create_service(Trigger, "estop", self._on_estop)
         self.create_service(Trigger, "clear_estop", self._on_clear_estop)
         # reliable, volatile, depth 10: matches any reliable publisher, and a quick True/False pair loses nothing
@@ -111,17 +114,20 @@ class DynamixelDriver(LifecycleNode):
         if self._sup.activate():
             self._servos.enable_torque()
         self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
+        self._report_torque()
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Stop the cycle and switch torque off."""
         self._stop_cycle()
         self._servos.disable_torque("deactivated")
+        self._report_torque()
         return SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Torque off and close the bus."""
         self._release("cleaned up")
+        self._report_torque()
         return SUCCESS
 
     def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
@@ -229,13 +235,27 @@ class DynamixelDriver(LifecycleNode):
         return self._answer(response, answer)
 
     # ------------------------------------------------------------------ control cycle
+    def _report_torque(self) -> None:
+        """Publish on `torque` whether phi_cmd moves the servos (hsa_core ServoSupervisor.takes_commands), on change."""
+        value = self._sup.takes_commands()
+        if value != self._torque_reported:
+            self._torque_reported = value
+            self._pub_torque.publish(Bool(data=value))
+
     def _cycle(self) -> None:
-        """One control cycle: watchdog, at most one sync write of the newest command, then one sync read."""
+        """One control cycle (then the torque report): see `_exchange`."""
+        self._exchange()
+        self._report_torque()
+
+    def _exchange(self) -> None:
+        """Watchdog, a due torque-on retry, at most one sync write of the newest command, then one sync read."""
         now = self._now()
         self._counts["cycles"] += 1
         if not self._sup.link_up:
             return
         self._check_watchdog(now)
+        if self._sup.torque_retry_due(now):
+            self._servos.enable_torque()
         try:
             self._write_goal()
             reading = self._servos.bus.read_positions()

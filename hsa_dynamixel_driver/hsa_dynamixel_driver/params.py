@@ -62,6 +62,10 @@ SPECS = (
               "the next phi_cmd, which re-enables torque if safe)", choices=("hold", "relax")),
     ParamSpec("reconnect_period", 1.0, "retry period while the bus is down [s]", low=0.05, high=60.0,
               read_only=True),
+    ParamSpec("torque_retry_period", 0.25, "first delay before a torque-on that failed on the bus is tried again [s]; "
+              "it doubles with each failure in a row up to torque_retry_max", low=0.01, high=60.0, read_only=True),
+    ParamSpec("torque_retry_max", 5.0, "largest delay between torque-on retries [s] (at least torque_retry_period)",
+              low=0.01, high=600.0, read_only=True),
     ParamSpec("packet_timeout", 0.0, "[ms] least time to wait for a status packet; 0 = the SDK's (about 34 ms). "
               "The simulated graph raises it: there a late reply is the machine's load, not the servo",
               low=0.0, high=10_000.0, read_only=True),

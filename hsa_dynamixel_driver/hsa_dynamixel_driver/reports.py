@@ -37,7 +37,9 @@ def bus_report(servos: Servos, p: dict[str, Any]) -> Report:
 def servo_report(servos: Servos, p: dict[str, Any]) -> Report:
     """OK; WARN torque off on request or relaxed; ERROR torque wanted but refused, a hardware error, or the E-stop."""
     sup, limits = servos.sup, servos.limits
-    values = {"torque": sup.note, "neutral_ticks": list(servos.map.neutral_ticks) if servos.map else [],
+    values = {"torque": sup.note, "torque_on_failures_in_a_row": sup.torque_failures,
+              "torque_retry_pending": sup.retry_at is not None,
+              "neutral_ticks": list(servos.map.neutral_ticks) if servos.map else [],
               "neutral_source": p["neutral_source"],
               "goal_limits": [[int(lo), int(hi)] for lo, hi in zip(limits.lower, limits.upper)] if limits else [],
               "held_at_start": sup.held, "reboots": servos.counts["reboots"], "last_reboot": servos.last_reboot,

@@ -51,7 +51,7 @@ class Servos:
         self.phi_max = twist_limit(self._model)
         self.stored_neutral = configured_neutral(p, self.ids, self.wiring.neutral_ticks)
         self.sup = ServoSupervisor(tuple(self.ids), p["error_limit"], p["neutral_tolerance"],
-                                   describe_hardware_error)
+                                   describe_hardware_error, p["torque_retry_period"], p["torque_retry_max"])
         self.goals = GoalPipeline()
         self.counts = dict.fromkeys(COUNTERS, 0)
         self.bus: DynamixelBus | None = None
@@ -191,7 +191,8 @@ class Servos:
         return problem
 
     def enable_torque(self) -> str | None:
-        """Torque on holding the present positions if the supervisor allows it; returns why not otherwise."""
+        """Torque on holding the present positions if the supervisor allows it; returns why not otherwise. A refusal
+        by the checks stays until asked again; a failure on the bus is retried with backoff while torque is due."""
         assert self.bus is not None
         try:
             reading = self.bus.read_positions()
@@ -204,14 +205,19 @@ class Servos:
             self.count_error(exc)
             self.bus.disable_torque(verify=False)  # servos enabled before the failure must not stay on
             problem = f"torque-on failed: {exc}"
+            delay = self.sup.torque_failed(problem, self._now())
+            retry = f"; retrying in {delay:.3g} s" if delay is not None else ""
+            self._log.error(f"torque stays off: {problem}{retry}")
+            return problem
         if problem is not None:
             if self.sup.torque_refused(problem):
                 self._log.error(f"torque stays off: {problem}")
             return problem
-        self.sup.torque_enabled()
+        failures = self.sup.torque_enabled()
         self.goals.limiter.reset(ticks)
         self.clear_command()
-        self._log.info("torque on, holding the present positions")
+        after = f" (after {failures} failed torque-on attempts)" if failures else ""
+        self._log.info(f"torque on, holding the present positions{after}")
         return None
 
     def disable_torque(self, reason: str) -> frozenset[int]:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hsa_core.control import ControllerState
-from hsa_core.control_loop import Activation, ControlLoop
+from hsa_core.control_loop import SETPOINT_CHECKS, SETPOINT_INTAKE, Activation, ControlLoop
 from hsa_core.params import load_params
 from hsa_core.planning import Setpoint
 from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
@@ -75,8 +75,11 @@ def test_a_setpoint_is_active_from_the_first_tick_after_its_stamp() -> None:
     assert second.mode is Mode.WAITING_FOR_STATE
     loop.receive_setpoint(130 * MS, SP_B, "b")
     loop.receive_setpoint(140 * MS, SP_A, "a2")
-    assert [a.tag for a in loop.tick(150 * MS).activated] == ["b", "a2"] and loop.active_tag == "a2"
-    assert loop.counters.setpoints == 3
+    loop.receive_setpoint(150 * MS, SP_B, "b2")  # stamped at the tick: waits for the next one
+    assert [a.tag for a in loop.tick(150 * MS).activated] == ["a2"] and loop.active_tag == "a2"  # the newest due wins
+    assert [a.tag for a in loop.tick(175 * MS).activated] == ["b2"] and loop.active_tag == "b2"
+    c = loop.counters
+    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (4, 3, 1, 0)
 
 
 def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
@@ -91,6 +94,43 @@ def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
     assert dict(loop.rejections.setpoints) == {"phi_ss not an equilibrium at q_des": 1,
                                                "setpoint contains non-finite values": 1}
     assert loop.rejections.last_setpoint == "setpoint contains non-finite values"
+
+
+def test_a_setpoint_flood_costs_the_tick_a_bounded_number_of_checks_and_the_newest_wins() -> None:
+    checked = []
+    law, loop = _loop(check=lambda sp: checked.append(sp) or None)
+    flood = [Setpoint(CHIEE, Q, np.full(2, 1.0 + k * 1e-6), 0.0) for k in range(10_000)]
+    for k, sp in enumerate(flood):  # 10 000 valid setpoints between two ticks
+        loop.receive_setpoint(k, sp, k)
+    tick = loop.tick(10_000)
+    assert tick.activated == (Activation(9_999, None),) and loop.active_tag == 9_999
+    assert checked == [flood[-1]] and law.active == [flood[-1]], "one check and one activation, whatever the load"
+    c = loop.counters
+    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (10_000, 1, 9_999, 0)
+    assert loop.pending_setpoints == 0
+    for k in range(100):  # stamped in the future: kept, but never more than the intake holds
+        loop.receive_setpoint(10**12 + k, flood[k], f"future {k}")
+    assert loop.pending_setpoints == SETPOINT_INTAKE and c.superseded_setpoints == 9_999 + 100 - SETPOINT_INTAKE
+    loop.drop_setpoints(7)  # dropped undecoded by the caller: received and superseded
+    assert (c.received_setpoints, c.superseded_setpoints) == (10_107, 9_999 + 100 - SETPOINT_INTAKE + 7)
+
+
+def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the_check_budget() -> None:
+    nan = Setpoint(CHIEE, Q, np.full(2, math.nan), 0.0)
+    law, loop = _loop()
+    loop.receive_setpoint(0, SP_A, "a")
+    loop.receive_setpoint(0, SP_B, "b")  # valid: the previous one to keep
+    for k in range(SETPOINT_CHECKS - 1):
+        loop.receive_setpoint(0, nan, f"nan {k}")
+    activated = loop.tick(25 * MS).activated
+    assert [a.tag for a in activated] == ["b", *(f"nan {k}" for k in range(SETPOINT_CHECKS - 1))]
+    assert loop.active_tag == "b" and law.active == [SP_B] and loop.counters.superseded_setpoints == 1
+    assert loop.counters.rejected_setpoints == SETPOINT_CHECKS - 1
+    for k in range(SETPOINT_CHECKS + 3):  # more refused ones than the budget: the valid one before is not reached
+        loop.receive_setpoint(30 * MS, SP_A if k == 0 else nan, k)
+    activated = loop.tick(50 * MS).activated
+    assert len(activated) == SETPOINT_CHECKS and all(a.problem for a in activated) and loop.active_tag == "b"
+    assert loop.counters.superseded_setpoints == 1 + 3 and loop.counters.rejected_setpoints == 2 * SETPOINT_CHECKS - 1
 
 
 def test_track_then_hold_then_stale_then_track_again() -> None:
@@ -167,6 +207,23 @@ def test_driver_loss_is_entered_once_and_counted() -> None:
         tick = loop.tick(k * 25 * MS)
         assert tick.mode is (Mode.TRACKING if k * 25 <= 250 else Mode.DRIVER_LOST), k
     assert law.n == 10 and loop.counters.driver_lost_events == 1
+
+
+def test_driver_torque_off_leaves_tracking_freezes_the_integrators_and_is_counted() -> None:
+    law, loop = _loop(driver_timeout=0.25)
+    loop.receive_setpoint(0, SP_A, "a")
+    modes = []
+    for k in range(1, 13):
+        now = k * 25 * MS
+        loop.heartbeat(now)
+        _state(loop, now)
+        if k in (4, 8):
+            assert loop.driver_torque(k == 8) is True
+        tick = loop.tick(now)
+        modes.append(tick.mode)
+        assert (tick.sent is Action.NONE) == (tick.mode is Mode.TORQUE_OFF)
+    assert modes == [Mode.TRACKING] * 3 + [Mode.TORQUE_OFF] * 4 + [Mode.TRACKING] * 5
+    assert law.n == 8 and loop.counters.torque_off_events == 1  # 4 ticks without a step: integrators frozen
 
 
 def test_deadline_misses_and_the_period_tick_rate() -> None:

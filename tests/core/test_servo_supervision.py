@@ -264,6 +264,73 @@ def test_reconnect_reports_the_outage_and_re_enables_torque() -> None:
     assert sup.connected(11.0) is None  # no loss in between
 
 
+# ------------------------------------------------------------------ torque-on retry
+def _failed_torque_on(sup: ServoSupervisor) -> None:
+    """A reconnect after a bus loss whose torque-on then fails."""
+    sup.link_lost("servo 24 silent", 0.0)
+    sup.torque_disabled("bus lost")
+    sup.connected(1.0)
+    assert sup.torque_due()
+
+
+def test_a_failed_torque_on_is_retried_with_backoff_until_it_comes_on() -> None:
+    sup = running()
+    sup.retry_period, sup.retry_max = 0.25, 1.5
+    _failed_torque_on(sup)
+    problem = "torque-on failed: write_register(64) on ID 24: There is no status packet!"
+    now, delays = 1.0, []
+    for _ in range(5):
+        delay = sup.torque_failed(problem, now)
+        assert sup.note == problem and not sup.torque_on and not sup.takes_commands()
+        assert not sup.torque_retry_due(now + delay - 1e-6) and sup.torque_retry_due(now + delay)
+        delays.append(delay)
+        now += delay
+    assert delays == [0.25, 0.5, 1.0, 1.5, 1.5]  # doubling, capped at retry_max
+    assert sup.torque_enabled() == 5 and sup.takes_commands()
+    assert sup.retry_at is None and not sup.torque_retry_due(now + 10.0)
+    _failed_torque_on(sup)
+    assert sup.torque_failed(problem, 20.0) == 0.25  # a new failure starts the backoff again
+    for k in range(2000):  # hours of failures: the delay stays at retry_max
+        assert sup.torque_failed(problem, 30.0 + k) == ((0.5, 1.0)[k] if k < 2 else 1.5)
+
+
+@pytest.mark.parametrize("end", ["refusal", "set_torque(false)", "E-stop", "bus lost", "deactivate"])
+def test_retries_end_when_torque_is_refused_or_no_longer_due(end: str) -> None:
+    sup = running()
+    _failed_torque_on(sup)
+    delay = sup.torque_failed("torque-on failed: no status", 1.0)
+    if end == "refusal":  # the checks refuse it: the refusal stays until torque is asked for again
+        sup.torque_refused("present positions of IDs [21] are outside the goal limits")
+    elif end == "set_torque(false)":
+        sup.torque_unwanted()
+    elif end == "E-stop":
+        sup.engage_estop("estop service", 1.1)
+    elif end == "bus lost":  # the reconnect tries torque on itself
+        sup.link_lost("unplugged", 1.1)
+    else:
+        sup.deactivate()
+    assert not sup.torque_retry_due(1.0 + delay) and not sup.torque_retry_due(100.0)
+    assert not sup.takes_commands()
+
+
+def test_a_failure_while_torque_is_not_due_schedules_no_retry() -> None:
+    sup = running()
+    sup.torque_disabled("set_torque service")
+    sup.torque_unwanted()
+    assert sup.torque_failed("torque-on failed: no status", 1.0) is None and not sup.torque_retry_due(100.0)
+
+
+def test_takes_commands_while_torque_is_on_or_relaxed_by_the_watchdog() -> None:
+    sup = running()
+    assert sup.takes_commands()
+    sup.command_taken(0.0)
+    assert sup.check_watchdog(1.0, 0.1, "relax").torque_off
+    sup.torque_disabled("watchdog: no phi_cmd")
+    assert sup.takes_commands()  # the next phi_cmd switches torque on again
+    sup.engage_estop("estop service", 1.0)
+    assert not sup.takes_commands()
+
+
 # ------------------------------------------------------------------ hardware errors
 def test_hardware_error_turns_torque_off_until_asked_again() -> None:
     sup = running()

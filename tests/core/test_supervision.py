@@ -109,6 +109,26 @@ def test_driver_lost_freezes_then_resumes() -> None:
     assert s.tick(t + 500 * MS).mode is Mode.TRACKING
 
 
+def test_driver_torque_off_sends_nothing_until_it_is_on_again() -> None:
+    t = 1000 * MS
+    s = _tracking(t)
+    assert s.driver_torque(True) is False  # no report yet counts as on: nothing changes
+    assert s.driver_torque(False) is True and s.driver_torque(False) is False
+    for k in range(1, 5):  # heartbeats and fresh states keep coming: the driver is alive, its servos powerless
+        now = t + k * 25 * MS
+        s.driver_heartbeat(now)
+        assert s.state(now, now) is None
+        assert (s.tick(now).mode, s.tick(now).action) == (Mode.TORQUE_OFF, Action.NONE)
+    assert s.tick(t + 400 * MS).mode is Mode.DRIVER_LOST  # silence outranks the torque report
+    s.driver_heartbeat(t + 400 * MS)
+    assert s.driver_torque(True) is True
+    assert s.tick(t + 400 * MS).mode is Mode.STALE  # state 300 ms old: nothing held across the torque-off
+    assert s.state(t + 400 * MS, t + 400 * MS) is None
+    assert s.tick(t + 400 * MS).mode is Mode.TRACKING
+    s.driver_torque(False)
+    assert s.set_estop(True) and s.tick(t + 400 * MS).mode is Mode.ESTOP  # the E-stop outranks it
+
+
 def test_estop_has_priority_and_drops_the_hold() -> None:
     t = 1000 * MS
     s = _tracking(t)

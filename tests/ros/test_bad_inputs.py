@@ -221,6 +221,43 @@ def test_bad_setpoints_are_refused_and_the_previous_one_stays(graph, ros_node) -
               "active, tracking went on", 0.0)
 
 
+def test_a_setpoint_flood_leaves_the_controller_tracking_the_newest(graph, ros_node) -> None:
+    infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
+    diagnostics = DiagnosticsLog(ros_node)
+    stream, sp_pub = _track(ros_node, infos)
+    n_flood, flood_rate = 2000, 1000.0  # valid setpoints, each with its own index and stamp
+    try:
+        base = _report(diagnostics, CONTROL, ros_node)
+        n_infos = len(infos)
+        t0 = time.monotonic()
+        for k in range(n_flood):
+            msg = setpoint()
+            msg.trajectory_index, msg.trajectory_length = k, n_flood
+            msg.header.stamp = ros_node.get_clock().now().to_msg()
+            sp_pub.publish(msg)
+            time.sleep(max(0.0, t0 + (k + 1) / flood_rate - time.monotonic()))
+        flooded = time.monotonic() - t0
+        last = msg.header.stamp
+        assert wait_until(lambda: any(m.state == ControllerInfo.STATE_TRACKING and m.setpoint.header.stamp == last
+                                      for m in infos.since(n_infos)), 20.0), "never tracked the newest setpoint"
+        report = diagnostics.wait(CONTROL, lambda s, v: int(v["pending_setpoints"]) == 0 and _delta(
+            v, base, "setpoints") >= 1, after_ns=ros_node.get_clock().now().nanoseconds)[1]
+    finally:
+        stream.close()
+    received, accepted, superseded, rejected = (_delta(report, base, key) for key in (
+        "received_setpoints", "setpoints", "superseded_setpoints", "rejected_setpoints"))
+    assert 0 < received <= n_flood and rejected == 0 and superseded > 0, report
+    assert received == accepted + superseded, "every setpoint taken is either activated or superseded"
+    assert accepted < n_flood / 2, "each tick activates at most the newest setpoint"
+    ticks = infos.since(n_infos)
+    assert [m for m in ticks if m.state == ControllerInfo.STATE_TRACKING], "no tracking tick during the flood"
+    assert not [m for m in ticks if m.state == ControllerInfo.STATE_STOPPED]
+    indices = [m.setpoint.trajectory_index for m in ticks if m.setpoint.trajectory_length == n_flood]
+    assert indices == sorted(indices), "an older setpoint became active after a newer one"
+    fault(f"setpoint flood ({n_flood} valid setpoints at {n_flood / flooded:.0f}/s)", f"controller kept ticking, "
+          f"{received} taken, {accepted} activated, {superseded} superseded (newest wins), newest tracked", "none")
+
+
 def _noting(at: dict[str, int], label: str, make: Callable[[int], PoseStamped]) -> Callable[[int], PoseStamped]:
     """``make``, recording under ``label`` the stamp of the regular sample the injected one follows."""
     def build(stamp: int) -> PoseStamped:

@@ -7,6 +7,9 @@
 * The real dynamixel_driver on the emulated bus is killed while the controller tracks: the controller leaves tracking
   (ERROR "driver lost"), sends nothing and its integral does not move; a restarted driver brings it back to tracking
   with the integral where it was frozen.
+* A torque-on of that driver fails on the bus (a corrupted status): the driver retries it after
+  `torque_retry_period` and torque comes back; meanwhile the driver reports torque off and the controller does not
+  track (mode "driver torque off", ControllerInfo STATE_TORQUE_OFF), then tracks again.
 """
 
 from __future__ import annotations
@@ -16,24 +19,25 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 
 from hsa_common import qos
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
-from tests.ros.driver_harness import DriverProcess, drivers, make_emulator
+from tests.ros.driver_harness import DriverProcess, make_emulator, torque, torque_on_time
 from tests.ros.faults import (OFFSET_CHIEE, DiagnosticsLog, NodeProcess, Recorder, fault, sec, setpoint, start_all,
                               wait_until)
 
 pytestmark = pytest.mark.ros
-__all__ = ["drivers"]  # fixture used below
 
 NS = "/cs"
 CONTROL = "controller_node: control loop"
 TRACKING = ControllerInfo.STATE_TRACKING
+RETRY = ["torque_retry_period:=1.0"]  # a failed torque-on is tried again after 1 s: a window the test can see
 POISON = {
     "q_des 1e308": lambda m: setattr(m.q_des, "kappa_be", 1e308),
     "q_des 1e9": lambda m: [setattr(m.q_des, f, 1e9) for f in ("kappa_be", "sigma_sh", "sigma_ax")],
@@ -157,20 +161,75 @@ def test_states_with_old_stamps_are_not_tracked_on(controller, ros_node) -> None
           time.monotonic() - t0)
 
 
-def test_driver_outage_freezes_the_integrators_and_resumes(tmp_path: Path, drivers, ros_node) -> None:
-    emulator = make_emulator(tmp_path)
-    drivers.append(DriverProcess(emulator.port))
+@pytest.fixture(scope="module")
+def driven(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[object, list[DriverProcess], NodeProcess]]:
+    """The emulated bus, the real driver on it (a list: a test may restart it) and controller_node watching it."""
+    emulator = make_emulator(tmp_path_factory.mktemp("driven"))
+    drivers = [DriverProcess(emulator.port, RETRY)]
     controller = NodeProcess("controller_node", ["-p", "diagnostics_period:=0.2"])  # driver watched (default)
     try:
         controller.wait_ready()
         drivers[-1].wait_ready()
-        _outage(emulator, drivers, controller, ros_node)
+        yield emulator, drivers, controller
     finally:
         controller.stop()
+        for driver in drivers:
+            if driver.proc.poll() is None:
+                driver.stop()
         emulator.stop()
 
 
-def _outage(emulator, drivers, controller: NodeProcess, ros_node) -> None:  # noqa: ANN001 - test objects
+def test_driver_outage_freezes_the_integrators_and_resumes(driven, ros_node) -> None:
+    _outage(*driven, ros_node)
+
+
+def test_a_failed_torque_on_is_retried_and_the_controller_does_not_track_meanwhile(driven, ros_node) -> None:
+    emulator, drivers, controller = driven
+    driver = drivers[-1]
+    infos = Recorder(ros_node, ControllerInfo, "/controller_info")
+    cmds = Recorder(ros_node, PlanarActuation, "/phi_cmd")
+    diagnostics = DiagnosticsLog(ros_node)
+    lifecycle = ros_node.create_client(ChangeState, "/dynamixel_driver/change_state")
+    assert lifecycle.wait_for_service(timeout_sec=10.0)
+
+    def transition(kind: int) -> None:
+        response = lifecycle.call(ChangeState.Request(transition=Transition(id=kind)), timeout_sec=10.0)
+        assert response is not None and response.success, kind
+
+    ros_node.create_publisher(Setpoint, "/setpoint", qos.LATCHED).publish(setpoint())
+    feeder = StateFeeder(ros_node, "/state")
+    clock_offset = time.time() - time.monotonic()  # ROS time (system clock) - the emulator's CLOCK_MONOTONIC
+    try:
+        assert wait_until(lambda: sum(m.state == TRACKING for m in infos.since()) > 20, 30.0), controller.output()
+        transition(Transition.TRANSITION_DEACTIVATE)  # torque off, the bus quiet: the next status is the activation's
+        deactivated = time.monotonic()
+        assert torque(emulator) == {False}
+        emulator.corrupt_next_statuses(1)
+        transition(Transition.TRANSITION_ACTIVATE)
+        assert wait_until(lambda: bool(driver.log("torque stays off: torque-on failed")), 5.0), driver.output()
+        assert torque(emulator) == {False}
+        status, values = diagnostics.wait(CONTROL, lambda s, v: v["mode"] == "driver torque off",
+                                          after_ns=ros_node.get_clock().now().nanoseconds)
+        assert wait_until(lambda: torque_on_time(emulator, deactivated) is not None, 10.0), driver.output()
+        back = torque_on_time(emulator, deactivated)
+        n_back = len(infos)
+        assert wait_until(lambda: any(m.state == TRACKING for m in infos.since(n_back)), 10.0), controller.output()
+    finally:
+        feeder.close()
+    assert torque(emulator) == {True} and driver.log("after 1 failed torque-on attempts"), driver.output()
+    assert back - deactivated >= 0.9, f"torque back {back - deactivated:.3f} s after the failure: not the retry"
+    assert status.level == DiagnosticStatus.ERROR and int(values["torque_off_events"]) >= 1, values
+    off = [m for m in infos.since() if deactivated + 0.3 < sec(m.header.stamp) - clock_offset < back]
+    assert off and not [m for m in off if m.state == TRACKING], "tracked while the servos had no torque"
+    assert any(m.state == ControllerInfo.STATE_TORQUE_OFF for m in off)
+    assert not [m for m in cmds.since() if deactivated + 0.3 < sec(m.header.stamp) - clock_offset < back]
+    assert controller.log("driver torque off"), controller.output()
+    fault("torque-on fails on the bus (corrupted status)", "driver retries after torque_retry_period (backoff), "
+          "reports torque off meanwhile; controller mode 'driver torque off', no tracking, no command",
+          back - deactivated)
+
+
+def _outage(emulator, drivers: list[DriverProcess], controller: NodeProcess, ros_node) -> None:  # noqa: ANN001
     """Track, kill the driver, check the freeze, restart it, check the resume."""
     infos = Recorder(ros_node, ControllerInfo, "/controller_info")
     cmds = Recorder(ros_node, PlanarActuation, "/phi_cmd")
@@ -191,7 +250,7 @@ def _outage(emulator, drivers, controller: NodeProcess, ros_node) -> None:  # no
         late_cmds = [m for m in cmds.since() if sec(m.header.stamp) > killed + 0.5]
         frozen = np.asarray(lost[-1].e_int)
         t_restart = time.monotonic()
-        drivers.append(DriverProcess(emulator.port).wait_ready())
+        drivers.append(DriverProcess(emulator.port, RETRY).wait_ready())
         n_back = len(infos)
         assert wait_until(lambda: any(m.state == TRACKING for m in infos.since(n_back)), 30.0), controller.output()
         resumed = time.monotonic() - t_restart

@@ -15,8 +15,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-CONTROLLER_STATES = ("waiting for setpoint", "waiting for state", "tracking", "holding (stale)", "stopped (E-stop)")
-"""Names of hsa_msgs/ControllerInfo ``state`` codes 0-4 (STATE_WAITING_FOR_SETPOINT … STATE_STOPPED)."""
+CONTROLLER_STATES = ("waiting for setpoint", "waiting for state", "tracking", "holding (stale)", "stopped (E-stop)",
+                     "driver torque off")
+"""Names of hsa_msgs/ControllerInfo ``state`` codes 0-5 (STATE_WAITING_FOR_SETPOINT … STATE_TORQUE_OFF)."""
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
 """Names of diagnostic_msgs/DiagnosticStatus levels 0-3."""
 Q_NAMES = ("kappa_be", "sigma_sh", "sigma_ax")

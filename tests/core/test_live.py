@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from pathlib import Path
 
 import pytest
 
@@ -86,3 +88,10 @@ def test_json_schema_describes_the_payload_with_one_type_per_field() -> None:
     actuation = live.json_schema("a", live.actuation_sample([0, 0], [0, 0], [0, 0], [0, 0], [1, 1], False))
     assert actuation["properties"]["phi_cmd"] == {"type": "array", "items": {"type": "number"}}
     assert actuation["properties"]["saturated"] == {"type": "boolean"}
+
+
+def test_every_controller_state_of_the_message_definition_has_its_name() -> None:
+    definition = Path(__file__).parents[2] / "hsa_msgs" / "msg" / "ControllerInfo.msg"
+    codes = {int(m[2]): m[1] for m in re.finditer(r"uint8 (STATE_\w+) = (\d+)", definition.read_text())}
+    assert set(codes) == set(range(len(live.CONTROLLER_STATES)))
+    assert live.controller_state_name(max(codes)) == "driver torque off" and codes[max(codes)] == "STATE_TORQUE_OFF"

@@ -37,7 +37,7 @@ from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, P
 from hsa_core.estimation import derivative_coefficients
 from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
 from hsa_core.sequencer_timing import first_point_ns
-from hsa_core.params import HsaParams, load_params
+from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
@@ -108,10 +108,10 @@ class _Carry(NamedTuple):
 def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
     """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants.
 
-    ``model`` is the controller's model, which plans the setpoints (default: the material's parameter set)."""
+    ``model`` is the controller's model, which plans the setpoints (default: ``config.model()``)."""
     if config.mocap_outages:
         raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
-    model = load_params(config.material) if model is None else model
+    model = config.model() if model is None else model
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:

@@ -2,8 +2,10 @@
 
 The runs ship as package data (``config/realdata/``, provenance in its README.md): four closed-loop step runs of the
 ISER 2023 paper recovered from the authors' published figures, with each run's conditions from their logbook
-(``runs.yaml``). :func:`load_run` returns one run; :func:`run_names` lists them. Units as in the files: time [s],
-positions [mm], angles [rad]. What the data can and cannot say (resolution, repeatability) is in the README.
+(``runs.yaml``). :func:`load_run` returns one run; :func:`run_names` lists them. The raw series (:class:`Trace`) keep
+the files' units (time [s], positions [mm], angles [rad]); :attr:`ReferenceRun.p`, :attr:`ReferenceRun.p_des` and
+:meth:`ReferenceRun.rmse` are in metres. What the data can and cannot say (resolution, repeatability) is in the
+README.
 
 Step instants are read from the 100 Hz reference columns: the first grid instant at which the reference has moved by
 more than :data:`STEP_THRESHOLD` (the plotted reference of the EPU run also drifts by 0.01 mm every ~2.4 s, a drawing
@@ -24,8 +26,8 @@ from hsa_core.control import CollocatedGains, ControllerKind, PidGains
 
 DATA_DIR = Path(__file__).resolve().parent / "config" / "realdata"
 """The packaged reference runs (CSV files, runs.yaml, README.md)."""
-STEP_THRESHOLD = 0.5
-"""[mm] a move of the reference larger than this between two 100 Hz samples is a step."""
+STEP_THRESHOLD = 0.5e-3
+"""[m] a move of the reference larger than this between two 100 Hz samples is a step."""
 
 
 class VelocityEstimator(str, enum.Enum):
@@ -83,7 +85,7 @@ class Trace:
 
 @dataclass(frozen=True)
 class ReferenceRun:
-    """One real run: its conditions and time series (positions [mm]).
+    """One real run: its conditions and time series (as in the files: positions [mm]).
 
     ``pee`` as plotted (irregular samples), ``pee_100hz`` on a 10 ms grid with the reference as an exact step
     function; ``phi`` the commanded twists (and φ^ss for model-based laws); ``varphi`` (model-based laws only, else
@@ -104,13 +106,13 @@ class ReferenceRun:
 
     @property
     def p_des(self) -> np.ndarray:
-        """(n, 2) [mm] the reference on the 100 Hz grid."""
-        return np.stack([self.pee_100hz["px_des"], self.pee_100hz["py_des"]], axis=1)
+        """(n, 2) [m] the reference on the 100 Hz grid."""
+        return np.stack([self.pee_100hz["px_des"], self.pee_100hz["py_des"]], axis=1) * 1e-3
 
     @property
     def p(self) -> np.ndarray:
-        """(n, 2) [mm] the measured (mocap) end-effector position on the 100 Hz grid."""
-        return np.stack([self.pee_100hz["px"], self.pee_100hz["py"]], axis=1)
+        """(n, 2) [m] the measured (mocap) end-effector position on the 100 Hz grid."""
+        return np.stack([self.pee_100hz["px"], self.pee_100hz["py"]], axis=1) * 1e-3
 
     @property
     def step_instants(self) -> np.ndarray:
@@ -118,7 +120,7 @@ class ReferenceRun:
         return step_instants(self.t, self.p_des)
 
     def rmse(self) -> float:
-        """[mm] tracking RMSE over the 100 Hz grid (experiments.md §4 on these traces)."""
+        """[m] tracking RMSE over the 100 Hz grid (experiments.md §4 on these traces)."""
         return float(np.sqrt(np.mean(np.sum((self.p_des - self.p) ** 2, axis=1))))
 
 

@@ -80,6 +80,7 @@ class Trace:
     columns: dict[str, np.ndarray]
 
     def __getitem__(self, name: str) -> np.ndarray:
+        """The column ``name`` (as in the file's header, without its unit)."""
         return self.columns[name]
 
 

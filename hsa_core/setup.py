@@ -10,7 +10,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml", "config/gains/*.yaml"]},
+    package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml", "config/gains/*.yaml",
+                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

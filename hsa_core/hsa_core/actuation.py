@@ -42,14 +42,19 @@ _TRUNC_GUARD = 1e-6  # ticks
 
 def angles_to_ticks(psi: ArrayLike, neutral_ticks: ArrayLike) -> np.ndarray:
     """Goal ticks neutral + trunc(ψ·2048/π) (int32) for motor angles ψ [rad]; ValueError if not finite or not int32."""
-    raw = np.asarray(psi, dtype=np.float64) * TICKS_PER_RAD
-    offset = np.trunc(raw + np.copysign(_TRUNC_GUARD, raw))
+    offset = truncate_ticks(np.asarray(psi, dtype=np.float64) * TICKS_PER_RAD)
     if not np.all(np.abs(offset) < 2**31):  # also catches NaN, which would otherwise cast to an arbitrary integer
         raise ValueError(f"motor angles {psi} rad are not finite or exceed the int32 tick range")
     ticks = np.asarray(neutral_ticks, dtype=np.int64) + offset.astype(np.int64)
     if np.any((ticks < -(2**31)) | (ticks >= 2**31)):
         raise ValueError("goal ticks exceed the int32 range")
     return ticks.astype(np.int32)
+
+
+def truncate_ticks(raw: ArrayLike, xp=np):  # noqa: ANN001, ANN201 - xp: numpy or jax.numpy
+    """Tick values [ticks] truncated towards zero, as goals are written (a 1e-6-tick guard keeps a whole tick that
+    round-off put just below it); ``xp`` numpy, or jax.numpy to trace it."""
+    return xp.trunc(raw + xp.copysign(_TRUNC_GUARD, raw))
 
 
 def ticks_to_angles(ticks: ArrayLike, neutral_ticks: ArrayLike) -> np.ndarray:
@@ -140,6 +145,11 @@ class MotorMap:
     def rod_twists(self, psi: ArrayLike) -> np.ndarray:
         """Virtual-rod twists φ (n_rods,) [rad]: mean of s_m·ψ_m over the motors of each rod."""
         return self._motors_to_rods.dot(np.asarray(psi, dtype=np.float64))
+
+    def goal_offsets(self, phi: ArrayLike, xp=np):  # noqa: ANN001, ANN201 - xp: numpy or jax.numpy
+        """Goal ticks minus neutral for twists φ [rad], truncated as :meth:`goal_ticks` writes them, as floats and
+        without range checks; ``xp`` numpy, or jax.numpy to trace it (the batched closed loop)."""
+        return truncate_ticks(xp.asarray(phi)[self._rod_index] * xp.asarray(self.sign, dtype=float) * TICKS_PER_RAD, xp)
 
     def goal_ticks(self, phi: ArrayLike) -> np.ndarray:
         """Unclamped Dynamixel goal ticks (int32) for twists φ [rad]."""

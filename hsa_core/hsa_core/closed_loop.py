@@ -4,11 +4,13 @@
 plant integrated with two RK4 steps per interval, MX-28 speed cap, goals effective after the actuation latency,
 200 Hz mocap with latency and noise, closed-form IK, causal Savitzky–Golay, the control law with its integrators and
 saturation, goal ticks truncated towards zero — as ``lax.scan`` over the control ticks (``fori_loop`` over the 1 ms
-instants inside). At each instant, as in the experiment: the tick (if one is due) runs first, then the samples that
-became available reach the estimator, then the world runs one interval; whether an instant takes or delivers a
-sample depends on the instant alone, so that work is a branch (``lax.cond``, which ``vmap`` keeps a branch) and the
-other instants only move the servos and integrate the plant. The setpoints come from the planner before
-the loop (:func:`prepare`); a tick uses the newest one planned strictly before it.
+instants inside). The world's part is the world's own code: each interval is :func:`hsa_core.world.interval_fn`, the
+start :func:`~hsa_core.world.hanging_at_rest`, a sample :func:`~hsa_core.world.mocap_sample`, the goal ticks
+``MotorMap.goal_offsets``. At each instant, as in the experiment: the tick (if one is due) runs first, then the
+samples that became available reach the estimator, then the world runs one interval; whether an instant takes or
+delivers a sample depends on the instant alone, so that work is a branch (``lax.cond``, which ``vmap`` keeps a
+branch) and the other instants only move the servos and integrate the plant. The setpoints come from the planner
+before the loop (:func:`prepare`); a tick uses the newest one planned strictly before it.
 Of controller_node's supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
 path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays below stale_timeout).
 
@@ -31,17 +33,18 @@ import numpy as np
 from jax import Array
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from hsa_core import control, kinematics, metrics, simulation
-from hsa_core.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap, _TRUNC_GUARD
+from hsa_core import control, kinematics, metrics
+from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
 from hsa_core.estimation import derivative_coefficients
 from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
 from hsa_core.sequencer_timing import first_point_ns
-from hsa_core.params import HsaParams, load_params
+from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
-from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, PLANT_SUBSTEPS, seconds_to_ns
+from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, hanging_at_rest, interval_fn, mocap_sample, seconds_to_ns,
+                            servo_speed, world_params)
 
 MS = GRID_NS
 MOCAP_MS = MOCAP_PERIOD_NS // GRID_NS
@@ -108,10 +111,10 @@ class _Carry(NamedTuple):
 def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
     """The loop of ``config`` (as :func:`hsa_core.experiment.run_experiment` runs it): spec, inputs and constants.
 
-    ``model`` is the controller's model, which plans the setpoints (default: the material's parameter set)."""
+    ``model`` is the controller's model, which plans the setpoints (default: ``config.model()``)."""
     if config.mocap_outages:
         raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
-    model = load_params(config.material) if model is None else model
+    model = config.model() if model is None else model
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
@@ -145,7 +148,7 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
                     lat_a // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model), 1.0 / config.rate)
     inputs = LoopInputs(dist.plant_params(model), gains, jnp.asarray(noise(dist, spec)),
-                        jnp.asarray(dist.servo_max_speed * TICKS_PER_RAD * GRID_NS * 1e-9))
+                        jnp.asarray(servo_speed(dist.servo_max_speed)))
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
 
 
@@ -162,23 +165,17 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
     static (:func:`compiled`)."""
     plant, model = inputs.plant, constants.model
     motor_map = spec.motor_map
-    neutral = jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64)
-    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK
-    motor_sign = jnp.asarray(motor_map.sign, dtype=jnp.float64)
-    rod_index = jnp.asarray(motor_map._rod_index)
+    world = world_params(plant, motor_map, inputs.servo_speed)
+    interval = interval_fn(world)
+    neutral = world.neutral
     coeffs = jnp.asarray(derivative_coefficients(np.arange(ESTIMATOR_WINDOW) - (ESTIMATOR_WINDOW - 1.0),
                                                  ESTIMATOR_ORDER))
-    q_ddot = simulation.forward_dynamics_fn(plant)
-    dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
     queue = max(2, -(-spec.measurement_latency_ms // MOCAP_MS) + 2)
     lat_m, lat_a, period = spec.measurement_latency_ms, spec.actuation_latency_ms, spec.period_ms
 
-    def pose(x: Array) -> Array:
-        return kinematics.end_effector_pose(plant, x[:3])
-
     def sample(samples: Array, x: Array, k: Array) -> Array:
         """Take mocap sample k (the pose at its stamp plus its noise) into the queue."""
-        return samples.at[k % queue].set(pose(x) + inputs.noise[k])
+        return samples.at[k % queue].set(mocap_sample(plant, x, inputs.noise[k]))
 
     def deliver(window: Array, stamps: Array, samples: Array, ts: Array) -> tuple[Array, Array]:
         """Hand the sample stamped ts [ms] to the estimator: its IK and pose enter the window."""
@@ -197,10 +194,7 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         effective = (c.pending_at >= 0) & (c.pending_at <= t)
         goal = jnp.where(effective, c.pending, c.goal)
         pending_at = jnp.where(effective, -1, c.pending_at)
-        moved = c.position + jnp.clip(goal - c.position, -inputs.servo_speed, inputs.servo_speed)
-        phi = to_rods @ (moved - neutral)
-        x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation._rk4(q_ddot, xk, phi, dt), c.x,
-                              unroll=True)  # no loop per instant: ~5 % of the instant
+        x, moved = interval(c.x, c.position, goal, True)
         return c._replace(x=x, position=moved, goal=goal, pending_at=pending_at, window=window, stamps=stamps,
                           count=count, samples=samples)
 
@@ -223,18 +217,17 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
                                                   ee_integral=spec.ee_integral)
         ctrl = jnp.clip(jnp.concatenate([new.e_int, new.z_ee]), -control.INTEGRAL_LIMIT, control.INTEGRAL_LIMIT)
         phi = jnp.clip(phi_cmd, 0.0, spec.motor_map.phi_max)
-        raw = phi[rod_index] * motor_sign * TICKS_PER_RAD
-        goal = neutral + jnp.trunc(raw + jnp.copysign(_TRUNC_GUARD, raw))
-        log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, pose(c.x))
+        goal = neutral + motor_map.goal_offsets(phi, jnp)
+        true_chiee = kinematics.end_effector_pose(plant, c.x[:3])
+        log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, true_chiee)
         c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl), pending=jnp.where(run, goal, c.pending),
                        pending_at=jnp.where(run, t + lat_a, c.pending_at))
         c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
         return c, log
 
-    x0 = simulation.steady_state_rollout(plant, jnp.zeros(2))
-    x0 = x0.at[3:].set(0.0)
-    c = _Carry(x0, neutral, neutral, neutral, jnp.asarray(-1), jnp.zeros((ESTIMATOR_WINDOW, 6)),
-               jnp.zeros(ESTIMATOR_WINDOW), jnp.asarray(0), jnp.zeros(4), jnp.zeros((queue, 3)))
+    c = _Carry(hanging_at_rest(plant), neutral, neutral, neutral, jnp.asarray(-1),
+               jnp.zeros((ESTIMATOR_WINDOW, 6)), jnp.zeros(ESTIMATOR_WINDOW), jnp.asarray(0), jnp.zeros(4),
+               jnp.zeros((queue, 3)))
     c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)  # the instants before the first tick
     _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
     return log

@@ -72,6 +72,13 @@ class ExperimentConfig:
     gains: CollocatedGains | PidGains | None = None  # default: the paper's gains for the law and material
     mocap_outages: tuple[tuple[float, float], ...] = ()  # [s] world-time windows [start, end): samples stamped in
     # them never reach the estimator (a fault for the supervision; hsa_core.closed_loop models fault-free runs only)
+    sigma_a_eq: tuple[float, float] | None = None  # σ_a,eq per rod calibrated before the run (default: the
+    # material's nominal): the controller's model's, and the plant's plus the disturbance's rest_strain_offset
+
+    def model(self) -> HsaParams:
+        """The controller's model: the material's parameter set with the run's σ_a,eq."""
+        params = load_params(self.material)
+        return params if self.sigma_a_eq is None else params.replace(sigma_a_eq=np.asarray(self.sigma_a_eq, float))
 
     @property
     def name(self) -> str:
@@ -115,7 +122,7 @@ class ExperimentResult:
 def run_experiment(config: ExperimentConfig, progress: bool = False) -> ExperimentResult:
     """Run one closed-loop experiment (see the module docstring) and evaluate it."""
     wall0 = time.perf_counter()
-    model = load_params(config.material)
+    model = config.model()
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:

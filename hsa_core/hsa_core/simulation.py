@@ -18,7 +18,7 @@ DEFAULT_DT = 0.025 / DEFAULT_SUBSTEPS
 input sweeping the workspace, within ~0.2 um of a 1e-5 s solution in EE position over 10 s."""
 
 
-def _rk4(q_ddot: Callable[[Array, Array, Array], Array], x: Array, phi: Array, dt: ArrayLike) -> Array:
+def rk4(q_ddot: Callable[[Array, Array, Array], Array], x: Array, phi: Array, dt: ArrayLike) -> Array:
     """One classical RK4 step of x_dot = [q_dot, q_ddot(q, q_dot, phi)] with phi held constant."""
 
     def f(x: Array) -> Array:
@@ -33,7 +33,7 @@ def _rk4(q_ddot: Callable[[Array, Array, Array], Array], x: Array, phi: Array, d
 
 def rk4_step(params: HsaParams, x: ArrayLike, phi: ArrayLike, dt: ArrayLike) -> Array:
     """One classical RK4 step of length dt of the state x = [q, q_dot] with phi held constant (zero-order hold)."""
-    return _rk4(forward_dynamics_fn(params), _as_f64(x), _as_f64(phi), dt)
+    return rk4(forward_dynamics_fn(params), _as_f64(x), _as_f64(phi), dt)
 
 
 def simulate(
@@ -52,7 +52,7 @@ def simulate(
     x0 = _as_f64(x0)
 
     def hold(x: Array, phi: Array) -> tuple[Array, Array]:
-        x = jax.lax.fori_loop(0, substeps, lambda _, xk: _rk4(q_ddot, xk, phi, dt), x)
+        x = jax.lax.fori_loop(0, substeps, lambda _, xk: rk4(q_ddot, xk, phi, dt), x)
         return x, x
 
     _, xs = jax.lax.scan(hold, x0, _as_f64(phi_seq))
@@ -64,7 +64,7 @@ def steady_state_rollout(params: HsaParams, phi: ArrayLike, duration: float = 5.
     q_ddot = forward_dynamics_fn(params)
     phi = _as_f64(phi)
     n_steps = round(duration / dt)
-    return jax.lax.fori_loop(0, n_steps, lambda _, x: _rk4(q_ddot, x, phi, dt), jnp.zeros(6))
+    return jax.lax.fori_loop(0, n_steps, lambda _, x: rk4(q_ddot, x, phi, dt), jnp.zeros(6))
 
 
 def _as_f64(v: ArrayLike) -> Array:

@@ -22,20 +22,29 @@ both paths hit the same instants exactly):
   holding whatever they hold. It is the plant's m_pl until the first change (the parameter sets' 0 kg).
 
 Events are integer nanoseconds; a time that is not on the grid is rounded up to the next grid point.
+
+**One world interval.** What happens in one grid interval is one pure, JAX-traceable function of the world's
+parameters (:class:`WorldParams`: plant, servo speed cap, wiring) and state: :func:`interval_fn`; the plant's start
+(:func:`hanging_at_rest`) and a mocap sample (:func:`mocap_sample`) are functions too. :class:`World` runs them on
+its event grid, and the batched closed loop (:mod:`hsa_core.closed_loop`) inside its ``lax.scan``: a parameter that
+reaches one path reaches the other.
 """
 
 from __future__ import annotations
 
 import bisect
 import dataclasses
+import functools
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import Array
 from numpy.typing import ArrayLike
 
 from hsa_core import kinematics, resultcache, simulation
@@ -79,6 +88,58 @@ def payload_schedule(flat: Sequence[float]) -> tuple[tuple[int, float], ...]:
     return tuple((seconds_to_ns(t), m) for t, m in zip(times, masses))
 
 
+class WorldParams(NamedTuple):
+    """What one grid interval depends on (a pytree: traced, batchable with ``jax.vmap``)."""
+
+    plant: HsaParams  # the simulated plant (with its payload m_pl)
+    servo_speed: ArrayLike  # [ticks per grid interval] the servos' speed cap
+    neutral: ArrayLike  # (motors,) [ticks] the motors' neutral positions
+    to_rods: ArrayLike  # (rods, motors) [rad per tick] shaft ticks → virtual-rod twists
+
+
+def world_params(plant: HsaParams, motor_map: MotorMap, speed: ArrayLike) -> WorldParams:
+    """The world's parameters from the plant, the robot's wiring and the servos' speed cap [ticks per grid interval,
+    :func:`servo_speed`]."""
+    return WorldParams(plant, speed, jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64),
+                       jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK)
+
+
+def servo_speed(max_speed: ArrayLike) -> ArrayLike:
+    """A shaft speed [rad/s] as the most ticks it moves in one grid interval."""
+    return max_speed * TICKS_PER_RAD * GRID_NS * 1e-9
+
+
+def interval_fn(params: WorldParams) -> Callable[[Array, Array, Array, ArrayLike], tuple[Array, Array]]:
+    """One grid interval of the world, pure and traceable (the plant's parameter terms are computed here, once).
+
+    The returned ``interval(x, position, goal, torque) → (x, position)`` takes the plant state [q, q_dot], the shaft
+    positions and the goal in force [ticks] and whether each motor has torque: the shafts with torque move towards
+    the goal by at most the speed cap, then the plant is integrated over the interval with ``PLANT_SUBSTEPS`` RK4
+    steps, the twists those shafts realise held."""
+    q_ddot = simulation.forward_dynamics_fn(params.plant)
+    dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
+    speed = params.servo_speed
+
+    def interval(x: Array, position: Array, goal: Array, torque: ArrayLike) -> tuple[Array, Array]:
+        moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
+        phi = params.to_rods @ (moved - params.neutral)
+        x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4(q_ddot, xk, phi, dt), x,
+                              unroll=True)  # no loop per interval: ~5 % of the batched loop's instant
+        return x, moved
+
+    return interval
+
+
+def hanging_at_rest(plant: HsaParams) -> Array:
+    """The plant's state at the world's start: hanging at rest with φ = 0 (5 s settled, velocities exactly 0)."""
+    return simulation.steady_state_rollout(plant, jnp.zeros(2)).at[3:].set(0.0)
+
+
+def mocap_sample(plant: HsaParams, x: Array, noise: ArrayLike) -> Array:
+    """A motion-capture sample of the plant in state x: its planar end-effector pose (x, y, θ) plus the noise draw."""
+    return kinematics.end_effector_pose(plant, x[:3]) + noise
+
+
 @dataclass(frozen=True)
 class MocapSample:
     """One motion-capture sample: stamp [ns], the instant it becomes available [ns], noisy planar pose (x, y, θ)."""
@@ -101,13 +162,13 @@ class World:
         self.plant = disturbance.plant_params(model)
         self.motor_map = motor_map
         self._neutral = np.asarray(motor_map.neutral_ticks, dtype=np.float64)
-        speed = disturbance.servo_max_speed * TICKS_PER_RAD * GRID_NS * 1e-9  # ticks per grid interval
-        self._segment = _segment_fn(self.plant, motor_map, self._neutral, speed)
-        self._pose = _pose_fn(self.plant)
+        self.params = world_params(self.plant, motor_map, servo_speed(disturbance.servo_max_speed))
+        self._segment = _segment_fn(self.params)
+        self._observe = jax.jit(functools.partial(mocap_sample, self.plant))
         self._rng = disturbance.rng()
         x = np.array(resultcache.cached("hanging_at_rest", (self.plant,), lambda: {  # kept from a last start
-            "x": simulation.steady_state_rollout(self.plant, np.zeros(2))})["x"])
-        x[3:] = 0.0
+            "x": hanging_at_rest(self.plant)})["x"])
+        x[3:] = 0.0  # also in a state cached before hanging_at_rest zeroed the velocities
         self.x = jnp.asarray(x)
         self.position = self._neutral.copy()  # shaft positions [ticks], continuous
         self.velocity = np.zeros_like(self.position)  # [ticks/s], over the last grid interval
@@ -172,7 +233,7 @@ class World:
         """Take the mocap sample of the current instant if one is due (every 5 ms, from t = 0)."""
         t = self.t_ns
         if t % MOCAP_PERIOD_NS == 0:
-            chiee = self.disturbance.measure(self._rng, self.true_pose())
+            chiee = np.asarray(self._observe(self.x, self.disturbance.measure(self._rng, np.zeros(3))))  # + noise
             self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
 
     # ---------------------------------------------------------------- outputs
@@ -186,7 +247,7 @@ class World:
 
     def true_pose(self) -> np.ndarray:
         """Noise-free planar end-effector pose (x, y, θ) of the plant now."""
-        return np.asarray(self._pose(self.x))
+        return np.asarray(self._observe(self.x, np.zeros(3)))
 
     def next_sample_ns(self) -> int:
         """When the next not yet handed-over mocap sample becomes available [ns]."""
@@ -203,32 +264,19 @@ class World:
         return out
 
 
-def _segment_fn(plant: HsaParams, motor_map: MotorMap, neutral: np.ndarray, speed: float):
-    """Jitted run of n grid intervals with goal and payload held: (x, shaft ticks, goal, torque, m_pl, n) → (x, ticks,
-    last step).
-
-    Per interval the shafts move towards the goal by at most ``speed`` ticks (torque on), then the plant (with payload
-    m_pl, a traced input: a new mass does not recompile) is integrated with the twists they realise held."""
-    dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
-    to_rods = jnp.asarray(motor_map.rod_twists(np.eye(len(neutral)))) * RAD_PER_TICK  # (rods, motors)
-    neutral = jnp.asarray(neutral)
+def _segment_fn(params: WorldParams):
+    """Jitted run of n grid intervals (:func:`interval_fn`) with goal and payload held: (x, shaft ticks, goal, torque,
+    m_pl, n) → (x, ticks, last step); the payload m_pl is a traced input (a new mass does not recompile)."""
 
     @jax.jit
     def segment(x, position, goal, torque, m_pl, n):
-        q_ddot = simulation.forward_dynamics_fn(dataclasses.replace(plant, m_pl=m_pl))  # parameter terms once
+        interval = interval_fn(params._replace(plant=dataclasses.replace(params.plant, m_pl=m_pl)))
 
-        def interval(_, carry):
+        def step(_, carry):
             x, position, _step = carry
-            moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
-            phi = to_rods @ (moved - neutral)
-            x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation._rk4(q_ddot, xk, phi, dt), x)
+            x, moved = interval(x, position, goal, torque)
             return x, moved, moved - position
 
-        return jax.lax.fori_loop(0, n, interval, (x, position, jnp.zeros_like(position)))
+        return jax.lax.fori_loop(0, n, step, (x, position, jnp.zeros_like(position)))
 
     return segment
-
-
-def _pose_fn(plant: HsaParams):
-    """Jitted end-effector pose of the plant for its state x = [q, q_dot]."""
-    return jax.jit(lambda x: kinematics.end_effector_pose(plant, x[:3]))

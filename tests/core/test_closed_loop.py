@@ -116,6 +116,15 @@ def test_the_batch_is_split_over_every_device() -> None:
     assert got["rmse"][3] == pytest.approx(got["one"], rel=RTOL)
 
 
+def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> None:
+    """σ_a,eq calibrated before a run (hsa_core.reference conditions): the model's, and the plant's plus the offset."""
+    config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03))
+    spec, inputs, constants = closed_loop.prepare(config)
+    np.testing.assert_allclose(constants.model.sigma_a_eq, [1.02, 1.03])
+    np.testing.assert_allclose(inputs.plant.sigma_a_eq, np.add([1.02, 1.03], config.disturbance.rest_strain_offset))
+    np.testing.assert_allclose(ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0])  # default: nominal
+
+
 def test_a_run_with_mocap_outages_is_refused() -> None:
     """The batched loop has no supervision faults; an outage run must go to run_experiment, not be silently lost."""
     with pytest.raises(ValueError, match="fault-free"):

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,7 +16,8 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.params import load_params
 from hsa_core import kinematics
 from hsa_core.planning import static_equilibrium
-from hsa_core.world import GRID_NS, MOCAP_PERIOD_NS, World, payload_schedule, to_grid
+from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, World, hanging_at_rest, interval_fn, mocap_sample,
+                            payload_schedule, servo_speed, to_grid)
 
 MS = 1_000_000
 NEUTRAL = (2048, 2048, 2048, 2048)
@@ -108,6 +111,34 @@ def test_the_state_does_not_depend_on_how_time_is_chopped(model) -> None:
         np.testing.assert_array_equal(x, states[0][0])
         np.testing.assert_array_equal(position, states[0][1])
         np.testing.assert_array_equal(samples, states[0][2])
+
+
+def test_the_world_runs_its_pure_interval(model) -> None:
+    """One definition of a world interval (hsa_core.world.interval_fn, which the batched loop calls too): stepping it
+    by hand from the world's start with the World's parameters gives the World's state."""
+    w = world(model)
+    goal = np.asarray(NEUTRAL, dtype=float) + [700, -300, 1500, 20]
+    w.write_goals(goal, 0)  # in force from 2 ms (the actuation latency)
+    w.advance_to(12 * MS)
+    interval = jax.jit(interval_fn(w.params))
+    x, position = jnp.asarray(hanging_at_rest(w.plant)), jnp.asarray(NEUTRAL, dtype=float)
+    for k in range(12):
+        x, position = interval(x, position, goal if k >= 2 else jnp.asarray(NEUTRAL, dtype=float), np.ones(4, bool))
+    np.testing.assert_array_equal(np.asarray(position), w.position)
+    np.testing.assert_allclose(np.asarray(x), np.asarray(w.x), rtol=1e-13, atol=1e-15)  # jit boundaries: last bits
+    assert w.params.servo_speed == servo_speed(DisturbanceModel().servo_max_speed) == pytest.approx(SPEED / 1000)
+    np.testing.assert_array_equal(w.true_pose(), np.asarray(mocap_sample(w.plant, w.x, np.zeros(3))))
+
+
+def test_goal_offsets_traced_are_the_driver_s_goal_ticks() -> None:
+    """The batched loop writes goals with MotorMap.goal_offsets under jax.numpy: the driver's ticks, whole ticks too."""
+    motor_map = MotorMap(NEUTRAL, phi_max=3.4)
+    phis = [[0.0, 0.0], [1.0, 2.5], [3.4, 0.3], [1024 / TICKS_PER_RAD, 7 / TICKS_PER_RAD]]  # incl. whole-tick angles
+    for phi in phis:
+        want = motor_map.goal_ticks(phi) - np.asarray(NEUTRAL)
+        np.testing.assert_array_equal(motor_map.goal_offsets(phi), want)
+        np.testing.assert_array_equal(np.asarray(jax.jit(lambda p: motor_map.goal_offsets(p, jnp))(jnp.asarray(phi))),
+                                      want)
 
 
 def test_grid_rounding() -> None:

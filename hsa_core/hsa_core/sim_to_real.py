@@ -1,0 +1,167 @@
+"""How far a run (simulated or real) is from a reference run of the real robot, step by step (no ROS).
+
+A run is its measured end-effector position and the setpoint in force, sampled at increasing times
+(:class:`StepRun`; a simulation's controller ticks, or a reference run's 100 Hz grid). Its steps start where the
+setpoint moves (:func:`hsa_core.reference.step_instants`); step k ends where step k + 1 starts, the last one at the
+run's ``end``. The measures (positions in m, times in s):
+
+* **D** (:func:`deviation`) = RMS over steps 1–10 and over the first 9.3 s after each step's own instant (each run
+  aligned at its own step instant), on a 10 ms grid (positions interpolated linearly), of ‖p_run − p_ref‖;
+* **end peak-to-peak** (:func:`end_peak_to_peak`): per step and axis, max − min of the samples in the step's last 2 s;
+* **end error** (:func:`end_error`): per step, mean ‖p^d − p‖ over the samples in its last 2 s;
+* **response time** (:func:`response_times`): per step, on the aligned 10 ms grid, the first time ‖p^d − p‖ falls
+  below 10 % of its value at the step instant (experiments.md §4), NaN if it never does within the window;
+* **rise time** (:func:`rise_times`): per step, on the aligned grid, the time the progress along the step,
+  s = (p − p₀)·(p^d − p₀)/‖p^d − p₀‖² (p₀ = p at the step instant), takes from first reaching 10 % to first reaching
+  90 %, NaN if it never does;
+* :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max over steps), end
+  error (median over steps), the median relative rise- and response-time differences and each run's RMSE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hsa_core.metrics import RESPONSE_FRACTION, STEADY_STATE_WINDOW
+from hsa_core.reference import step_instants
+
+STEPS = tuple(range(1, 11))
+"""Steps compared (step 0 is the start from rest)."""
+HORIZON = 9.3
+"""[s] the part of each step compared by D: the shortest real step is 9.5 s."""
+GRID = 0.01
+"""[s] the grid of the aligned responses (the resolution of the reference data)."""
+
+
+@dataclass(frozen=True)
+class StepRun:
+    """A run: sample times t (n,) [s], measured position p (n, 2) [m], setpoint in force p_des (n, 2) [m], end [s]."""
+
+    t: np.ndarray
+    p: np.ndarray
+    p_des: np.ndarray
+    end: float
+
+    def __post_init__(self) -> None:
+        """Reject shapes that do not match and times that do not increase."""
+        n = len(self.t)
+        if np.shape(self.p) != (n, 2) or np.shape(self.p_des) != (n, 2):
+            raise ValueError(f"p and p_des must be ({n}, 2), got {np.shape(self.p)} and {np.shape(self.p_des)}")
+        if n < 2 or np.any(np.diff(self.t) <= 0.0):
+            raise ValueError("t must hold at least two increasing sample times")
+
+    @property
+    def step_starts(self) -> np.ndarray:
+        """[s] the instants of steps 1, 2, ... (where the setpoint moves)."""
+        return step_instants(self.t, self.p_des)
+
+    def step_bounds(self, steps: tuple[int, ...] = STEPS) -> list[tuple[float, float]]:
+        """[(start, end)] [s] of each of ``steps``; ValueError (one line) if the run does not have them."""
+        starts = self.step_starts
+        if len(starts) < max(steps):
+            raise ValueError(f"the run has {len(starts) + 1} steps, {max(steps) + 1} are compared")
+        ends = np.append(starts[1:], self.end)
+        return [(float(starts[k - 1]), float(ends[k - 1])) for k in steps]
+
+    def setpoint_at(self, t: float) -> np.ndarray:
+        """The setpoint in force at t (the last sample at or before t)."""
+        return self.p_des[max(int(np.searchsorted(self.t, t, side="right")) - 1, 0)]
+
+
+def aligned_responses(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+                      grid: float = GRID) -> np.ndarray:
+    """(steps, round(horizon/grid), 2) [m]: p at start_k + j·grid for each step, interpolated linearly."""
+    offsets = np.arange(round(horizon / grid)) * grid
+    out = []
+    for start, end in run.step_bounds(steps):
+        if start + offsets[-1] > run.t[-1]:
+            raise ValueError(f"the run ends at {run.t[-1]:.2f} s, before {horizon} s after the step at {start:.2f} s")
+        at = start + offsets
+        out.append(np.stack([np.interp(at, run.t, run.p[:, i]) for i in range(2)], axis=1))
+    return np.asarray(out)
+
+
+def deviation(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+              grid: float = GRID) -> float:
+    """D [m]: RMS of ‖p_run − p_ref‖ over the aligned responses of ``steps`` (module docstring)."""
+    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(ref, steps, horizon, grid)
+    return float(np.sqrt(np.mean(np.sum(diff**2, axis=-1))))
+
+
+def _last(run: StepRun, steps: tuple[int, ...], window: float) -> list[np.ndarray]:
+    """Per step, a mask of the samples in its last ``window`` seconds [end − window, end)."""
+    return [(run.t >= end - window) & (run.t < end) for _, end in run.step_bounds(steps)]
+
+
+def end_peak_to_peak(run: StepRun, steps: tuple[int, ...] = STEPS,
+                     window: float = STEADY_STATE_WINDOW) -> np.ndarray:
+    """(steps, 2) [m]: per step and axis, max − min of p over the step's last ``window`` seconds."""
+    return np.array([np.ptp(run.p[m], axis=0) for m in _last(run, steps, window)])
+
+
+def end_error(run: StepRun, steps: tuple[int, ...] = STEPS, window: float = STEADY_STATE_WINDOW) -> np.ndarray:
+    """(steps,) [m]: per step, the mean ‖p^d − p‖ over its last ``window`` seconds."""
+    return np.array([np.mean(np.linalg.norm(run.p_des[m] - run.p[m], axis=1)) for m in _last(run, steps, window)])
+
+
+def response_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+                   grid: float = GRID) -> np.ndarray:
+    """(steps,) [s]: per step, the first aligned time with ‖p^d − p‖ < 10 % of its value at the step (NaN: never)."""
+    responses = aligned_responses(run, steps, horizon, grid)
+    out = []
+    for (start, _), p in zip(run.step_bounds(steps), responses):
+        e = np.linalg.norm(run.setpoint_at(start) - p, axis=1)
+        below = np.nonzero(e < RESPONSE_FRACTION * e[0])[0]
+        out.append(below[0] * grid if len(below) else np.nan)
+    return np.array(out)
+
+
+def rise_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+               grid: float = GRID) -> np.ndarray:
+    """(steps,) [s]: per step, the 10–90 % rise time of the progress along the step (module docstring; NaN: never)."""
+    responses = aligned_responses(run, steps, horizon, grid)
+    out = []
+    for (start, _), p in zip(run.step_bounds(steps), responses):
+        span = run.setpoint_at(start) - p[0]
+        progress = (p - p[0]) @ span / (span @ span)
+        t10, t90 = (np.nonzero(progress >= f)[0] for f in (0.1, 0.9))
+        out.append((t90[0] - t10[0]) * grid if len(t90) else np.nan)
+    return np.array(out)
+
+
+def rmse(run: StepRun) -> float:
+    """[m] RMS of ‖p^d − p‖ over the run's samples before ``end``."""
+    m = run.t < run.end
+    return float(np.sqrt(np.mean(np.sum((run.p_des[m] - run.p[m]) ** 2, axis=1))))
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The sim-versus-real table of one run [m, s]: D, x peak-to-peak at the end of a step (max over steps), end
+    error (median over steps), median over steps of |t_run − t_ref| / t_ref of the rise and of the response time,
+    and each run's RMSE."""
+
+    deviation: float
+    x_peak_to_peak: tuple[float, float]  # (run, reference)
+    end_error: tuple[float, float]
+    rise_time_difference: float
+    response_time_difference: float
+    rmse: tuple[float, float]
+
+
+def compare(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> Comparison:
+    """All measures of the module docstring for ``run`` against ``ref``."""
+    def relative(times) -> float:  # noqa: ANN001 - rise_times or response_times
+        t_run, t_ref = times(run, steps), times(ref, steps)
+        return float(np.nanmedian(np.abs(t_run - t_ref) / t_ref))
+
+    return Comparison(
+        deviation(run, ref, steps),
+        (float(end_peak_to_peak(run, steps)[:, 0].max()), float(end_peak_to_peak(ref, steps)[:, 0].max())),
+        (float(np.median(end_error(run, steps))), float(np.median(end_error(ref, steps)))),
+        relative(rise_times),
+        relative(response_times),
+        (rmse(run), rmse(ref)),
+    )

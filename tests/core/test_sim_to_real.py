@@ -1,0 +1,97 @@
+"""The sim-versus-real measures (hsa_core.sim_to_real) on synthetic step runs whose answers are known by
+construction: first-order responses to 11 setpoints at irregular instants, with offsets, delays and ripples added."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hsa_core import sim_to_real
+from hsa_core.sim_to_real import StepRun
+
+SETPOINTS = np.array([[0.0, 120.0], [4.8, 127.8], [-35.0, 122.0], [-7.8, 130.2], [8.2, 114.6], [-14.2, 123.9],
+                      [0.0, 140.0], [25.2, 130.4], [-6.0, 139.9], [7.3, 114.8], [5.7, 127.1]]) * 1e-3  # [m]
+INSTANTS = np.array([9.87, 19.55, 29.96, 39.91, 49.51, 59.88, 69.93, 79.45, 89.90, 99.55])  # [s], not every 10 s
+
+
+def step_run(dt: float = 0.01, tau: float = 0.2, shift: float = 0.0, offset=(0.0, 0.0), end: float = 110.0,
+             ripple: float = 0.0) -> StepRun:
+    """Samples every dt of a first-order response (time constant tau) to SETPOINTS switched at INSTANTS + shift,
+    plus a constant offset and an alternating ± ripple on x (sample by sample)."""
+    t = np.round(np.arange(0.0, end, dt), 9)
+    instants = INSTANTS + shift
+    k = np.searchsorted(instants, t, side="right")  # setpoint index in force
+    p_des = SETPOINTS[k]
+    p = p_des.copy()
+    for i, t_k in enumerate(instants, start=1):
+        m = k == i
+        p[m] = SETPOINTS[i] + (SETPOINTS[i - 1] - SETPOINTS[i]) * np.exp(-(t[m] - t_k) / tau)[:, None]
+    p = p + np.asarray(offset)
+    p[:, 0] += ripple * (-1.0) ** np.arange(len(t))
+    return StepRun(t, p, p_des, end)
+
+
+def test_identical_runs_are_zero_apart() -> None:
+    c = sim_to_real.compare(step_run(), step_run())
+    assert c.deviation == 0.0 and c.response_time_difference == 0.0 and c.rise_time_difference == 0.0
+    assert c.rmse[0] == c.rmse[1] and c.end_error[0] == c.end_error[1] and c.x_peak_to_peak[0] < 1e-15
+
+
+def test_each_run_is_aligned_at_its_own_step_instants() -> None:
+    ref = step_run()
+    late = step_run(dt=0.005, shift=0.3)  # the same responses, 0.3 s later, sampled twice as often
+    np.testing.assert_allclose(late.step_starts, INSTANTS + 0.3)
+    assert sim_to_real.deviation(late, ref) < 1e-12
+    assert sim_to_real.response_times(late) == pytest.approx(sim_to_real.response_times(ref), abs=1e-12)
+
+
+def test_deviation_of_a_constant_offset_is_its_length() -> None:
+    off = step_run(offset=(3e-4, 4e-4))
+    assert sim_to_real.deviation(off, step_run()) == pytest.approx(5e-4, rel=1e-12)
+    assert sim_to_real.aligned_responses(off).shape == (10, 930, 2)  # steps 1-10, 9.3 s at 100 Hz
+
+
+def test_end_error_and_peak_to_peak_of_the_last_two_seconds() -> None:
+    run = step_run(offset=(3e-4, 4e-4), ripple=2e-4)
+    np.testing.assert_allclose(sim_to_real.end_peak_to_peak(run), [[4e-4, 0.0]] * 10, atol=1e-12)
+    # ‖e‖ of an alternating (0.3 ± 0.2, 0.4) mm offset: the mean of its two lengths
+    expected = (math.hypot(5e-4, 4e-4) + math.hypot(1e-4, 4e-4)) / 2
+    np.testing.assert_allclose(sim_to_real.end_error(run), expected, rtol=1e-9)
+    c = sim_to_real.compare(run, step_run())
+    assert c.x_peak_to_peak == pytest.approx((4e-4, 0.0), abs=1e-12)
+    assert c.end_error[0] == pytest.approx(expected, rel=1e-9) and c.end_error[1] < 1e-12
+
+
+def test_response_time_is_the_first_sample_below_ten_percent() -> None:
+    # e = e0 exp(−t/τ) < 0.1 e0 from t = τ ln 10 on: the first 10 ms sample after it
+    fast, slow = step_run(tau=0.2), step_run(tau=0.3)
+    np.testing.assert_allclose(sim_to_real.response_times(fast), 0.47, atol=1e-9)  # 0.2 ln 10 = 0.4605
+    np.testing.assert_allclose(sim_to_real.response_times(slow), 0.70, atol=1e-9)  # 0.3 ln 10 = 0.6908
+    assert sim_to_real.compare(slow, fast).response_time_difference == pytest.approx(0.23 / 0.47)
+
+
+def test_rise_time_is_ten_to_ninety_percent_of_the_way() -> None:
+    # progress 1 − exp(−t/τ): 10 % at τ ln(10/9), 90 % at τ ln 10; each at the first 10 ms sample after it
+    fast, slow = step_run(tau=0.2), step_run(tau=0.3)
+    np.testing.assert_allclose(sim_to_real.rise_times(fast), 0.47 - 0.03, atol=1e-9)  # 0.0211 → 0.03, 0.4605 → 0.47
+    np.testing.assert_allclose(sim_to_real.rise_times(slow), 0.70 - 0.04, atol=1e-9)  # 0.0316 → 0.04, 0.6908 → 0.70
+    assert sim_to_real.compare(slow, fast).rise_time_difference == pytest.approx(0.22 / 0.44)
+
+
+def test_rmse_of_a_constant_error() -> None:
+    run = StepRun(np.arange(4.0), np.zeros((4, 2)), np.tile([3e-3, 4e-3], (4, 1)), end=3.0)
+    assert sim_to_real.rmse(run) == pytest.approx(5e-3)
+
+
+def test_bad_runs_are_one_line_errors() -> None:
+    with pytest.raises(ValueError, match=r"^p and p_des must be \(3, 2\)"):
+        StepRun(np.arange(3.0), np.zeros((3, 2)), np.zeros((2, 2)), 3.0)
+    with pytest.raises(ValueError, match="increasing"):
+        StepRun(np.array([0.0, 0.0, 1.0]), np.zeros((3, 2)), np.zeros((3, 2)), 3.0)
+    short = step_run(end=45.0)
+    with pytest.raises(ValueError, match=r"^the run has 5 steps, 11 are compared$"):
+        sim_to_real.deviation(short, step_run())
+    with pytest.raises(ValueError, match=r"^the run ends at 104\.99 s, before 9\.3 s after the step at 99\.55 s$"):
+        sim_to_real.aligned_responses(step_run(end=105.0))

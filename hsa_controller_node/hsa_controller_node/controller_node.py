@@ -26,6 +26,7 @@ from collections import deque
 from typing import Any
 
 import numpy as np
+from rclpy._rclpy_pybind11 import RMWError
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
@@ -135,7 +136,14 @@ class ControllerNode(Node):
         """Decode the kept setpoints and queue them in arrival order; the first tick after its stamp activates one
         (hsa_core.control_loop)."""
         while self._setpoints:
-            msg = deserialize_message(self._setpoints.popleft(), Setpoint)
+            try:
+                msg = deserialize_message(self._setpoints.popleft(), Setpoint)
+            except RMWError as exc:  # malformed CDR: the typed subscription's middleware used to drop it unseen
+                self._loop.refuse_setpoint(f"undecodable: {exc}")
+                self.get_logger().warning(f"rejected an undecodable setpoint (malformed CDR); "
+                                          f"{self._loop.counters.rejected_setpoints} rejected so far",
+                                          throttle_duration_sec=self._p["rejection_log_period"])
+                continue
             setpoint = CoreSetpoint(convert.planar_pose(msg.chiee_des), convert.configuration(msg.q_des),
                                     np.asarray(msg.phi_ss, dtype=np.float64), msg.optimality_error)
             self._loop.receive_setpoint(convert.stamp_ns(msg.header.stamp), setpoint, msg)

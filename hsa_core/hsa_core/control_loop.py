@@ -168,6 +168,12 @@ class ControlLoop:
         self.counters.received_setpoints += count
         self.counters.superseded_setpoints += count
 
+    def refuse_setpoint(self, problem: str) -> None:
+        """A setpoint that arrived but could not be read (e.g. malformed CDR): received, and refused for ``problem``
+        ('reason: detail'); the active setpoint stays."""
+        self.counters.received_setpoints += 1
+        self._refused(problem)
+
     @property
     def pending_setpoints(self) -> int:
         """Setpoints received and not yet checked (at most SETPOINT_INTAKE)."""
@@ -252,10 +258,14 @@ class ControlLoop:
         tried.reverse()
         for activation in tried:
             if activation.problem is not None:
-                self.counters.rejected_setpoints += 1
-                self.rejections.setpoints[activation.problem.split(":")[0]] += 1
-                self.rejections.last_setpoint = activation.problem
+                self._refused(activation.problem)
         return tuple(tried)
+
+    def _refused(self, problem: str) -> None:
+        """Count a refused setpoint under its reason (the text before the first ':')."""
+        self.counters.rejected_setpoints += 1
+        self.rejections.setpoints[problem.split(":")[0]] += 1
+        self.rejections.last_setpoint = problem
 
     def _problem(self, setpoint: Setpoint) -> str | None:
         """Why a setpoint is refused (physical check, then the law's own checks), or None: it is active now."""

@@ -133,6 +133,17 @@ def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the
     assert loop.counters.superseded_setpoints == 1 + 3 and loop.counters.rejected_setpoints == 2 * SETPOINT_CHECKS - 1
 
 
+def test_an_unreadable_setpoint_is_counted_as_refused_and_the_active_one_stays() -> None:
+    law, loop = _loop()
+    loop.receive_setpoint(0, SP_A, "a")
+    loop.tick(25 * MS)
+    loop.refuse_setpoint("undecodable: Fast CDR exception")
+    loop.tick(50 * MS)
+    assert loop.active_tag == "a" and law.active == [SP_A]
+    assert (loop.counters.received_setpoints, loop.counters.setpoints, loop.counters.rejected_setpoints) == (2, 1, 1)
+    assert loop.rejections.setpoints["undecodable"] == 1 and loop.rejections.last_setpoint.startswith("undecodable")
+
+
 def test_track_then_hold_then_stale_then_track_again() -> None:
     t = 1000 * MS
     law, loop = _tracking_at(t)

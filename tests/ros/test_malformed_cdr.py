@@ -73,6 +73,7 @@ def test_malformed_messages_are_left_out_of_the_bag_and_print_no_error_blocks(ro
     printed = controller.output()
     assert "rcutils_set_error_state" not in printed and "being overwritten" not in printed, printed
     assert 1 <= len(controller.log("middleware error")) <= 2, printed  # throttled: one line per 5 s
+    assert controller.log("rejected an undecodable setpoint"), printed  # taken raw: refused and counted, no crash
     summary = recorder.log("wrote ")
     assert summary and f"left out undecodable messages: {SETPOINT}: {N_BAD}, {STATE}: {N_BAD}" in summary[0]
     with Bag(bag) as reader:

@@ -9,16 +9,25 @@ last 2 s (median over steps), median relative rise-time (10-90 %) and response-t
 (``--variants``):
 
 * ``default``: the experiment as ``hsa_experiment --material M --controller LAW`` runs it (σ_a,eq nominal);
-* ``logbook_sigma``: the same with the run's σ_a,eq from the logbook (controller model and plant).
+* ``logbook_sigma``: the same with the run's σ_a,eq from the logbook (controller model and plant);
+* ``own_profile`` (added by ``--profiles``): the run replayed with its own conditions, as
+  ``hsa_experiment --run BAG`` does (hsa_core.experiment.replay_config: the run's profile of hsa_core.profiles, law,
+  gains, σ_a,eq and real step instants), on the same default world;
+* ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook σ_a,eq has a
+  setpoint the planner refuses, so it is compared only this way);
+* ``own_rate_only`` / ``own_estimator_only``: ``own_profile_nominal_sigma`` with the lab profile's velocity
+  estimator, or with the lab profile's control period and integrator step (which of the two conditions does what).
 
-Writes benchmarks/results/sim_to_real.json.
+The world is the default one in every variant: only the conditions of the run change. Writes
+benchmarks/results/sim_to_real.json.
 
-    .venv/bin/python benchmarks/bench_sim_to_real.py [--variants default logbook_sigma]
+    .venv/bin/python benchmarks/bench_sim_to_real.py [--variants default logbook_sigma] [--profiles]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -38,23 +47,69 @@ ISSUE_TABLE = {  # issue 20, commit 12bcf5d: D [mm], x p2p sim / robot [mm], ‖
 }
 
 
+def _default(real):
+    """hsa_experiment --material M --controller LAW with the paper's gains: the lab profile, nominal σ_a,eq."""
+    from hsa_core.experiment import ExperimentConfig
+
+    return ExperimentConfig(real.conditions.material, real.conditions.law.value, gains=real.conditions.gains)
+
+
+def _logbook_sigma(real):
+    """The default with the run's σ_a,eq."""
+    return dataclasses.replace(_default(real), sigma_a_eq=real.conditions.sigma_a_eq)
+
+
+def _own_profile(real):
+    """hsa_experiment --run BAG."""
+    from hsa_core.experiment import replay_config
+
+    return replay_config(real)
+
+
+def _own_profile_nominal_sigma(real):
+    """The replay with the material's nominal σ_a,eq."""
+    return dataclasses.replace(_own_profile(real), sigma_a_eq=None)
+
+
+def _own_rate_only(real):
+    """The replay with nominal σ_a,eq and the lab profile's velocity estimator."""
+    from hsa_core.profiles import load_profile
+
+    lab = load_profile("lab")
+    return dataclasses.replace(_own_profile_nominal_sigma(real), velocity_estimator=lab.velocity_estimator)
+
+
+def _own_estimator_only(real):
+    """The replay with nominal σ_a,eq and the lab profile's control period and integrator step."""
+    from hsa_core.profiles import load_profile
+
+    lab = load_profile("lab")
+    return dataclasses.replace(_own_profile_nominal_sigma(real), rate=lab.rate, integrator_dt=lab.integrator_dt)
+
+
+VARIANTS = {"default": _default, "logbook_sigma": _logbook_sigma, "own_profile": _own_profile,
+            "own_profile_nominal_sigma": _own_profile_nominal_sigma, "own_rate_only": _own_rate_only,
+            "own_estimator_only": _own_estimator_only}
+"""Variant → the ExperimentConfig of a reference run (module doc)."""
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variants", nargs="+", default=["default", "logbook_sigma"],
-                        choices=["default", "logbook_sigma"])
+    parser.add_argument("--variants", nargs="+", default=["default", "logbook_sigma"], choices=list(VARIANTS))
+    parser.add_argument("--profiles", action="store_true", help="also run each reference run with its own profile")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "sim_to_real.json")
     args = parser.parse_args()
     configure_jax()
     from hsa_core import reference, sim_to_real
-    from hsa_core.experiment import ExperimentConfig, run_experiment
+    from hsa_core.experiment import run_experiment
 
+    variants = args.variants + (["own_profile"] if args.profiles and "own_profile" not in args.variants else [])
     rows = []
-    for variant in args.variants:
+    for variant in variants:
         for bag in reference.run_names():
             real = reference.load_run(bag)
             cond = real.conditions
-            config = ExperimentConfig(cond.material, cond.law.value, gains=cond.gains,
-                                      sigma_a_eq=cond.sigma_a_eq if variant == "logbook_sigma" else None)
+            config = VARIANTS[variant](real)
             started = time.perf_counter()
             result = run_experiment(config)
             wall = time.perf_counter() - started
@@ -69,7 +124,9 @@ def main() -> int:
                 print(f"{variant:<14} {bag} not compared: {err}; planning failed at {failures}", flush=True)
                 continue
             row = {"variant": variant, "bag": bag, "material": cond.material, "law": cond.law.value,
-                   "plan_failures": failures,
+                   "profile": config.profile, "control_period_ms": round(1e3 / config.rate, 3),
+                   "integrator_dt_s": config.integrator_dt, "velocity_estimator": config.velocity_estimator.value,
+                   "sigma_a_eq": config.sigma_a_eq, "plan_failures": failures,
                    "D_mm": round(c.deviation * 1e3, 3),
                    "x_p2p_last2s_max_mm": {"sim": round(c.x_peak_to_peak[0] * 1e3, 3),
                                            "robot": round(c.x_peak_to_peak[1] * 1e3, 3)},
@@ -89,7 +146,8 @@ def main() -> int:
                   f"RMSE {row['rmse_mm']['sim']:5.2f} / {row['rmse_mm']['robot']:5.2f}   ({wall:.0f} s)", flush=True)
     result_doc = {
         "what": "sim (offline experiment, paper's gains, default world, seed 0) against the real runs; "
-                "hsa_core.sim_to_real, steps 1-10 each aligned at its own instant, first 9.3 s, 100 Hz",
+                "hsa_core.sim_to_real, steps 1-10 each aligned at its own instant, first 9.3 s, 100 Hz; "
+                "variants: the bench's docstring",
         "targets": {"D_mm": 1.0, "x_p2p_last2s_max_mm": 0.5, "rise_time_relative": 0.25, "rmse_relative": 0.10},
         "rows": rows,
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]},

@@ -41,6 +41,7 @@ from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentCon
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
+from hsa_core.profiles import VelocityEstimator
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
 from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, hanging_at_rest, interval_fn, mocap_sample, seconds_to_ns,
@@ -64,7 +65,7 @@ class LoopSpec:
     first_tick: int  # index of the first tick that sends a command (t = 0 of the metrics)
     n_eval: int  # ticks in the metrics window (reference.duration)
     motor_map: MotorMap  # the robot's wiring; its phi_max is the command clip, the driver's [0, phi_max]
-    dt: float  # [s] the law's nominal period, 1/rate
+    dt: float  # [s] the integrators' step: the config's integrator_dt, else 1/rate
 
 
 class LoopInputs(NamedTuple):
@@ -114,6 +115,10 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     ``model`` is the controller's model, which plans the setpoints (default: ``config.model()``)."""
     if config.mocap_outages:
         raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
+    if config.velocity_estimator is not VelocityEstimator.SAVITZKY_GOLAY_20 or config.payload:
+        raise ValueError(f"the batched loop models the savitzky_golay_20 estimator and no payload only: profile "
+                         f"{config.profile} ({config.velocity_estimator.value}, {config.payload} kg) needs "
+                         "run_experiment")
     model = config.model() if model is None else model
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
@@ -146,7 +151,8 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     gains = config.gains or control.default_gains(kind, config.material)
     ee = control.EeIntegralGains() if config.ee_integral else None
     spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
-                    lat_a // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model), 1.0 / config.rate)
+                    lat_a // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model),
+                    1.0 / config.rate if config.integrator_dt is None else config.integrator_dt)
     inputs = LoopInputs(dist.plant_params(model), gains, jnp.asarray(noise(dist, spec)),
                         jnp.asarray(servo_speed(dist.servo_max_speed)))
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))

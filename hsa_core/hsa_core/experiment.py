@@ -20,6 +20,13 @@ seed both produce the same ticks to float round-off:
   and takes effect after the world's actuation latency; a re-sent command is written again, and with nothing sent
   the motors keep the goals of the last write (the driver's watchdog hold).
 
+A run profile (hsa_core.profiles) sets the conditions of a period: :func:`profile_config` applies one (rate,
+integrator step, velocity estimator, σ_a,eq, payload), :func:`replay_config` a reference run's own (hsa_core.reference:
+its profile, law, gains, σ_a,eq and real step instants). With the ``smoothing_spline_16`` estimator the kinematics
+node's estimator is replaced by the September stand-in: at every tick the newest mocap state enters a 16-sample cubic
+end-point fit on the true stamps, and the state it gives goes to the tick. A payload is the plant's (it hangs at rest
+with it from t = 0); the controller's model keeps the material's.
+
 t = 0 of the metrics is the first tick that sends a command (experiments.md §4); the run ends ``reference.duration``
 later. The log holds the tracking ticks (as hsa_bag.analysis reads a bag); ``ExperimentResult.ticks`` every tick.
 """
@@ -43,6 +50,8 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner, PlanResult
+from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile, profile_names
+from hsa_core.reference import ReferenceRun, load_run, run_names
 from hsa_core.runlog import RunLog
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.supervision import HOLD_TIMEOUT, STALE_TIMEOUT, Action, Mode, Supervisor, SupervisorConfig
@@ -53,13 +62,16 @@ from hsa_core.jaxsetup import configure_jax
 
 ESTIMATOR_WINDOW, ESTIMATOR_ORDER, GAP_FACTOR = 20, 3, 5.0
 """The kinematics node's estimator settings (hsa_kinematics_node/config/<material>.yaml)."""
+SPLINE_WINDOW = 16
+"""Samples of the September 2023 stand-in estimator (hsa_core.profiles), a cubic (ESTIMATOR_ORDER) fit."""
 CONTROLLER_SUPERVISION = SupervisorConfig(STALE_TIMEOUT, HOLD_TIMEOUT, driver_timeout=0.0)
 """controller_node's default bounds; no driver watch: offline the driver is modelled inline and cannot be lost."""
 
 
 @dataclass(frozen=True)
 class ExperimentConfig:
-    """What to run: material, law, options, reference, rate, disturbance and the sequencer's start delay."""
+    """What to run: material, law, options, reference, rate, disturbance, the sequencer's start delay and the run's
+    conditions (profile name, velocity estimator, integrator step, σ_a,eq, payload; :func:`profile_config`)."""
 
     material: str = "fpu"
     controller: str = "psatid"
@@ -74,6 +86,20 @@ class ExperimentConfig:
     # them never reach the estimator (a fault for the supervision; hsa_core.closed_loop models fault-free runs only)
     sigma_a_eq: tuple[float, float] | None = None  # σ_a,eq per rod calibrated before the run (default: the
     # material's nominal): the controller's model's, and the plant's plus the disturbance's rest_strain_offset
+    profile: str = DEFAULT_PROFILE  # the run profile these conditions come from (a label)
+    velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
+    integrator_dt: float | None = None  # [s] the integrators' step (None: the control period 1/rate)
+    payload: float = 0.0  # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
+
+    def __post_init__(self) -> None:
+        """Reject a negative payload, a non-positive integrator step and a σ_a,eq that is not two values > 0."""
+        if not (math.isfinite(self.payload) and self.payload >= 0.0):
+            raise ValueError(f"payload must be a finite mass >= 0 kg, got {self.payload}")
+        if self.integrator_dt is not None and not (math.isfinite(self.integrator_dt) and self.integrator_dt > 0.0):
+            raise ValueError(f"integrator_dt must be > 0 s, got {self.integrator_dt}")
+        if self.sigma_a_eq is not None and (len(self.sigma_a_eq) != 2
+                                            or not all(math.isfinite(v) and v > 0.0 for v in self.sigma_a_eq)):
+            raise ValueError(f"sigma_a_eq must be two values > 0, got {self.sigma_a_eq}")
 
     def model(self) -> HsaParams:
         """The controller's model: the material's parameter set with the run's σ_a,eq."""
@@ -84,6 +110,29 @@ class ExperimentConfig:
     def name(self) -> str:
         """Run label used in tables and file names."""
         return f"{self.material}_{self.controller}{'_eei' if self.ee_integral else ''}"
+
+
+def profile_config(profile: RunProfile, material: str = "fpu", controller: str = "psatid", *,
+                   sigma_a_eq: tuple[float, float] | None = None, payload: float | None = None,
+                   **options: object) -> ExperimentConfig:
+    """The experiment of ``material`` and ``controller`` under ``profile``: its rate, integrator step, estimator,
+    σ_a,eq and payload (``sigma_a_eq`` / ``payload`` override the profile's); ``options``: other ExperimentConfig
+    fields (reference, gains, disturbance, ...)."""
+    return ExperimentConfig(
+        material, controller, rate=profile.rate, profile=profile.name, velocity_estimator=profile.velocity_estimator,
+        integrator_dt=profile.integrator_dt, sigma_a_eq=sigma_a_eq if sigma_a_eq is not None else profile.sigma_a_eq,
+        payload=payload if payload is not None else profile.payload, **options)
+
+
+def replay_config(run: ReferenceRun, *, sigma_a_eq: tuple[float, float] | None = None,
+                  payload: float | None = None, **options: object) -> ExperimentConfig:
+    """A paper run replayed with its own conditions: its profile, material, law, gains, σ_a,eq and payload, and its
+    setpoints at the real step instants (``sigma_a_eq`` / ``payload`` override the run's)."""
+    cond = run.conditions
+    return profile_config(cond.profile, cond.material, cond.law.value, gains=cond.gains,
+                          sigma_a_eq=sigma_a_eq if sigma_a_eq is not None else cond.sigma_a_eq,
+                          payload=payload if payload is not None else cond.payload,
+                          reference=run.timed_reference(), **options)
 
 
 @dataclass(frozen=True)
@@ -129,15 +178,19 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     motor_map = load_wiring().motor_map(model)  # the robot's wiring at its nominal neutral, as sim_node's servos
     phi_max = motor_map.phi_max
-    world = World(model, config.disturbance, motor_map)
+    world = World(model.replace(m_pl=config.payload) if config.payload else model, config.disturbance, motor_map)
     planner = Planner(model, config.planner)
     controller = Controller(
-        ControllerKind(config.controller), model, config.gains, dt=1.0 / config.rate,
+        ControllerKind(config.controller), model, config.gains,
+        dt=1.0 / config.rate if config.integrator_dt is None else config.integrator_dt,
         ee_integral=EeIntegralGains() if config.ee_integral else None,
     )
     loop = ControlLoop(controller, Supervisor(CONTROLLER_SUPERVISION))
-    estimator = SavitzkyGolayDifferentiator(window=ESTIMATOR_WINDOW, order=ESTIMATOR_ORDER, dim=6,
-                                            nominal_period=MOCAP_PERIOD_NS * 1e-9, gap_factor=GAP_FACTOR)
+    at_ticks = config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16  # the estimator runs at the ticks
+    estimator = SavitzkyGolayDifferentiator(window=SPLINE_WINDOW if at_ticks else ESTIMATOR_WINDOW,
+                                            order=ESTIMATOR_ORDER, dim=6, gap_factor=GAP_FACTOR,
+                                            nominal_period=(period_ns if at_ticks else MOCAP_PERIOD_NS) * 1e-9)
+    newest: tuple[int, np.ndarray, np.ndarray] | None = None  # the newest sample (stamp, q, χ_ee), for at_ticks
     s0 = first_point_ns(config.start_delay)
     points = [s0 + seconds_to_ns(float(t)) for t in reference.t]
     outages = [(seconds_to_ns(a), seconds_to_ns(b)) for a, b in config.mocap_outages]
@@ -164,6 +217,10 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 failures.append((instant, result))
             k += 1
         if tick == instant:
+            if at_ticks and newest is not None:
+                est = estimator.update((newest[0] - origin) * 1e-9, np.concatenate(newest[1:]))
+                if est.ready:
+                    loop.state(newest[0], instant, newest[1], est.derivative[:3], newest[2], est.derivative[3:])
             out = loop.tick(instant)
             if out.sent is not Action.NONE:  # a new or a re-sent command, written as the driver writes it
                 world.write_goals(motor_map.goal_ticks(np.clip(out.command.phi, 0.0, phi_max)), instant)
@@ -183,6 +240,9 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 continue
             origin = sample.stamp_ns if origin is None else origin
             q = configuration_from_pose(model, sample.chiee)
+            if at_ticks:
+                newest = (sample.stamp_ns, q, sample.chiee)
+                continue
             est = estimator.update((sample.stamp_ns - origin) * 1e-9, np.concatenate([q, sample.chiee]))
             if est.ready:
                 loop.state(sample.stamp_ns, instant, q, est.derivative[:3], sample.chiee, est.derivative[3:])
@@ -260,6 +320,32 @@ def _rate(text: str) -> float:
     return rate
 
 
+def _profile(text: str) -> str:
+    """argparse type of --profile: the name of a packaged run profile."""
+    if text not in profile_names():
+        raise argparse.ArgumentTypeError(f"unknown run profile {text!r}; known: {', '.join(profile_names())}")
+    return text
+
+
+def _run(text: str) -> str:
+    """argparse type of --run: the bag name of a packaged reference run."""
+    if text not in run_names():
+        raise argparse.ArgumentTypeError(f"unknown reference run {text!r}; known: {', '.join(run_names())}")
+    return text
+
+
+def _sigma_a_eq(text: str) -> tuple[float, float]:
+    """argparse type of --sigma-a-eq: A (both rods) or A,B (rod 1, rod 2), each a finite number > 0."""
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if len(parts) not in (1, 2) or len(values) != len(parts) or not all(0.0 < v < math.inf for v in values):
+        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
+    return (values[0], values[-1])
+
+
 def _trajectory(text: str) -> str:
     """argparse type of --trajectory: steps, star, circle or an existing image file."""
     if text in ("steps", "star", "circle") or Path(text).is_file():
@@ -267,19 +353,62 @@ def _trajectory(text: str) -> str:
     raise argparse.ArgumentTypeError(f"must be steps, star, circle or an image file; {text!r} is none of them")
 
 
+def _configs(args: argparse.Namespace, dist: DisturbanceModel) -> list[ExperimentConfig]:
+    """The experiments the command line selects: one replayed run, or every material × law under the profile."""
+    if args.run is not None:
+        configs = [replay_config(load_run(args.run), sigma_a_eq=args.sigma_a_eq, payload=args.payload,
+                                 disturbance=dist)]
+    else:
+        profile = load_profile(args.profile or DEFAULT_PROFILE)
+        material = args.material or "fpu"
+        configs = []
+        for material in ["fpu", "epu"] if material == "both" else [material]:
+            for law in args.controller or _laws("all"):
+                kind, _, ext = law.partition("+")
+                configs.append(profile_config(profile, material, kind, sigma_a_eq=args.sigma_a_eq,
+                                              payload=args.payload, ee_integral=ext == "eei",
+                                              reference=_reference(args) or step_reference(material),
+                                              disturbance=dist))
+    adjusted = []
+    for config in configs:
+        reference = config.reference
+        if args.duration is not None and reference is not None:
+            keep = reference.t < args.duration
+            reference = TimedReference(reference.t[keep], reference.p_des[keep], reference.name,
+                                       min(args.duration, reference.duration))
+        gains = config.gains
+        if args.kd is not None and config.controller != "pid":
+            gains = dataclasses.replace(gains or default_gains(config.controller, config.material), kd=args.kd)
+        adjusted.append(dataclasses.replace(config, reference=reference, gains=gains,
+                                            rate=config.rate if args.rate is None else args.rate))
+    return adjusted
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI: run the selected experiments, print the metrics table, write figures, logs (NPZ, CSV) and a summary."""
     configure_jax()
     parser = cli.ArgumentParser(prog="hsa_experiment",
                                 description="Closed-loop HSA experiments in simulation, without ROS.")
-    parser.add_argument("--material", choices=["fpu", "epu", "both"], default="fpu")
-    parser.add_argument("--controller", type=_laws, default="all",
-                        help="psatid, psatid_gc, pid, psatid+eei, psatid_gc+eei, or 'all' (comma-separated list ok)")
+    parser.add_argument("--material", choices=["fpu", "epu", "both"], default=None, help="default: fpu")
+    parser.add_argument("--controller", type=_laws, default=None,
+                        help="psatid, psatid_gc, pid, psatid+eei, psatid_gc+eei, or 'all' (comma-separated list ok; "
+                             "default: all)")
+    parser.add_argument("--profile", type=_profile, default=None,
+                        help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default: "
+                             f"{DEFAULT_PROFILE}; docs/simulation.md)")
+    parser.add_argument("--run", type=_run, default=None,
+                        help="replay a paper run with its own conditions (profile, law, gains, sigma_a_eq, real step "
+                             f"instants): {', '.join(run_names())}")
+    parser.add_argument("--payload", type=cli.non_negative, default=None,
+                        help="[kg] the plant's payload (default: the profile's or the run's)")
+    parser.add_argument("--sigma-a-eq", type=_sigma_a_eq, default=None,
+                        help="A or A,B: sigma_a_eq per rod (default: the profile's or the run's)")
     parser.add_argument("--trajectory", type=_trajectory, default="steps",
                         help="steps, star, circle, or the path of an image file")
     parser.add_argument("--contour-k", type=cli.positive_int, default=5,
                         help="keep every k-th contour point (image references)")
-    parser.add_argument("--rate", type=_rate, default=40.0, help="control rate [Hz], must divide 1000")
+    parser.add_argument("--rate", type=_rate, default=None,
+                        help="control rate [Hz], must divide 1000 (default: the profile's)")
     parser.add_argument("--duration", type=cli.positive, default=None,
                         help="truncate the reference to this many seconds")
     parser.add_argument("--kd", type=cli.positive, default=None,
@@ -291,35 +420,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-figures", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
+    if args.run is not None:
+        given = [name for name, value in (("--material", args.material), ("--controller", args.controller),
+                                          ("--profile", args.profile), ("--rate", args.rate))
+                 if value is not None] + (["--trajectory"] if args.trajectory != "steps" else [])
+        if given:
+            parser.error(f"argument --run: the run sets its own {', '.join(given)}; leave them out")
 
-    materials = ["fpu", "epu"] if args.material == "both" else [args.material]
-    laws = args.controller
     dist = {"default": DisturbanceModel(seed=args.seed), "none": DisturbanceModel.none(),
             "shear": DisturbanceModel.shear_mismatch(args.seed)}[args.disturbance]
     results = []
-    for material in materials:
-        for law in laws:
-            kind, _, ext = law.partition("+")
-            reference = _reference(args) or step_reference(material)
-            if args.duration is not None:
-                keep = reference.t < args.duration
-                reference = TimedReference(reference.t[keep], reference.p_des[keep], reference.name,
-                                           min(args.duration, reference.duration))
-            gains = None
-            if args.kd is not None and kind != "pid":
-                gains = dataclasses.replace(default_gains(kind, material), kd=args.kd)
-            config = ExperimentConfig(material, kind, ext == "eei", reference, args.rate, dist, gains=gains)
-            result = run_experiment(config, progress=not args.quiet)
-            results.append(result)
-            out = args.out / config.name
-            out.mkdir(parents=True, exist_ok=True)
-            result.log.save_npz(out / "log.npz")
-            result.log.save_csv(out / "log.csv")
-            if not args.no_figures:
-                plotting.all_figures(result.log, out, phi_max=float(result.log.meta["phi_max"]),
-                                     contour=args.trajectory != "steps", rmse=result.metrics.rmse)
-            for t_fail, failure in result.plan_failures:
-                print(f"[{config.name}] planning failed at t = {t_fail:.2f} s: {failure.status.name}: {failure.message}")
+    for config in _configs(args, dist):
+        result = run_experiment(config, progress=not args.quiet)
+        results.append(result)
+        out = args.out / config.name
+        out.mkdir(parents=True, exist_ok=True)
+        result.log.save_npz(out / "log.npz")
+        result.log.save_csv(out / "log.csv")
+        if not args.no_figures:
+            plotting.all_figures(result.log, out, phi_max=float(result.log.meta["phi_max"]),
+                                 contour=args.trajectory != "steps", rmse=result.metrics.rmse)
+        for t_fail, failure in result.plan_failures:
+            print(f"[{config.name}] planning failed at t = {t_fail:.2f} s: {failure.status.name}: {failure.message}")
     if not args.no_figures and len(results) > 1:
         plotting.overlay_figures([r.log for r in results], args.out / "figures", [r.metrics.rmse for r in results])
     print(metrics.format_summary([r.metrics for r in results]))

@@ -15,7 +15,6 @@ artefact, which is not a step).
 from __future__ import annotations
 
 import datetime
-import enum
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +22,8 @@ import numpy as np
 import yaml
 
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains
+from hsa_core.profiles import RunProfile, load_profile
+from hsa_core.trajectories import STEP_LISTS, TimedReference
 
 DATA_DIR = Path(__file__).resolve().parent / "config" / "realdata"
 """The packaged reference runs (CSV files, runs.yaml, README.md)."""
@@ -30,32 +31,10 @@ STEP_THRESHOLD = 0.5e-3
 """[m] a move of the reference larger than this between two 100 Hz samples is a step."""
 
 
-class VelocityEstimator(str, enum.Enum):
-    """The controller side's velocity estimate in a period of the paper (planning_and_control.md §6.4)."""
-
-    SMOOTHING_SPLINE_16 = "smoothing_spline_16"  # September 2023: cubic smoothing spline over 16 samples, in the node
-    SAVITZKY_GOLAY_20 = "savitzky_golay_20"  # October 2023: causal SG, 20 samples, cubic, at the mocap rate
-
-
-@dataclass(frozen=True)
-class PeriodSetup:
-    """The set-up of the original system in one period (experiments.md §1, §5)."""
-
-    name: str
-    bus_baud: int  # [bit/s] Dynamixel bus
-    control_period: float  # [s] achieved controller period (nominal 25 ms)
-    velocity_estimator: VelocityEstimator
-
-
-SEPTEMBER_2023 = PeriodSetup("september_2023", 2_000_000, 0.036, VelocityEstimator.SMOOTHING_SPLINE_16)
-"""September 2023: ≈ 27 Hz achieved from the message counts; the plotted samples are ≈ 36 ms apart (the FPU runs)."""
-OCTOBER_2023 = PeriodSetup("october_2023", 4_000_000, 0.025, VelocityEstimator.SAVITZKY_GOLAY_20)
-"""October 2023: 40 Hz achieved after the estimator and the motor I/O moved to their own nodes."""
-
-
 @dataclass(frozen=True)
 class RunConditions:
-    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg], date, set-up."""
+    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg], date and the
+    run profile of its period (hsa_core.profiles: control period, integrator step, velocity estimator, bus)."""
 
     bag: str
     material: str
@@ -64,7 +43,7 @@ class RunConditions:
     sigma_a_eq: tuple[float, float]
     payload: float
     date: datetime.date
-    setup: PeriodSetup
+    profile: RunProfile
 
     @property
     def tanh_slope(self) -> float | None:
@@ -120,6 +99,17 @@ class ReferenceRun:
         """[s] the instants the reference changes (steps 1, 2, ...), read from the 100 Hz reference."""
         return step_instants(self.t, self.p_des)
 
+    def timed_reference(self) -> TimedReference:
+        """The run's setpoints (the material's step list, experiments.md §2) at the real instants: point 0 at t = 0,
+        point k at step instant k; it ends where the trace ends (one 10 ms sample after its last)."""
+        instants = self.step_instants
+        points = np.asarray(STEP_LISTS[self.conditions.material], dtype=np.float64)
+        if len(instants) != len(points) - 1:
+            raise ValueError(f"{self.conditions.bag}: {len(instants)} steps in the trace, {len(points) - 1} in the "
+                             f"{self.conditions.material} step list")
+        return TimedReference(np.concatenate([[0.0], instants]), points, f"{self.conditions.bag}_steps",
+                              float(self.t[-1]) + 0.01)
+
     def rmse(self) -> float:
         """[m] tracking RMSE over the 100 Hz grid (experiments.md §4 on these traces)."""
         return float(np.sqrt(np.mean(np.sum((self.p_des - self.p) ** 2, axis=1))))
@@ -154,14 +144,13 @@ def _conditions_table() -> dict[str, dict]:
 
 
 def _conditions(bag: str, entry: dict) -> RunConditions:
-    """Typed conditions of one runs.yaml entry; the set-up follows the date (Dynamixel bus, rate, estimator)."""
+    """Typed conditions of one runs.yaml entry (its ``profile`` names a packaged run profile)."""
     law = ControllerKind(entry["law"])
     gains = PidGains(**entry["gains"]) if law is ControllerKind.PID else CollocatedGains(**entry["gains"])
     date = entry["date"] if isinstance(entry["date"], datetime.date) else datetime.date.fromisoformat(entry["date"])
-    setup = SEPTEMBER_2023 if date < datetime.date(2023, 10, 1) else OCTOBER_2023
     sigma = tuple(float(v) for v in entry["sigma_a_eq"])
     return RunConditions(bag, str(entry["material"]), law, gains, (sigma[0], sigma[1]), float(entry["payload"]), date,
-                         setup)
+                         load_profile(str(entry["profile"])))
 
 
 def _trace(name: str) -> Trace:

@@ -20,6 +20,8 @@ REPO = Path(__file__).parents[2]
     (["--trajectory", "no_such_image.png"], "must be steps, star, circle or an image file"),
     (["--contour-k", "0"], "must be an integer >= 1"),
     (["--duration", "-5"], "must be a finite number > 0"),
+    (["--profile", "sep2024"], "unknown run profile 'sep2024'; known: lab, sep2023, oct2023"),
+    (["--run", "20230925_000000"], "unknown reference run '20230925_000000'; known: 20230925_092200, "),
 ])
 def test_bad_arguments_are_refused_up_front_in_one_line(tmp_path, args: list[str], message: str) -> None:
     """No traceback, no run: the refusal names the argument, and nothing is written."""

@@ -10,6 +10,7 @@ import pytest
 
 from hsa_core import reference
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains
+from hsa_core.profiles import VelocityEstimator, load_profile
 
 README_RMSE = {"20230925_092200": 5.92, "20230925_093236": 4.18, "20230925_094023": 4.23, "20231019_143126": 3.67}
 """[mm] "RMSE from these traces", as the source README (shared/realdata/README.md) states them."""
@@ -39,16 +40,15 @@ def test_conditions_are_the_logbook_s() -> None:
     assert (pid.material, pid.law, pid.tanh_slope) == ("fpu", ControllerKind.PID, None)
     assert pid.gains == PidGains(10.0, 110.0, 0.25)
     assert pid.sigma_a_eq == (1.02775671, 1.02775671) and pid.payload == 0.0
-    assert pid.date == datetime.date(2023, 9, 25) and pid.setup is reference.SEPTEMBER_2023
-    assert pid.setup.bus_baud == 2_000_000 and pid.setup.velocity_estimator is \
-        reference.VelocityEstimator.SMOOTHING_SPLINE_16
+    assert pid.date == datetime.date(2023, 9, 25) and pid.profile == load_profile("sep2023")
+    assert pid.profile.bus_baud == 2_000_000 and pid.profile.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
     gc = reference.load_run("20230925_094023").conditions
     assert gc.law is ControllerKind.PSATID_GC and gc.gains == CollocatedGains(0.3, 0.05, 0.02, 100.0)
     assert gc.tanh_slope == 100.0 and gc.sigma_a_eq == (1.00443883, 1.00443883)
     epu = reference.load_run("20231019_143126").conditions
     assert (epu.material, epu.law, epu.sigma_a_eq) == ("epu", ControllerKind.PSATID, (1.05440951, 1.04468428))
-    assert epu.setup is reference.OCTOBER_2023 and epu.setup.control_period == 0.025
-    assert epu.setup.velocity_estimator is reference.VelocityEstimator.SAVITZKY_GOLAY_20
+    assert epu.profile == load_profile("oct2023") and epu.profile.control_period_ms == 25
+    assert epu.profile.bus_baud == 4_000_000 and epu.profile.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
 
 
 @pytest.mark.parametrize("bag", sorted(README_RMSE))

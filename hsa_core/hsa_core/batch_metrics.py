@@ -129,7 +129,9 @@ def run_summary(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> RunSumm
                        seg_sum(jnp.where(valid, err, 0.0)) / jnp.maximum(count, 1))
     later = present & (jnp.arange(n_eval) >= 1)
 
-    nan_unless_finite = lambda x: jnp.where(finite, x, jnp.nan)  # noqa: E731
+    def nan_unless_finite(x: Array) -> Array:
+        return jnp.where(finite, x, jnp.nan)
+
     rmse = jnp.sqrt(jnp.sum(jnp.where(valid, diff[:, 0] ** 2 + diff[:, 1] ** 2, 0.0)) / jnp.maximum(n, 1))
     saturated = jnp.sum(valid & log.saturated[index]) / jnp.maximum(n, 1)
     rate = (n - 1) / t[jnp.maximum(n - 1, 0)]

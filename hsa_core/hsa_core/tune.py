@@ -101,7 +101,8 @@ def evaluate_population(kind: ControllerKind, population: list, spec: closed_loo
     out = []
     for g in range(len(population)):
         mine = slice(g * n_plants, (g + 1) * n_plants)
-        terms = {key: float(np.mean(np.where(np.isfinite(v[mine]), v[mine], MISSING[key]))) for key, v in values.items()}
+        terms = {key: float(np.mean(np.where(np.isfinite(v[mine]), v[mine], MISSING[key])))
+                 for key, v in values.items()}
         objective = sum(WEIGHTS[k] * terms[k] for k in WEIGHTS)
         out.append(Evaluation(objective, terms, values["rmse_mm"][mine]))
     return out

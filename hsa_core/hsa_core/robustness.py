@@ -4,9 +4,10 @@ Each plant is the declared simulated plant (:mod:`hsa_core.disturbance`) with it
 S_b,sh together), its elongation constant C_ε and its axial rest strains σ_a,eq each scaled by an independent factor
 drawn uniformly from [1 − r, 1 + r] (``--range``, default 0.10), and its own mocap noise seed. The same plants
 (same generator seed) are used for every law, so the laws are compared plant by plant. Runs go through
-:func:`hsa_core.closed_loop.batch_rollout` (batched, split over every JAX device; a short last batch is padded to the
-compiled shape) and each batch is evaluated on the devices in one call, with the experiment's metrics and the
-classification below (:func:`hsa_core.batch_metrics.evaluate`; :func:`classify` is its reference in Python).
+:func:`hsa_core.closed_loop.batch_rollout` (batched, split over every JAX device; the plants in as few calls of at
+most ``--batch`` runs as possible, all of one size, a short last call padded to it, so the loop compiles once) and
+each batch is evaluated on the devices in one call, with the experiment's metrics and the classification below
+(:func:`hsa_core.batch_metrics.evaluate`; :func:`classify` is its reference in Python).
 
 Classification per run, from the plant's noise-free EE position in the last 2 s of every step:
 
@@ -126,12 +127,12 @@ def run_law(law: str, material: str, plants: Plants, disturbance: DisturbanceMod
         spec, inputs, constants = closed_loop.prepare(config)
         plant_index = np.arange(len(plants.seeds))
     n = len(plant_index)
-    size = min(batch, n)
+    size = -(-n // -(-n // batch))  # as few calls as at ``batch``, all of one size: n = 144 at 128 is 2 x 72
     records: list[dict] = []
     worst: Worst | None = None
     for lo in range(0, n, size):
         real = min(size, n - lo)
-        pos = lo + np.minimum(np.arange(size), real - 1)  # a short tail repeats its last run: one compiled shape
+        pos = lo + np.minimum(np.arange(size), real - 1)  # a short last call repeats its last run: one shape
         idx = plant_index[pos]
         noise = closed_loop.noise_batch(disturbance, spec, plants.seeds[plant_index[lo:lo + real]])
         params = jax.tree_util.tree_map(lambda a: a[idx], plants.params)
@@ -259,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n", type=cli.positive_int, default=32, help="perturbed plants (default 32)")
     parser.add_argument("--range", type=float, default=0.10, dest="spread",
                         help="relative ± range of each perturbation factor (default 0.10)")
-    parser.add_argument("--batch", type=cli.positive_int, default=16, help="runs per compiled batch")
+    parser.add_argument("--batch", type=cli.positive_int, default=16,
+                        help="most runs per compiled batch (the plants are split into equal batches)")
     parser.add_argument("--duration", type=cli.positive, default=None,
                         help="truncate the step list to this many seconds (default: all 110 s)")
     parser.add_argument("--gains", type=_gains_arg, action="append", default=[], metavar="LAW=FILE",

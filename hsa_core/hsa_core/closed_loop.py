@@ -311,3 +311,11 @@ def evaluate(spec: LoopSpec, log: TickLog, name: str = "") -> metrics.RunMetrics
     chiee, chiee_des = np.asarray(log.chiee)[window], np.asarray(log.chiee_des)[window]
     return metrics.evaluate_run(t[: len(chiee)], chiee_des[:, :2], chiee[:, :2], np.asarray(log.saturated)[window],
                                 duration=spec.n_eval * spec.period_ms * 1e-3, name=name)
+
+
+def noise_batch(disturbance, spec: LoopSpec, seeds: np.ndarray) -> np.ndarray:
+    """The mocap noise of one run per seed, (len(seeds), n_samples, 3): each equal to :func:`noise` with that seed
+    (the same generator, drawn in one call instead of sample by sample)."""
+    n = spec.n_ticks * spec.period_ms // MOCAP_MS + 2
+    std = np.asarray(disturbance.pose_noise_std, dtype=np.float64)
+    return np.stack([np.random.default_rng(int(s)).normal(0.0, 1.0, (n, 3)) for s in seeds]) * std

@@ -4,8 +4,10 @@ Each plant is the declared simulated plant (:mod:`hsa_core.disturbance`) with it
 S_b,sh together), its elongation constant C_ε and its axial rest strains σ_a,eq each scaled by an independent factor
 drawn uniformly from [1 − r, 1 + r] (``--range``, default 0.10), and its own mocap noise seed. The same plants
 (same generator seed) are used for every law, so the laws are compared plant by plant. Runs go through
-:func:`hsa_core.closed_loop.batch_rollout` (batched, split over every JAX device) and are evaluated with the
-experiment's metrics.
+:func:`hsa_core.closed_loop.batch_rollout` (batched, split over every JAX device; the plants in as few calls of at
+most ``--batch`` runs as possible, all of one size, a short last call padded to it, so the loop compiles once) and
+each batch is evaluated on the devices in one call, with the experiment's metrics and the classification below
+(:func:`hsa_core.batch_metrics.evaluate`; :func:`classify` is its reference in Python).
 
 Classification per run, from the plant's noise-free EE position in the last 2 s of every step:
 
@@ -34,7 +36,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from hsa_core import cli, closed_loop, plotting
+from hsa_core import batch_metrics, cli, closed_loop, plotting
+from hsa_core.batch_metrics import OSCILLATION_PTP_M, UNSTABLE_M
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains, load_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
@@ -44,10 +47,6 @@ from hsa_core.params import HsaParams, load_params
 from hsa_core.plotting import plt
 from hsa_core.trajectories import TimedReference, step_reference
 
-UNSTABLE_M = 0.02
-"""[m] mean error over a step's last 2 s above which a run counts as unstable."""
-OSCILLATION_PTP_M = 2e-3
-"""[m] peak-to-peak of x or y over a step's last 2 s above which a run counts as limit-cycling."""
 LAWS = ("psatid", "psatid_gc", "pid", "psatid+eei")
 BOUND = "bound"
 """Not a law: each plant under perfect-model feedforward. The servos slew at full speed to the plant's own steady-state
@@ -91,7 +90,8 @@ def perturbed_plants(base: HsaParams, n: int, spread: float, seed: int) -> Plant
 
 
 def classify(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> tuple[bool, bool]:
-    """(unstable, limit cycle) of one run, from the noise-free EE position in each step's last 2 s."""
+    """(unstable, limit cycle) of one run, from the noise-free EE position in each step's last 2 s: the Python
+    reference of :attr:`hsa_core.batch_metrics.RunSummary.unstable` and ``limit_cycle``."""
     window = closed_loop.metrics_window(spec, log)
     true = np.asarray(log.true_chiee)[window, :2]
     desired = np.asarray(log.chiee_des)[window, :2]
@@ -126,36 +126,35 @@ def run_law(law: str, material: str, plants: Plants, disturbance: DisturbanceMod
         config = ExperimentConfig(material, kind, ee, gains=gains, reference=reference, disturbance=disturbance)
         spec, inputs, constants = closed_loop.prepare(config)
         plant_index = np.arange(len(plants.seeds))
+    n = len(plant_index)
+    size = -(-n // -(-n // batch))  # as few calls as at ``batch``, all of one size: n = 144 at 128 is 2 x 72
     records: list[dict] = []
     worst: Worst | None = None
-    for lo in range(0, len(plant_index), batch):
-        idx = plant_index[lo:lo + batch]
-        noise = np.stack([closed_loop.noise(disturbance, spec, seed=int(plants.seeds[i])) for i in idx])
+    for lo in range(0, n, size):
+        real = min(size, n - lo)
+        pos = lo + np.minimum(np.arange(size), real - 1)  # a short last call repeats its last run: one shape
+        idx = plant_index[pos]
+        noise = closed_loop.noise_batch(disturbance, spec, plants.seeds[plant_index[lo:lo + real]])
         params = jax.tree_util.tree_map(lambda a: a[idx], plants.params)
         run_constants = constants
         if constant_axes is not None:  # this chunk's plants as their own models, with their setpoints
-            refs = jax.tree_util.tree_map(lambda a: a[lo:lo + batch], constants.refs)
+            refs = jax.tree_util.tree_map(lambda a: a[pos], constants.refs)
             run_constants = constants._replace(model=params, refs=refs)
-        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, noise=noise), run_constants, axes,
-                                         constant_axes)
-        for j, i in enumerate(idx):
+        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, noise=noise[pos - lo]), run_constants,
+                                         axes, constant_axes)
+        m = jax.tree_util.tree_map(lambda a: np.asarray(a)[:real], batch_metrics.evaluate(spec, logs))
+        for j, i in enumerate(idx[:real]):
+            records.append({"law": law, "plant": int(i), "stiffness": plants.factors[i, 0],
+                            "elongation": plants.factors[i, 1], "rest_strain": plants.factors[i, 2],
+                            "unstable": bool(m.unstable[j]), "limit_cycle": bool(m.limit_cycle[j]),
+                            "rmse_mm": float(m.rmse[j] * 1e3), "e_ss_mm": float(m.steady_state_error_mean[j] * 1e3),
+                            "t_r_s": float(m.response_time_mean[j]), "overshoot_mm": float(m.overshoot_mean[j] * 1e3),
+                            "saturated": float(m.saturated_fraction[j])})  # NaN metrics where not finite
+        scores = np.where(np.isfinite(m.rmse), m.rmse * 1e3, math.inf)
+        j = int(np.argmax(scores))
+        if worst is None or scores[j] > worst.score:
             one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)
-            unstable, cycling = classify(spec, one)
-            record = {"law": law, "plant": int(i), "stiffness": plants.factors[i, 0],
-                      "elongation": plants.factors[i, 1], "rest_strain": plants.factors[i, 2],
-                      "unstable": unstable, "limit_cycle": cycling}
-            try:
-                m = closed_loop.evaluate(spec, one, law)
-                record |= {"rmse_mm": m.rmse * 1e3, "e_ss_mm": m.steady_state_error_mean * 1e3,
-                           "t_r_s": m.response_time_mean, "overshoot_mm": m.overshoot_mean * 1e3,
-                           "saturated": m.saturated_fraction}
-            except ValueError:  # non-finite positions: no metrics
-                record |= {"rmse_mm": math.nan, "e_ss_mm": math.nan, "t_r_s": math.nan, "overshoot_mm": math.nan,
-                           "saturated": math.nan}
-            records.append(record)
-            score = record["rmse_mm"] if np.isfinite(record["rmse_mm"]) else math.inf
-            if worst is None or score > worst.score:
-                worst = Worst(score, record, one, spec.period_ms * 1e-3)
+            worst = Worst(float(scores[j]), records[lo + j], one, spec.period_ms * 1e-3)
     assert worst is not None
     return records, worst
 
@@ -261,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n", type=cli.positive_int, default=32, help="perturbed plants (default 32)")
     parser.add_argument("--range", type=float, default=0.10, dest="spread",
                         help="relative ± range of each perturbation factor (default 0.10)")
-    parser.add_argument("--batch", type=cli.positive_int, default=16, help="runs per compiled batch")
+    parser.add_argument("--batch", type=cli.positive_int, default=16,
+                        help="most runs per compiled batch (the plants are split into equal batches)")
     parser.add_argument("--duration", type=cli.positive, default=None,
                         help="truncate the step list to this many seconds (default: all 110 s)")
     parser.add_argument("--gains", type=_gains_arg, action="append", default=[], metavar="LAW=FILE",

@@ -6,7 +6,8 @@
 
 with t_r the mean response time, overshoot the mean overshoot, effort the mean |φ_k − φ_{k−1}| of the command per
 tick (chatter the servos would have to follow), and bad = 1 for an unstable or limit-cycling run
-(:func:`hsa_core.robustness.classify`). RMSE dominates; the other terms break ties towards fast, calm responses and
+(:func:`hsa_core.robustness.classify`). All of them come from :func:`hsa_core.batch_metrics.evaluate`, one compiled
+call per batch of runs. RMSE dominates; the other terms break ties towards fast, calm responses and
 make an oscillating or diverging run lose against any settled one.
 
 **Optimiser: derivative-free** (the cross-entropy method on log-gains): sample a population from a Gaussian in
@@ -25,7 +26,6 @@ and ``before_after`` box plots (PDF, PNG).
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -35,7 +35,7 @@ import jax
 import numpy as np
 import yaml
 
-from hsa_core import cli, closed_loop, plotting, robustness
+from hsa_core import batch_metrics, cli, closed_loop, plotting, robustness
 from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
@@ -71,7 +71,8 @@ def to_gains(kind: ControllerKind, base: CollocatedGains | PidGains, log10: np.n
 
 
 def effort(log: closed_loop.TickLog, spec: closed_loop.LoopSpec) -> float:
-    """Mean |Δφ| per tick of the command over the metrics window [rad]."""
+    """Mean |Δφ| per tick of the command over the metrics window [rad], of one run: the Python reference of
+    :attr:`hsa_core.batch_metrics.RunSummary.effort`."""
     phi = np.asarray(log.phi_cmd)[closed_loop.metrics_window(spec, log)]
     return float(np.mean(np.abs(np.diff(phi, axis=0)))) if len(phi) > 1 else 0.0
 
@@ -79,36 +80,31 @@ def effort(log: closed_loop.TickLog, spec: closed_loop.LoopSpec) -> float:
 def evaluate_population(kind: ControllerKind, population: list, spec: closed_loop.LoopSpec,
                         inputs: closed_loop.LoopInputs, constants: closed_loop.LoopConstants, plants, noises: np.ndarray,
                         batch: int) -> list[Evaluation]:
-    """Every gain set on every plant (one batched loop over the product), scored by the objective."""
+    """Every gain set on every plant (one batched loop over the product, ``batch`` runs per call, a short last call
+    padded to that shape), scored by the objective."""
     n_plants = len(noises)
     pairs = [(g, p) for g in range(len(population)) for p in range(n_plants)]
     axes = closed_loop.LoopInputs(0, 0, 0, None)
-    rows: list[dict] = []
+    parts: list[batch_metrics.RunSummary] = []
     for lo in range(0, len(pairs), batch):
-        chunk = pairs[lo:lo + batch]
+        real = min(batch, len(pairs) - lo)
+        chunk = [pairs[lo + j] for j in np.minimum(np.arange(batch), real - 1)]  # a short chunk repeats its last run
         gains = jax.tree_util.tree_map(lambda *v: np.stack(v), *[population[g] for g, _ in chunk])
-        params = jax.tree_util.tree_map(lambda a: a[np.array([p for _, p in chunk])], plants.params)
-        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, gains=gains,
-                                                               noise=noises[[p for _, p in chunk]]), constants, axes)
-        for j in range(len(chunk)):
-            one = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), logs)
-            unstable, cycling = robustness.classify(spec, one)
-            try:
-                m = closed_loop.evaluate(spec, one)
-                row = {"rmse_mm": m.rmse * 1e3, "t_r_s": m.response_time_mean, "overshoot_mm": m.overshoot_mean * 1e3}
-            except ValueError:
-                row = {"rmse_mm": math.nan, "t_r_s": math.nan, "overshoot_mm": math.nan}
-            row |= {"effort_rad": effort(one, spec), "bad": float(unstable or cycling)}
-            rows.append(row)
+        plant = np.array([p for _, p in chunk])
+        params = jax.tree_util.tree_map(lambda a: a[plant], plants.params)
+        logs = closed_loop.batch_rollout(spec, inputs._replace(plant=params, gains=gains, noise=noises[plant]),
+                                         constants, axes)
+        parts.append(jax.tree_util.tree_map(lambda a: np.asarray(a)[:real], batch_metrics.evaluate(spec, logs)))
+    m = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
+    values = {"rmse_mm": m.rmse * 1e3, "t_r_s": m.response_time_mean, "overshoot_mm": m.overshoot_mean * 1e3,
+              "effort_rad": m.effort, "bad": (m.unstable | m.limit_cycle).astype(float)}  # NaN metrics: not finite
     out = []
     for g in range(len(population)):
-        mine = rows[g * n_plants:(g + 1) * n_plants]
-        terms = {}
-        for key in WEIGHTS:
-            v = np.array([r[key] for r in mine], dtype=float)
-            terms[key] = float(np.mean(np.where(np.isfinite(v), v, MISSING[key])))
+        mine = slice(g * n_plants, (g + 1) * n_plants)
+        terms = {key: float(np.mean(np.where(np.isfinite(v[mine]), v[mine], MISSING[key])))
+                 for key, v in values.items()}
         objective = sum(WEIGHTS[k] * terms[k] for k in WEIGHTS)
-        out.append(Evaluation(objective, terms, np.array([r["rmse_mm"] for r in mine])))
+        out.append(Evaluation(objective, terms, values["rmse_mm"][mine]))
     return out
 
 
@@ -154,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                    disturbance=disturbance))
     plants = robustness.perturbed_plants(disturbance.plant_params(load_params(args.material)), args.plants,
                                          args.spread, args.seed)
-    noises = np.stack([closed_loop.noise(disturbance, spec, seed=int(s)) for s in plants.seeds])
+    noises = closed_loop.noise_batch(disturbance, spec, plants.seeds)
+    batch = min(args.batch, args.population * args.plants)  # every call runs this many: one compiled shape
     rng = np.random.default_rng(args.seed)
     mean = np.log10([getattr(paper, n) for n in TUNED[kind]])
     std = np.full(mean.shape, LOG_SPAN)
@@ -166,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         if generation == 0:
             samples[0] = mean  # the paper's gains compete from the start
         population = [to_gains(kind, paper, s) for s in samples]
-        scores = evaluate_population(kind, population, spec, inputs, constants, plants, noises, args.batch)
+        scores = evaluate_population(kind, population, spec, inputs, constants, plants, noises, batch)
         order = np.argsort([e.objective for e in scores])
         if best is None or scores[order[0]].objective < best[0]:
             best = (scores[order[0]].objective, samples[order[0]], scores[order[0]])
@@ -179,11 +176,11 @@ def main(argv: list[str] | None = None) -> int:
               f"{history[-1]['best_gains']}", file=sys.stderr, flush=True)
     assert best is not None
     tuned = to_gains(kind, paper, best[1])
-    before, after = evaluate_population(kind, [paper, tuned], spec, inputs, constants, plants, noises, args.batch)
+    before, after = evaluate_population(kind, [paper, tuned], spec, inputs, constants, plants, noises, batch)
     nominal_plants = robustness.Plants(np.ones((1, 3)), jax.tree_util.tree_map(lambda a: np.asarray(a)[None],
                                                                                  inputs.plant), np.array([args.seed]))
     nominal = evaluate_population(kind, [paper, tuned], spec, inputs, constants, nominal_plants,
-                                  np.asarray(inputs.noise)[None], args.batch)
+                                  np.asarray(inputs.noise)[None], batch)
     args.out.mkdir(parents=True, exist_ok=True)
     note = (f"hsa_tune --material {args.material} --law {args.law}: median RMSE over {args.plants} plants "
             f"{np.nanmedian(before.rmse_mm):.3f} -> {np.nanmedian(after.rmse_mm):.3f} mm on {args.duration:g} s of steps")

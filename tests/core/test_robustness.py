@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
-from hsa_core import closed_loop, robustness
+from hsa_core import batch_metrics, closed_loop, robustness
 from hsa_core.actuation import MotorMap
 from hsa_core.control import ControllerKind
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.experiment import ExperimentConfig
 from hsa_core.params import load_params
+from hsa_core.trajectories import TimedReference, step_reference
 
 PERIOD_MS = 25
 N = 800  # 20 s at 40 Hz: two steps of 10 s
@@ -129,3 +133,49 @@ def test_the_bound_settles_each_reachable_plant_on_its_setpoints(tmp_path) -> No
     assert 1 <= summary["runs"] == len(rows) <= 4
     assert summary["e_ss_mm"]["max"] < 0.3 and summary["limit_cycle_fraction"] == 0.0
     assert summary["unstable_fraction"] == 0.0
+
+
+def test_the_batched_noise_is_each_seeds_noise() -> None:
+    config = ExperimentConfig("fpu", "psatid")
+    spec = closed_loop.LoopSpec(ControllerKind.PSATID, False, None, 25, 6, 2, 400, 5, 395, MotorMap(phi_max=1.0), 0.025)
+    seeds = np.array([0, 7, 2**31 - 2])
+    batch = closed_loop.noise_batch(config.disturbance, spec, seeds)
+    for i, seed in enumerate(seeds):
+        assert np.array_equal(batch[i], closed_loop.noise(config.disturbance, spec, seed=int(seed)))
+
+
+def test_a_short_last_batch_runs_in_the_compiled_shape(monkeypatch) -> None:
+    """3 plants at batch 2: the last batch (1 plant) is padded to 2, so the loop and the metrics see one batch shape
+    and the loop is compiled once; the padded run is dropped. Plant 2 is plant 0 again: the same record."""
+    shapes = []
+    rollout, metrics = closed_loop.batch_rollout, batch_metrics.evaluate
+
+    def spy_rollout(spec, inputs, *rest):  # noqa: ANN001, ANN202 - the real function, its batch sizes recorded
+        shapes.append(("loop", np.shape(inputs.noise)[0]))
+        return rollout(spec, inputs, *rest)
+
+    def spy_metrics(spec, logs):  # noqa: ANN001, ANN202
+        shapes.append(("metrics", logs.ran.shape[0]))
+        return metrics(spec, logs)
+
+    monkeypatch.setattr(closed_loop, "batch_rollout", spy_rollout)
+    monkeypatch.setattr(batch_metrics, "evaluate", spy_metrics)
+    disturbance = DisturbanceModel()
+    two = robustness.perturbed_plants(disturbance.plant_params(load_params("fpu")), 2, 0.1, seed=5)
+    pick = np.array([0, 1, 0])
+    plants = robustness.Plants(two.factors[pick], jax.tree_util.tree_map(lambda a: np.asarray(a)[pick], two.params),
+                               two.seeds[pick])
+    ref = step_reference("fpu")
+    reference = TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 10.0)
+    spec = closed_loop.prepare(ExperimentConfig("fpu", "psatid", reference=reference, disturbance=disturbance))[0]
+    compiled = closed_loop._batched(spec, closed_loop.LoopInputs(0, None, 0, None), closed_loop.LoopConstants(None, None,
+                                                                                                            None))
+    before = compiled._cache_size()
+    records, worst = robustness.run_law("psatid", "fpu", plants, disturbance, 2, reference)
+    assert sorted(set(shapes)) == [("loop", 2), ("metrics", 2)] and len(shapes) == 4
+    assert compiled._cache_size() - before <= 1
+    assert [r["plant"] for r in records] == [0, 1, 2]
+    for key in ("rmse_mm", "e_ss_mm", "t_r_s", "overshoot_mm", "saturated"):
+        assert records[2][key] == pytest.approx(records[0][key], rel=1e-12, nan_ok=True)
+    assert np.isfinite(records[0]["rmse_mm"]) and records[0]["rmse_mm"] != records[1]["rmse_mm"]
+    assert worst.record is records[int(np.argmax([r["rmse_mm"] for r in records]))]

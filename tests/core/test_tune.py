@@ -38,7 +38,8 @@ def test_an_oscillating_gain_set_scores_worse_than_a_calm_one() -> None:
     calm = CollocatedGains(kp=0.01, ki=0.01, kd=0.02, gamma=100.0)  # mostly the setpoint's feedforward phi_ss
     wild = CollocatedGains(kp=3.0, ki=0.05, kd=0.02, gamma=100.0)  # ten times the paper's kp
     calm_score, wild_score = tune.evaluate_population(ControllerKind.PSATID, [calm, wild], spec, inputs, constants,
-                                                      plants, noises, batch=2)
+                                                      plants, noises, batch=3)  # padded to 3, the extra run dropped
+    assert calm_score.rmse_mm.shape == wild_score.rmse_mm.shape == (1,)
     assert calm_score.terms["bad"] == 0.0 and wild_score.terms["bad"] == 1.0
     assert wild_score.objective > calm_score.objective + tune.WEIGHTS["bad"]
     assert wild_score.terms["effort_rad"] > 3 * calm_score.terms["effort_rad"]

@@ -105,10 +105,13 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
 
 @pytest.fixture(scope="module")
 def sim_bag(install: Path, tmp_path_factory) -> Path:
-    """The sim graph with its defaults from the install space, every node ready; its recording (a few seconds)."""
+    """The sim graph with its defaults from the install space, every node ready; its recording (a few seconds): the
+    one date-time bag the default ``bag_dir`` (out/bags/sim/) holds."""
     runs = tmp_path_factory.mktemp("runs")
     run_graph(install, "sim.launch.yaml", {}, runs, {}, linger=5.0)
-    return runs / "out" / "bags" / "sim"
+    bags = sorted((runs / "out" / "bags" / "sim").iterdir())
+    assert len(bags) == 1, bags
+    return bags[0]
 
 
 def test_sim_graph_from_the_install_space_brings_every_node_to_ready(sim_bag: Path) -> None:

@@ -31,8 +31,9 @@
 * **Output.** Progress goes through the node's logger (stderr, which ``ros2 launch`` shows on the screen; stdout
   it sends to the log file only): ``ready`` once the publishers exist, then ``playing …`` and ``published …``.
   Refusals before the node exists (bag, arguments) are one line ``bag_player: …`` on stderr.
-* **Exit code** 0 when done or stopped (SIGINT/SIGTERM), 1 after a lockstep barrier timeout, 2 for a bad bag,
-  argument or parameter.
+* **Exit code** 0 when done or stopped (SIGINT, SIGTERM, SIGHUP, SIGQUIT, or the end of the process that started
+  it: :mod:`hsa_common.parent_death`), 1 after a lockstep barrier timeout or when its launcher had already ended, 2
+  for a bad bag, argument or parameter.
 """
 
 from __future__ import annotations
@@ -57,8 +58,9 @@ from hsa_bag.bagio import Bag, BagError
 from hsa_bag.msgtypes import message_class
 from hsa_bag.play_options import Options, parse_args, split_ros_args
 from hsa_bag.qos import publisher_profile
-from hsa_common import convert, lockstep, rosenv
+from hsa_common import convert, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
+from hsa_common.runner import STOP_SIGNALS
 from hsa_core.lockstep import Barrier
 from hsa_core.playback import LockstepPlayback
 from hsa_msgs.msg import LockstepAck
@@ -288,10 +290,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bag_player: {exc}", file=sys.stderr)
         return 2
     rosenv.ensure_for_node()  # after the argument and bag checks: a refusal stays one line
+    if parent_death.tie_to_parent(signal.SIGTERM) is parent_death.Tie.ORPHANED:  # before the SIGHUP handler (nohup)
+        print("bag_player: not starting: the launcher that started it has already ended", file=sys.stderr)
+        return 1
     stop = threading.Event()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    for sig in STOP_SIGNALS:  # as every node's runner: a closed terminal or Ctrl-\ stops it like Ctrl-C
+        if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
+            signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node("bag_player")
     try:
         try:

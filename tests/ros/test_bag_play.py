@@ -314,3 +314,19 @@ def test_progress_goes_through_the_node_logger(bag: Path) -> None:
     lines = [line for line in done.stderr.splitlines() if "[bag_player]: " in line]
     assert [line.split("]: ", 1)[1].split(" ")[0] for line in lines] == ["ready", "playing", "published"], done.stderr
     assert "[INFO]" in lines[0] and "published 80 messages in 1 pass(es)" in lines[2], done.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGQUIT])
+def test_a_closed_terminal_stops_the_player_like_ctrl_c(bag: Path, sig: signal.Signals) -> None:
+    """SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) stop the player cleanly, exit 0, as every node;
+    before, SIGHUP killed it and SIGQUIT dumped core."""
+    exe = find_executable("hsa_bag", "bag_player")
+    proc = start_process([exe, str(bag), "--topics", INFO, "--rate", "0.05"])  # 80 messages over minutes
+    try:
+        wait_for_line(proc, "playing ")
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 0, out
+    assert "published " in out, out

@@ -60,7 +60,6 @@ from hsa_bag.play_options import Options, parse_args, split_ros_args
 from hsa_bag.qos import publisher_profile
 from hsa_common import convert, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
-from hsa_common.runner import STOP_SIGNALS
 from hsa_core.lockstep import Barrier
 from hsa_core.playback import LockstepPlayback
 from hsa_msgs.msg import LockstepAck
@@ -295,9 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     stop = threading.Event()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    for sig in STOP_SIGNALS:  # as every node's runner: a closed terminal or Ctrl-\ stops it like Ctrl-C
-        if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
-            signal.signal(sig, lambda *_: stop.set())
+    parent_death.on_stop_signals(lambda *_: stop.set())  # as every node: a closed terminal or Ctrl-\ stops it
     node = rclpy.create_node("bag_player")
     try:
         try:

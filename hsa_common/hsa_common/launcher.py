@@ -52,8 +52,6 @@ _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
-"""Signals that stop the graph (SIGHUP only where it was not ignored at start, as under nohup)."""
 
 # The keys the real parsers read (launch 3.4.3 ExecuteProcess/DeclareLaunchArgument/SetLaunchConfiguration.parse,
 # launch_ros 0.26.6 Node.parse; launch_yaml refuses any other key of an action with "Unexpected key(s) found in").
@@ -302,9 +300,7 @@ class Launcher:
         """Start everything, wait for a stop condition, stop everything; return the failed or worst exit code."""
         env = rosenv.ros_environment()  # inherits this process's reserved domain (rosenv.apply in main)
         env[parent_death.PARENT_ENV] = str(os.getpid())  # the children's check that this launcher still lives
-        for sig in STOP_SIGNALS:
-            if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
-                signal.signal(sig, self._request_stop)
+        parent_death.on_stop_signals(self._request_stop)
         self._remove_unused_shm()
         for proc in self.procs:
             self._say(f"[launch] starting {proc.name}: {shlex.join(proc.cmd)}")

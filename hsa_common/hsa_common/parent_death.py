@@ -25,10 +25,14 @@ import enum
 import os
 import signal
 import sys
+from collections.abc import Callable
 
 PARENT_ENV = "HSA_PARENT_PID"
 """Environment variable in which a launcher passes its PID to the processes it starts."""
 _PR_SET_PDEATHSIG = 1
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+"""Signals that stop a node or a graph like Ctrl-C (torque off first): a closed terminal or ssh session and Ctrl-\\
+too."""
 
 
 class Tie(enum.Enum):
@@ -69,3 +73,11 @@ def alive(pid: int) -> bool:
     except OSError:
         return False
     return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")  # the state follows the command name's ')'
+
+
+def on_stop_signals(handler: Callable[[int, object], None]) -> None:
+    """Install ``handler`` for :data:`STOP_SIGNALS`; a SIGHUP ignored at start (``nohup``) stays ignored. Call it after
+    :func:`tie_to_parent`, which reads that disposition."""
+    for sig in STOP_SIGNALS:
+        if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
+            signal.signal(sig, handler)

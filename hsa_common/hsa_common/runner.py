@@ -72,8 +72,6 @@ milliseconds, but beside busy processes a planner_node once hung in it until the
 SIGKILLed two other nodes after the same 25 s)."""
 TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
-"""Signals that stop a node like Ctrl-C (torque off first)."""
 STUCK_AFTER = 10.0
 """[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
 well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
@@ -96,9 +94,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         if starting.is_set():
             raise StopBeforeReady(signum)  # unwinds the node's construction: nothing is running yet
 
-    for sig in STOP_SIGNALS:
-        if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
-            signal.signal(sig, on_stop)
+    parent_death.on_stop_signals(on_stop)
     watch_stop()
     logger = rclpy.logging.get_logger(name)
     if tie is parent_death.Tie.ORPHANED:

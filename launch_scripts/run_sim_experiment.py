@@ -159,9 +159,10 @@ def _conditions(args: argparse.Namespace) -> dict[str, str]:
     gains.write_text(gains_yaml(cond.law, cond.gains, f"gains of the real run {cond.bag}"))
     sequencer = args.out / "sequencer.yaml"
     schedule = run_schedule(args.run) | {"exit_on_finish": True, "finish_hold": 2.0}
+    rate = schedule.pop("rate")  # a launch argument: the graph gives it to the sequencer after its file
     sequencer.write_text(yaml.safe_dump({"/**": {"ros__parameters": schedule}}))
     return graph_arguments(cond.profile, sigma_a_eq=args.sigma_a_eq, payload=args.payload, run=args.run) | {
-        "gains": str(gains.resolve()), "sequencer_config": str(sequencer.resolve())}
+        "gains": str(gains.resolve()), "sequencer_config": str(sequencer.resolve()), "setpoint_rate": repr(rate)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,11 +7,17 @@ runs in lockstep simulated time (deterministic, faster than real time); ``--cloc
 progress line per step; the nodes' output goes to ``<out>/graph.log`` unless ``--verbose``.
 
     python launch_scripts/run_sim_experiment.py [--material fpu] [--controller psatid] [--out out/run_<time>]
+
+A run's conditions: ``--profile sep2023`` (a run profile: control rate, integrators' step, velocity estimator,
+σ_a,eq, payload), ``--run 20230925_093236`` (a real run of the paper replayed with its own conditions, gains and
+setpoints at its real step instants), ``--payload KG`` and ``--sigma-a-eq A[,B]`` (overrides); hsa_core.run_conditions
+turns them into the graph's launch arguments, as hsa_experiment does for the offline run.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import threading
@@ -26,6 +32,10 @@ from hsa_common import convert, rosenv
 from hsa_common.launcher import Launcher, LaunchFile
 from hsa_core import cli, metrics
 from hsa_core.jaxsetup import configure_jax
+from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, load_profile, profile_names
+from hsa_core.reference import ReferenceRun, load_run, run_names
+from hsa_core.run_conditions import graph_arguments, run_schedule
+from hsa_core.tune import gains_yaml
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
 
@@ -111,6 +121,50 @@ def _gains_file(text: str) -> Path:
     return path.resolve()
 
 
+def _profile(text: str) -> RunProfile:
+    """argparse type of --profile: a packaged run profile."""
+    try:
+        return load_profile(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _run(text: str) -> ReferenceRun:
+    """argparse type of --run: a packaged real run of the paper."""
+    try:
+        return load_run(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _sigma_a_eq(text: str) -> tuple[float, float]:
+    """argparse type of --sigma-a-eq: A (both rods) or A,B, each a finite number > 0."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2) or not all(0.0 < v < math.inf for v in values):
+        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
+    return values[0], values[-1]
+
+
+def _conditions(args: argparse.Namespace) -> dict[str, str]:
+    """Launch arguments of the run's conditions (hsa_core.run_conditions); a real run's gains and setpoints are
+    written as parameter files under --out."""
+    if args.run is None:
+        return graph_arguments(args.profile or load_profile(DEFAULT_PROFILE), sigma_a_eq=args.sigma_a_eq,
+                               payload=args.payload)
+    cond = args.run.conditions
+    gains = args.out / "gains.yaml"
+    gains.write_text(gains_yaml(cond.law, cond.gains, f"gains of the real run {cond.bag}"))
+    sequencer = args.out / "sequencer.yaml"
+    schedule = run_schedule(args.run) | {"exit_on_finish": True, "finish_hold": 2.0}
+    rate = schedule.pop("rate")  # a launch argument: the graph gives it to the sequencer after its file
+    sequencer.write_text(yaml.safe_dump({"/**": {"ros__parameters": schedule}}))
+    return graph_arguments(cond.profile, sigma_a_eq=args.sigma_a_eq, payload=args.payload, run=args.run) | {
+        "gains": str(gains.resolve()), "sequencer_config": str(sequencer.resolve()), "setpoint_rate": repr(rate)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the graph, then analyse its bag; exit code 0 only if both succeeded."""
     for sig in (signal.SIGHUP, signal.SIGQUIT):  # a closed terminal ends the run like Ctrl-C (unless nohup); the
@@ -127,7 +181,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clock", choices=["lockstep", "wall"], default="lockstep",
                         help="lockstep: simulated time, deterministic and faster than real time (default); "
                              "wall: real time")
-    parser.add_argument("--rate", type=cli.positive, default=40.0, help="[Hz] control rate")
+    parser.add_argument("--rate", type=cli.positive, default=None,
+                        help="[Hz] control rate (default: the profile's, 40 Hz for lab)")
+    parser.add_argument("--profile", type=_profile, default=None,
+                        help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default "
+                             f"{DEFAULT_PROFILE}): control rate, integrators' step, velocity estimator, sigma_a_eq, "
+                             "payload (docs/simulation.md, 'Run profiles')")
+    parser.add_argument("--run", type=_run, default=None,
+                        help="replay a real run of the paper with its own conditions (profile, material, law, gains, "
+                             f"sigma_a_eq, payload, setpoints at its real step instants): {', '.join(run_names())}")
+    parser.add_argument("--payload", type=cli.non_negative, default=None,
+                        help="[kg] the plant's payload (default: the profile's or the run's)")
+    parser.add_argument("--sigma-a-eq", type=_sigma_a_eq, default=None,
+                        help="A or A,B: sigma_a_eq of the rods, the model's and the plant's (default: the profile's or "
+                             "the run's, else the material's)")
     parser.add_argument("--gains", type=_gains_file, default=None,
                         help="controller parameter file given after the material's (e.g. hsa_tune's gains.yaml)")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output instead of logging it")
@@ -135,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="serve the run to Foxglove on ws://127.0.0.1:8765 (hsa_live; docs/nodes/hsa_live.md)")
     parser.add_argument("--out", type=Path, default=Path("out") / time.strftime("run_%Y%m%d-%H%M%S"))
     args = parser.parse_args(argv)
+    if args.run is not None and args.profile is not None:
+        parser.error("--run replays a run with its own profile; --profile does not apply")
 
     bag = args.out / "bag"
     if bag.exists():
@@ -144,8 +213,10 @@ def main(argv: list[str] | None = None) -> int:
     launch_args = {
         "material": args.material, "controller": args.controller, "ee_integral": str(args.ee_integral).lower(),
         "disturbance": args.disturbance, "setpoint_rate": str(args.setpoint_rate), "bag_dir": str(bag),
-        "clock": args.clock, "rate": str(args.rate), "live": str(args.live).lower(),
-    }
+        "clock": args.clock, "live": str(args.live).lower(),
+    } | _conditions(args)
+    if args.rate is not None:
+        launch_args["rate"] = str(args.rate)
     if args.gains is not None:
         launch_args["gains"] = str(args.gains)
     log_path = args.out / "graph.log"
@@ -160,8 +231,8 @@ def main(argv: list[str] | None = None) -> int:
         code = Launcher(LaunchFile(GRAPH, launch_args).processes(), log=None if args.verbose else log).run()
     monitor.close()
     print(f"[run] graph finished after {time.monotonic() - started:.1f} s of wall time (exit {code})", flush=True)
-    result = analyze(bag, args.out, duration=None if args.setpoint_rate else 110.0, csv=True, npz=True,
-                     name=f"{args.material}_{args.controller}{'_eei' if args.ee_integral else ''}_ros")
+    name = f"{launch_args['material']}_{launch_args['controller']}{'_eei' if args.ee_integral else ''}_ros"
+    result = analyze(bag, args.out, duration=None if args.setpoint_rate else 110.0, csv=True, npz=True, name=name)
     print(result.report)
     print(f"[run] bag: {bag.resolve()}")
     print(f"[run] metrics.txt, run.csv, run.npz and figures/: {args.out.resolve()}")

@@ -30,12 +30,14 @@ step figure is left out, and the Cartesian path drawn as a line, for contour run
 for step runs (experiments.md §4) and the whole run for contours; ``--duration 0`` keeps everything, and so does a
 duration beyond the last tick (the last step then ends one tick period after its last tick). A bad bag (truncated
 file, missing metadata, topic or type definition, no tracking tick) exits with code 2 and a message naming what is
-missing; so does a bad argument, in one line. A message that does not decode is no reason to lose the run: it is
+missing; so does a bad argument, in one line. ``--against REFERENCE``: one run compared step by step with a
+reference run (:mod:`hsa_bag.against`). A message that does not decode is no reason to lose the run: it is
 skipped, and one line per topic on stderr says how many were. Long bags show a progress bar (tqdm, on a terminal).
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import zipfile
 from collections.abc import Sequence
@@ -294,7 +296,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--phi-max", type=cli.positive,
                         help="[rad] actuation limit drawn in the actuation figures (default: the material's)")
     parser.add_argument("--name", help="run name in the tables (one run only; default the bag name)")
+    parser.add_argument("--against", metavar="REFERENCE",
+                        help="compare the RUN step by step with REFERENCE (a bag, an NPZ RunLog or a real run of the "
+                             "paper, e.g. 20230925_093236; RUN may be one too): table, against.json, figures "
+                             "(default --out out/analysis/<run>_against_<reference>)")
     args = parser.parse_args(argv)
+    if args.against is not None:
+        return _against(parser, args)
     missing = [str(p) for p in args.runs if not p.exists()]
     if missing:
         parser.error("; ".join(f"{p} does not exist" for p in missing))
@@ -321,6 +329,26 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if several:
         print(format_summary([r.metrics for r in results]))
+    print(f"wrote {len(files)} files to {out}")
+    return 0
+
+
+def _against(parser: cli.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--against``: one run compared with a reference (hsa_bag.against); exit 2 with one line on a bad input."""
+    from hsa_bag import against  # it imports this module
+
+    if len(args.runs) != 1:
+        parser.error(f"--against compares one RUN with the reference, got {len(args.runs)}")
+    duration = args.duration or STEP_RUN_DURATION
+    try:
+        result = against.compare(against.load_source(str(args.runs[0]), duration, args.topic),
+                                 against.load_source(args.against, duration, args.topic))
+        out = args.out or Path("out", "analysis", f"{result.run.name}_against_{result.ref.name}")
+        files = against.write(result, out)
+    except BagError as exc:
+        print(f"hsa_analyze: {exc}", file=sys.stderr)
+        return 2
+    print(result.text())
     print(f"wrote {len(files)} files to {out}")
     return 0
 

@@ -17,7 +17,10 @@ the controller steps and `phi_cmd` is published. From the first tracking tick on
 tick. A setpoint costs O(1) on arrival (its serialized message is kept, at most SETPOINT_INTAKE of them); the tick
 decodes the kept ones and checks at most a few, the newest winning (hsa_core.control_loop), so a setpoint flood
 cannot stall the tick. The math is hsa_core.control's Controller,
-compiled in the constructor; the integrators use dt = 1/rate and stay finite by construction (Controller.step). This node only declares parameters, converts messages, publishes and logs.
+compiled in the constructor; the integrators use dt = 1/rate (or `integrator_dt`) and stay finite by
+construction (Controller.step). With `velocity_estimator` smoothing_spline_16 (the September 2023 stand-in,
+hsa_core.run_conditions.TickEstimator) the rates of the states are not used: each tick fits them to the newest
+state of the last 16 ticks. This node only declares parameters, converts messages, publishes and logs.
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ from hsa_core.control import Controller, ControllerKind, ee_gains_from_parameter
 from hsa_core.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.planning import Setpoint as CoreSetpoint
+from hsa_core.profiles import VelocityEstimator
+from hsa_core.run_conditions import TickEstimator
 from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
 from hsa_core.validation import SetpointValidator
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
@@ -60,7 +65,7 @@ class ControllerNode(Node):
         self._kind = ControllerKind(p["controller"])
         params = load_model(p)
         controller = Controller(
-            self._kind, params, gains_from_parameters(self._kind, p), dt=1.0 / p["rate"],
+            self._kind, params, gains_from_parameters(self._kind, p), dt=p["integrator_dt"] or 1.0 / p["rate"],
             ee_integral=ee_gains_from_parameters(p) if p["ee_integral"] else None,
             reset_integral_on_setpoint_change=p["reset_integral_on_setpoint_change"],
         )
@@ -72,6 +77,9 @@ class ControllerNode(Node):
         self._motor_map = load_wiring_param(p["wiring_file"]).motor_map(params)  # motor_goal_angles, as the driver maps
         self._last_info: ControllerInfo | None = None  # info of the newest tracking tick
         self._setpoints: deque[bytes] = deque()  # serialized setpoints received since the last tick, newest last
+        self._tick_estimator = (TickEstimator(1.0 / p["rate"]) if VelocityEstimator(p["velocity_estimator"])
+                                is VelocityEstimator.SMOOTHING_SPLINE_16 else None)
+        self._newest: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, q, chiee: for the tick estimator
         self._cmd_pub = self.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND,
                                               qos_overriding_options=qos.overridable())
         self._info_pub = self.create_publisher(ControllerInfo, "controller_info", qos.INFO,
@@ -117,10 +125,19 @@ class ControllerNode(Node):
 
     def _on_state(self, msg: PlanarState) -> None:
         """Hand a state to the loop (plausible, velocity_valid, newest stamp, not in the future); refusals are logged
-        at most once per rejection_log_period."""
-        problem = self._loop.state(convert.stamp_ns(msg.header.stamp), self._now_ns(), convert.configuration(msg.q),
-                                   convert.configuration(msg.q_dot), convert.planar_pose(msg.chiee),
-                                   convert.planar_pose(msg.chiee_dot), msg.velocity_valid)
+        at most once per rejection_log_period. With the tick estimator, keep it for the next tick instead."""
+        stamp, q = convert.stamp_ns(msg.header.stamp), convert.configuration(msg.q)
+        chiee = convert.planar_pose(msg.chiee)
+        if self._tick_estimator is not None:
+            self._newest = stamp, q, chiee
+            return
+        self._hand_state(stamp, q, convert.configuration(msg.q_dot), chiee, convert.planar_pose(msg.chiee_dot),
+                         msg.velocity_valid)
+
+    def _hand_state(self, stamp: int, q: np.ndarray, q_dot: np.ndarray, chiee: np.ndarray, chiee_dot: np.ndarray,
+                    valid: bool) -> None:
+        """Give a state to the loop; log a refusal (throttled)."""
+        problem = self._loop.state(stamp, self._now_ns(), q, q_dot, chiee, chiee_dot, valid)
         if problem is not None:
             self.get_logger().warning(f"rejected state: {problem} ({sum(self._loop.rejections.states.values())} so "
                                       "far)", throttle_duration_sec=self._p["rejection_log_period"])
@@ -162,6 +179,8 @@ class ControllerNode(Node):
         """One control period: the loop decides; publish the new or held command and the tick's info, and log."""
         now = self.get_clock().now()
         self._hand_setpoints()
+        if self._newest is not None and (rates := self._tick_estimator.update(*self._newest)) is not None:
+            self._hand_state(self._newest[0], self._newest[1], rates[0], self._newest[2], rates[1], True)
         before = self._loop.active_tag, self._loop.counters.rejected_setpoints
         tick = self._loop.tick(now.nanoseconds)
         self._log_activations(tick, *before)

@@ -8,6 +8,7 @@ from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC
 from hsa_common.parameters import ParameterValidationError, ParamSpec
 from hsa_core.control import ControllerKind, EeIntegralGains, default_gains
 from hsa_core.planning import MAX_OPTIMALITY_ERROR
+from hsa_core.profiles import VelocityEstimator
 from hsa_core.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
 from hsa_core.validation import POSE_TOLERANCE
 
@@ -26,8 +27,14 @@ SPECS = (
     WIRING_SPEC,
     ParamSpec("controller", ControllerKind.PSATID.value, "control law: P-satI-D, P-satI-D + gravity cancellation or "
               "the task-space PID baseline", choices=tuple(k.value for k in ControllerKind), read_only=True),
-    ParamSpec("rate", 40.0, "[Hz] control rate; the integrators use dt = 1/rate", low=1.0, high=1000.0,
-              read_only=True),
+    ParamSpec("rate", 40.0, "[Hz] control rate; the integrators use dt = 1/rate unless integrator_dt is set",
+              low=1.0, high=1000.0, read_only=True),
+    ParamSpec("integrator_dt", 0.0, "[s] the integrators' step (a run profile's nominal dt); 0 = 1/rate", low=0.0,
+              high=1.0, read_only=True),
+    ParamSpec("velocity_estimator", VelocityEstimator.SAVITZKY_GOLAY_20.value, "rates the law uses: "
+              "savitzky_golay_20 = the state's (kinematics_node); smoothing_spline_16 = the September 2023 stand-in, "
+              "fitted at each tick to the newest states of the last 16 ticks (hsa_core.run_conditions.TickEstimator)",
+              choices=tuple(v.value for v in VelocityEstimator), read_only=True),
     ParamSpec("kp", _COLLOCATED.kp, "[rad^2/(N m)] P-satI-D(+GC) proportional gain", low=0.0, high=100.0),
     ParamSpec("ki", _COLLOCATED.ki, "[rad/s] P-satI-D(+GC) integral gain", low=0.0, high=100.0),
     ParamSpec("kd", _COLLOCATED.kd, "[rad^2 s/(N m)] P-satI-D(+GC) derivative gain", low=0.0, high=100.0),

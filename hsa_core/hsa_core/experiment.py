@@ -52,6 +52,7 @@ from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner, PlanResult
 from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile, profile_names
 from hsa_core.reference import ReferenceRun, load_run, run_names
+from hsa_core.run_conditions import TickEstimator, plant_params
 from hsa_core.runlog import RunLog
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.supervision import HOLD_TIMEOUT, STALE_TIMEOUT, Action, Mode, Supervisor, SupervisorConfig
@@ -62,8 +63,6 @@ from hsa_core.jaxsetup import configure_jax
 
 ESTIMATOR_WINDOW, ESTIMATOR_ORDER, GAP_FACTOR = 20, 3, 5.0
 """The kinematics node's estimator settings (hsa_kinematics_node/config/<material>.yaml)."""
-SPLINE_WINDOW = 16
-"""Samples of the September 2023 stand-in estimator (hsa_core.profiles), a cubic (ESTIMATOR_ORDER) fit."""
 CONTROLLER_SUPERVISION = SupervisorConfig(STALE_TIMEOUT, HOLD_TIMEOUT, driver_timeout=0.0)
 """controller_node's default bounds; no driver watch: offline the driver is modelled inline and cannot be lost."""
 
@@ -178,7 +177,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     motor_map = load_wiring().motor_map(model)  # the robot's wiring at its nominal neutral, as sim_node's servos
     phi_max = motor_map.phi_max
-    world = World(model.replace(m_pl=config.payload) if config.payload else model, config.disturbance, motor_map)
+    world = World(plant_params(model, config.payload), config.disturbance, motor_map)
     planner = Planner(model, config.planner)
     controller = Controller(
         ControllerKind(config.controller), model, config.gains,
@@ -187,9 +186,9 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     )
     loop = ControlLoop(controller, Supervisor(CONTROLLER_SUPERVISION))
     at_ticks = config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16  # the estimator runs at the ticks
-    estimator = SavitzkyGolayDifferentiator(window=SPLINE_WINDOW if at_ticks else ESTIMATOR_WINDOW,
-                                            order=ESTIMATOR_ORDER, dim=6, gap_factor=GAP_FACTOR,
-                                            nominal_period=(period_ns if at_ticks else MOCAP_PERIOD_NS) * 1e-9)
+    tick_estimator = TickEstimator(period_ns * 1e-9)
+    estimator = SavitzkyGolayDifferentiator(window=ESTIMATOR_WINDOW, order=ESTIMATOR_ORDER, dim=6,
+                                            gap_factor=GAP_FACTOR, nominal_period=MOCAP_PERIOD_NS * 1e-9)
     newest: tuple[int, np.ndarray, np.ndarray] | None = None  # the newest sample (stamp, q, χ_ee), for at_ticks
     s0 = first_point_ns(config.start_delay)
     points = [s0 + seconds_to_ns(float(t)) for t in reference.t]
@@ -217,10 +216,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 failures.append((instant, result))
             k += 1
         if tick == instant:
-            if at_ticks and newest is not None:
-                est = estimator.update((newest[0] - origin) * 1e-9, np.concatenate(newest[1:]))
-                if est.ready:
-                    loop.state(newest[0], instant, newest[1], est.derivative[:3], newest[2], est.derivative[3:])
+            if at_ticks and newest is not None and (rates := tick_estimator.update(*newest)) is not None:
+                loop.state(newest[0], instant, newest[1], rates[0], newest[2], rates[1])
             out = loop.tick(instant)
             if out.sent is not Action.NONE:  # a new or a re-sent command, written as the driver writes it
                 world.write_goals(motor_map.goal_ticks(np.clip(out.command.phi, 0.0, phi_max)), instant)

@@ -14,6 +14,11 @@ run's ``end``. The measures (positions in m, times in s):
 * **rise time** (:func:`rise_times`): per step, on the aligned grid, the time the progress along the step,
   s = (p − p₀)·(p^d − p₀)/‖p^d − p₀‖² (p₀ = p at the step instant), takes from first reaching 10 % to first reaching
   90 %, NaN if it never does;
+* **overshoot** (:func:`overshoots`): per step, on the aligned grid, how far p went past the setpoint along the
+  step's direction d = (p^d_k − p^d_{k−1})/‖p^d_k − p^d_{k−1}‖, max(0, max_j (p_j − p^d_k)·d) (as
+  hsa_core.metrics), NaN for a zero-size step;
+* **D per step** (:func:`step_deviations`): D of each step alone;
+* :func:`step_table` puts every per-step measure of a run and a reference side by side (``hsa_analyze --against``);
 * :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max over steps), end
   error (median over steps), the median relative rise- and response-time differences and each run's RMSE.
 """
@@ -21,6 +26,7 @@ run's ``end``. The measures (positions in m, times in s):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -164,4 +170,67 @@ def compare(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> Compa
         relative(rise_times),
         relative(response_times),
         (rmse(run), rmse(ref)),
+    )
+
+
+def overshoots(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+               grid: float = GRID) -> np.ndarray:
+    """(steps,) [m]: per step, the overshoot past the setpoint along the step's direction (module docstring)."""
+    responses = aligned_responses(run, steps, horizon, grid)
+    out = []
+    for (start, _), p in zip(run.step_bounds(steps), responses):
+        before = run.p_des[max(int(np.searchsorted(run.t, start, side="left")) - 1, 0)]
+        target = run.setpoint_at(start)
+        size = float(np.linalg.norm(target - before))
+        out.append(max(0.0, float(np.max((p - target) @ ((target - before) / size)))) if size > 0.0 else np.nan)
+    return np.array(out)
+
+
+def step_deviations(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+                    grid: float = GRID) -> np.ndarray:
+    """(steps,) [m]: per step, RMS of ‖p_run − p_ref‖ over its aligned response (D of that step alone)."""
+    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(ref, steps, horizon, grid)
+    return np.sqrt(np.mean(np.sum(diff**2, axis=-1), axis=1))
+
+
+@dataclass(frozen=True)
+class StepTable:
+    """Per-step measures of a run and a reference side by side [m, s]: the steps compared, each one's start in
+    either run, D per step, and (run, reference) pairs of rise time, overshoot, end error and end peak-to-peak per
+    axis ((steps, 2) each)."""
+
+    steps: tuple[int, ...]
+    start: tuple[np.ndarray, np.ndarray]
+    deviation: np.ndarray
+    rise_time: tuple[np.ndarray, np.ndarray]
+    overshoot: tuple[np.ndarray, np.ndarray]
+    end_error: tuple[np.ndarray, np.ndarray]
+    peak_to_peak: tuple[np.ndarray, np.ndarray]
+
+    def rows(self) -> list[dict[str, Any]]:
+        """One dict per step (SI units; NaN as None), for JSON."""
+        def num(value: float) -> float | None:
+            return None if np.isnan(value) else float(value)
+
+        out = []
+        for i, k in enumerate(self.steps):
+            row: dict[str, Any] = {"step": k, "deviation": num(self.deviation[i])}
+            for name in ("start", "rise_time", "overshoot", "end_error"):
+                pair = getattr(self, name)
+                row[name] = {"run": num(pair[0][i]), "reference": num(pair[1][i])}
+            row["peak_to_peak"] = {side: [num(v) for v in pair[i]]
+                                   for side, pair in zip(("run", "reference"), self.peak_to_peak)}
+            out.append(row)
+        return out
+
+
+def step_table(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> StepTable:
+    """Every per-step measure of ``run`` and ``ref`` (module docstring)."""
+    def starts(r: StepRun) -> np.ndarray:
+        return np.array([start for start, _ in r.step_bounds(steps)])
+
+    return StepTable(
+        tuple(steps), (starts(run), starts(ref)), step_deviations(run, ref, steps),
+        (rise_times(run, steps), rise_times(ref, steps)), (overshoots(run, steps), overshoots(ref, steps)),
+        (end_error(run, steps), end_error(ref, steps)), (end_peak_to_peak(run, steps), end_peak_to_peak(ref, steps)),
     )

@@ -1,6 +1,6 @@
 """setpoint_sequencer: plays a reference trajectory through the `plan_setpoint` service and publishes `setpoint`.
 
-Schedule: point j is requested at t0 + j/rate, where t0 (t = 0) is when the answer for point 0 arrived, i.e. when the
+Schedule: point j is requested at t0 + j/rate (or t0 + times[j]), where t0 (t = 0) is when the answer for point 0 arrived, i.e. when the
 first setpoint was published. Calls are asynchronous (a done-callback handles the answer, nothing spins inside a
 callback), with the service QoS hsa_common.qos.SERVICE. A failed or timed-out plan is counted, reported on
 `sequencer_status` and logged (at most every 5 s); the previous setpoint stays active. After the last point's slot the last setpoint is held and `finished` is reported; with
@@ -52,6 +52,10 @@ SPECS = (
     ParamSpec("points", Parameter.Type.DOUBLE_ARRAY,
               "[m] steps only: custom EE positions [x0, y0, x1, y1, ...] in hsa_base (unset or empty = the "
               "material's step list of experiments.md §2)", read_only=True, validator=_check_points),
+    ParamSpec("times", Parameter.Type.DOUBLE_ARRAY,
+              "[s] steps with 'points' only: the instant of each point after point 0 (0 first, increasing; e.g. a "
+              "real run's step instants); the last point lasts 1/rate; unset or empty = every 1/rate",
+              read_only=True),
     ParamSpec("rate", 0.0, "[Hz] setpoint rate (0 = the experiments' rate: 0.1 Hz for steps, 8 Hz otherwise)",
               low=0.0, high=100.0, read_only=True),
     ParamSpec("start_delay", 0.0, "[s] wait after the planner service is available before the first point",
@@ -90,6 +94,8 @@ def build_reference(v: dict[str, Any]) -> TimedReference:
     kind = v["trajectory"]
     if v["points"] and kind != "steps":
         raise ParameterValidationError(f"parameter 'points' applies to trajectory 'steps' only, not '{kind}'")
+    if v["times"] and not v["points"]:
+        raise ParameterValidationError("parameter 'times' applies to trajectory 'steps' with 'points' only")
     if kind == "contour" and not v["image_path"]:
         raise ParameterValidationError("parameter 'image_path' must name an image for trajectory 'contour'")
     rate = v["rate"] or (1.0 / trajectories.STEP_PERIOD if kind == "steps" else trajectories.CONTOUR_RATE)
@@ -99,7 +105,13 @@ def build_reference(v: dict[str, Any]) -> TimedReference:
     try:
         if kind == "steps":
             points = list(zip(v["points"][::2], v["points"][1::2])) if v["points"] else v["material"]
-            return trajectories.step_reference(points, period=1.0 / rate)
+            steps = trajectories.step_reference(points, period=1.0 / rate)
+            if not v["times"]:
+                return steps
+            if len(v["times"]) != len(steps) or v["times"][0] != 0.0:
+                raise ValueError(f"'times' needs one instant per point ({len(steps)}), the first 0, got "
+                                 f"{len(v['times'])} starting at {v['times'][0]:g}")
+            return trajectories.TimedReference(v["times"], steps.p_des, steps.name, v["times"][-1] + 1.0 / rate)
         if kind == "circle":
             return trajectories.circle_reference(**shape, n_points=v["n_points"] or 200)
         if kind == "star":
@@ -210,7 +222,7 @@ class SetpointSequencer(Node):
         self._index = k % self._n
         if self._t0 is None:
             self._t0 = now
-            self._tick_timer = self.create_timer(self._period, self._tick)
+            self._tick_timer = self.create_timer(self._slot_s(0), self._tick)
         if self._schedule_done and not self._pending:
             self._finished_at = now
             self._set_state("finished")
@@ -220,9 +232,21 @@ class SetpointSequencer(Node):
         else:
             self._publish_status()
 
+    def _slot_s(self, k: int) -> float:
+        """[s] the length of point k's slot (1/rate, or from 'times'), given so that rclpy's create_timer, which
+        truncates to whole ns, gets the slot's ns exactly."""
+        if not self._p["times"]:
+            return self._period
+        ends = [*self._ref.t[1:], self._ref.duration]
+        slot_ns = round(ends[k % self._n] * 1e9) - round(self._ref.t[k % self._n] * 1e9)
+        return (slot_ns + 0.5) * 1e-9
+
     def _tick(self) -> None:
         """Next schedule slot: request its point, or end the schedule after the last slot."""
         self._k += 1
+        if self._p["times"] and (self._k < self._n or self._p["loop"]):  # slots of their own lengths
+            self.destroy_timer(self._tick_timer)
+            self._tick_timer = self.create_timer(self._slot_s(self._k), self._tick)
         if self._k < self._n or self._p["loop"]:
             self._send(self._k)
             return

@@ -10,7 +10,8 @@ Position reads report the world's shafts. Two clocks (docs/simulation.md):
   at the instants they become available. A barrier that does not finish within ``barrier_timeout`` seconds of wall
   time is an ERROR, and the node exits 1.
 * ``wall``: the world follows the node clock; a timer at the mocap rate publishes every sample that became available.
-A ``payload_schedule`` changes the plant's payload at given instants of simulated time (:meth:`World.set_payload`).
+A ``payload`` is the plant's from t = 0 (it hangs at rest with it); a ``payload_schedule`` changes the plant's
+payload at given instants of simulated time (:meth:`World.set_payload`).
 See docs/nodes/hsa_sim_node.md.
 """
 
@@ -39,6 +40,7 @@ from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
 from hsa_core.playback import Step
 from hsa_core.rate_meter import RateMeter
+from hsa_core.run_conditions import plant_params
 from hsa_core.sim_lockstep import SimLockstep
 from hsa_core.world import MOCAP_PERIOD_NS, World, payload_schedule
 from hsa_core.jaxsetup import configure_jax
@@ -96,6 +98,8 @@ SPECS = (
               "it starts (others join when they first report)", read_only=True),
     ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails",
               low=0.1, high=3600.0, read_only=True),
+    ParamSpec("payload", 0.0, "[kg] the plant's point payload from t = 0, at rest with it (a run's condition; "
+              "hsa_core.run_conditions.plant_params)", low=0.0, high=10.0, read_only=True),
     ParamSpec("payload_schedule", Parameter.Type.DOUBLE_ARRAY, "[s, kg] flat pairs [t0, m0, t1, m1, ...]: from "
               "simulated time t_k the payload (at the params' CoG_pl) is m_k; unset or empty = none", read_only=True,
               validator=_payload_problem),
@@ -119,7 +123,8 @@ class SimNode(Node):
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"
         os.makedirs(os.path.dirname(port), exist_ok=True)
-        self._world = World(model, disturbance, self._map)  # compiles: the bus appears only when it can answer in time
+        plant = plant_params(model, self._p["payload"])
+        self._world = World(plant, disturbance, self._map)  # compiles: the bus appears only when it can answer in time
         self._world.set_torque([False] * len(ids))
         for t_ns, mass in payload_schedule(self._p["payload_schedule"] or []):
             self._world.set_payload(mass, t_ns)

@@ -95,3 +95,42 @@ def test_bad_runs_are_one_line_errors() -> None:
         sim_to_real.deviation(short, step_run())
     with pytest.raises(ValueError, match=r"^the run ends at 104\.99 s, before 9\.3 s after the step at 99\.55 s$"):
         sim_to_real.aligned_responses(step_run(end=105.0))
+
+
+def overshooting_run(past: float, across: float = 0.0) -> StepRun:
+    """The setpoints of step_run, followed exactly except for the first second of every step, where p sits ``past``
+    beyond the new setpoint along the step's direction and ``across`` to its left."""
+    run = step_run()
+    p = run.p_des.copy()
+    for i, t_k in enumerate(INSTANTS, start=1):
+        d = (SETPOINTS[i] - SETPOINTS[i - 1]) / np.linalg.norm(SETPOINTS[i] - SETPOINTS[i - 1])
+        m = (run.t >= t_k) & (run.t < t_k + 1.0)
+        p[m] = SETPOINTS[i] + past * d + across * np.array([-d[1], d[0]])
+    return StepRun(run.t, p, run.p_des, run.end)
+
+
+def test_overshoot_is_the_distance_past_the_setpoint_along_the_step() -> None:
+    np.testing.assert_allclose(sim_to_real.overshoots(overshooting_run(0.002)), 0.002, rtol=1e-9)
+    # an error across the step direction is not an overshoot; falling short is none either
+    np.testing.assert_allclose(sim_to_real.overshoots(overshooting_run(0.002, across=0.005)), 0.002, rtol=1e-9)
+    np.testing.assert_array_equal(sim_to_real.overshoots(overshooting_run(-0.003)), 0.0)
+
+
+def test_deviation_per_step_and_the_side_by_side_table() -> None:
+    reference = step_run()
+    shifted = step_run(offset=(0.003, 0.004))
+    np.testing.assert_allclose(sim_to_real.step_deviations(shifted, reference), 0.005, rtol=1e-12)
+    table = sim_to_real.step_table(shifted, reference)
+    assert table.steps == sim_to_real.STEPS
+    np.testing.assert_allclose(table.start[0], INSTANTS, atol=1e-9)
+    np.testing.assert_allclose(table.start[1], INSTANTS, atol=1e-9)
+    np.testing.assert_allclose(table.end_error[0], 0.005, rtol=1e-6)  # the offset, once the response has settled
+    np.testing.assert_allclose(table.end_error[1], 0.0, atol=1e-12)
+    np.testing.assert_allclose(table.rise_time[1], 0.2 * math.log(9.0), atol=0.011)  # first order: τ ln 9
+    rows = table.rows()
+    assert [r["step"] for r in rows] == list(range(1, 11))
+    assert rows[0]["deviation"] == pytest.approx(0.005)
+    assert rows[0]["peak_to_peak"]["run"] == pytest.approx([0.0, 0.0], abs=1e-6)
+    d = np.diff(SETPOINTS, axis=0) / np.linalg.norm(np.diff(SETPOINTS, axis=0), axis=1)[:, None]
+    np.testing.assert_allclose(table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9)  # settles there
+    np.testing.assert_array_equal(table.overshoot[1], 0.0)  # a first-order response never passes its target

@@ -35,6 +35,13 @@ PLAYER = find_executable("hsa_bag", "bag_player")
     ([str(LAUNCH / "run_sim_experiment.py"), "--gains", "no_such_gains.yaml"], "no such file: no_such_gains.yaml"),
     ([str(LAUNCH / "run_sim_experiment.py"), "--gains", str(LAUNCH / "sim.launch.yaml")],
      "is not a ROS parameter file"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--profile", "nope"], "unknown run profile 'nope'; known: lab"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--run", "nope"], "unknown reference run 'nope'; known: 2023"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--run", "20230925_093236", "--profile", "lab"],
+     "--run replays a run with its own profile"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--sigma-a-eq", "1,0"], "must be A or A,B with finite numbers > 0"),
+    ([str(LAUNCH / "run_sim_experiment.py"), "--payload", "-0.1"], "must be a finite number >= 0"),
+    ([ANALYZE, "nope_run", "--against", "20230925_093236"], "not a real run of the paper"),
 ])
 def test_bad_arguments_are_refused_in_one_line(tmp_path: Path, cmd: list[str], message: str) -> None:
     """Each refusal is the only line on stderr and the exit status is 2 (argparse's usage block is not printed)."""

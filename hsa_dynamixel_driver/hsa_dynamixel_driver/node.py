@@ -291,8 +291,7 @@ class DynamixelDriver(LifecycleNode):
             return
         servos, now = self._servos, self._now()
         assert servos.map is not None and servos.limits is not None and servos.bus is not None
-        step = self._goals.next_goal(now, servos.map, servos.limits, servos.phi_max, self._p["max_goal_rate"],
-                                     1.0 / self._p["rate"])
+        step = self._goals.next_goal(now, servos.map, servos.limits, self._p["max_goal_rate"], 1.0 / self._p["rate"])
         if step is None:
             return
         if step.clipped is not None:

@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from hsa_common import qos
+from hsa_core.params import CONFIG_DIR
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
@@ -221,9 +222,12 @@ def test_bus_torque_off_still_works_after_an_exchange_cut_by_a_signal(emulator) 
 
 
 def test_bad_parameters_exit_2_naming_the_parameter(driver) -> None:
-    cases = {"baudrate": "baudrate:=1234567", "neutral_file": "neutral_source:=file"}  # validator; cross-check
-    procs = {name: driver(override, ready=False) for name, override in cases.items()}  # started together: faster
+    cases = {"baudrate": ("baudrate:=1234567",), "neutral_file": ("neutral_source:=file",),  # validator; cross-check
+             "params_file": ("material:=epu", f"params_file:={CONFIG_DIR / 'fpu.yaml'}")}  # the model's material
+    procs = {name: driver(*overrides, ready=False) for name, overrides in cases.items()}  # started together: faster
+    outputs = {name: proc.communicate(timeout=60.0)[0] for name, proc in procs.items()}
     for name, proc in procs.items():
-        output, _ = proc.communicate(timeout=60.0)
-        assert proc.returncode == 2, output
-        assert f"'{name}'" in output
+        assert proc.returncode == 2, outputs[name]
+        assert f"'{name}'" in outputs[name]
+    refusal = [line for line in outputs["params_file"].splitlines() if "refusing to start" in line]
+    assert len(refusal) == 1 and "is a 'fpu' set but material is 'epu'" in refusal[0], outputs["params_file"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import time
@@ -108,7 +109,7 @@ def main() -> None:
     sg["speedup_vs_original_node"] = round(REFERENCE_US["original_node_compute_q_d"] / median, 1)
     results["savitzky_golay"] = sg
 
-    motor_map = MotorMap(neutral_ticks=(1000, 2000, 3000, 4000))
+    motor_map = MotorMap(neutral_ticks=(1000, 2000, 3000, 4000), phi_max=math.radians(200.0))
     limits = MotorLimits.from_map(motor_map)
     phis = np.random.default_rng(3).uniform(0.0, motor_map.phi_max, size=(10_000, 2))
     ticks = np.array([motor_map.goal_ticks(p) for p in phis])

@@ -51,7 +51,7 @@ from hsa_bag.bagio import Bag, BagError, stamp_ns
 from hsa_bag.storage import read_metadata
 from hsa_core import cli
 from hsa_core.metrics import RunMetrics, evaluate_run, format_steps, format_summary
-from hsa_core.params import ParameterError, load_params, phi_bounds
+from hsa_core.params import ParameterError, load_params
 from hsa_core.plotting import all_figures, overlay_figures
 from hsa_core.runlog import RunLog
 from hsa_core.jaxsetup import configure_jax
@@ -116,7 +116,7 @@ def _setup_meta(bag: Bag) -> dict[str, str]:
 def _phi_max_meta(material: str) -> dict[str, str]:
     """``phi_max`` [rad] of the material's parameter file (the largest rod limit), or nothing if unknown."""
     try:
-        return {"phi_max": str(float(np.max(phi_bounds(load_params(material))[1])))}
+        return {"phi_max": str(float(np.max(load_params(material).phi_limit.box[1])))}
     except (ParameterError, OSError, ValueError):
         return {}
 

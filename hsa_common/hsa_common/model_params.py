@@ -54,15 +54,17 @@ def load_wiring_param(value: str) -> Wiring:
 
 
 def load_model(values: dict[str, Any]) -> HsaParams:
-    """HsaParams selected by the declared MODEL_SPECS values (raises ParameterValidationError naming the parameter)."""
+    """HsaParams selected by the declared MODEL_SPECS values (``sigma_a_eq`` may be undeclared), refusing a set whose
+    material is not ``material`` (raises ParameterValidationError naming the parameter)."""
     from hsa_core.params import ParameterError, load_params  # JAX: only nodes that load the model import it
 
     source = values["params_file"] or values["material"]
-    overrides = {"sigma_a_eq": list(values["sigma_a_eq"])} if values["sigma_a_eq"] else {}
+    sigma_a_eq = values.get("sigma_a_eq")
+    overrides = {"sigma_a_eq": list(sigma_a_eq)} if sigma_a_eq else {}
     try:
         params = load_params(source, **overrides)
     except ParameterError as exc:
-        name = "params_file" if values["params_file"] else "sigma_a_eq"
+        name = "params_file" if values["params_file"] else "sigma_a_eq" if overrides else "material"
         raise ParameterValidationError(f"parameter '{name}': {exc}") from exc
     if params.material != values["material"]:
         raise ParameterValidationError(

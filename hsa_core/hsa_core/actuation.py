@@ -100,25 +100,20 @@ class ServoModel:
 
 @dataclass(frozen=True)
 class MotorMap:
-    """Wiring of the 4 motors to the 2 virtual rods, their handedness, neutral ticks and the twist limit."""
+    """Wiring of the 4 motors to the 2 virtual rods, their handedness, neutral ticks and the twist limit ``phi_max``
+    [rad] of every motor's goal (no default: the parameter set's ``PhiLimit.motor``, via ``Wiring.motor_map``)."""
 
     neutral_ticks: tuple[int, ...] = (0, 0, 0, 0)
     ids: tuple[int, ...] = (21, 22, 23, 24)
     rod: tuple[int, ...] = (1, 1, 0, 0)
     rho: tuple[int, ...] = (1, -1, 1, -1)
     h: tuple[int, ...] = (1, 1)
-    phi_max: float = math.radians(200.0)
     margin: float = 0.02
+    phi_max: float = field(kw_only=True)
 
     def __post_init__(self) -> None:
         """Validate sizes, signs and limits."""
-        n = len(self.ids)
-        if not (len(self.neutral_ticks) == len(self.rod) == len(self.rho) == n) or len(set(self.ids)) != n:
-            raise ValueError("ids, neutral_ticks, rod and rho need one distinct entry per motor")
-        if set(self.rod) != set(range(len(self.h))):
-            raise ValueError(f"rod must use every rod index 0 … {len(self.h) - 1}, got {self.rod}")
-        if any(s not in (-1, 1) for s in (*self.rho, *self.h)):
-            raise ValueError("rho and h entries must be +1 or -1")
+        check_wiring(self.neutral_ticks, self.ids, self.rod, self.rho, self.h)
         if not (self.phi_max > 0.0 and self.margin >= 0.0):
             raise ValueError("need phi_max > 0 and margin >= 0")
 
@@ -162,6 +157,18 @@ class MotorMap:
     def neutral_deviation(self, present_ticks: ArrayLike) -> np.ndarray:
         """Present minus stored neutral angle per motor [rad], for the start-up check of spec §7."""
         return ticks_to_angles(present_ticks, self.neutral_ticks)
+
+
+def check_wiring(neutral_ticks: tuple[int, ...], ids: tuple[int, ...], rod: tuple[int, ...], rho: tuple[int, ...],
+                 h: tuple[int, ...] = (1, 1)) -> None:
+    """ValueError unless there is one entry per motor, distinct IDs, every rod driven and signs ±1."""
+    n = len(ids)
+    if not (len(neutral_ticks) == len(rod) == len(rho) == n) or len(set(ids)) != n:
+        raise ValueError("ids, neutral_ticks, rod and rho need one distinct entry per motor")
+    if set(rod) != set(range(len(h))):
+        raise ValueError(f"rod must use every rod index 0 … {len(h) - 1}, got {rod}")
+    if any(s not in (-1, 1) for s in (*rho, *h)):
+        raise ValueError("rho and h entries must be +1 or -1")
 
 
 @dataclass(frozen=True, eq=False)

@@ -34,7 +34,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics
-from hsa_core.params import CONFIG_DIR, HsaParams, phi_bounds
+from hsa_core.params import CONFIG_DIR, HsaParams
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
 from hsa_core.validation import configuration_problem, q_bounds
 
@@ -245,8 +245,9 @@ def make_reference(
 
 def _saturate(params: HsaParams, phi_des: Array) -> tuple[Array, Array]:
     """phi_cmd = clip(h * phi^d, 0, phi_max) and whether any rod was clipped (§3.1)."""
-    phi_h = params.h * phi_des
-    phi_cmd = jnp.clip(phi_h, 0.0, params.phi_max)
+    limit = params.phi_limit
+    phi_h = limit.h * phi_des
+    phi_cmd = limit.clip(phi_h)
     return phi_cmd, jnp.any(phi_cmd != phi_h)
 
 
@@ -369,7 +370,7 @@ class Controller:
         self.ee_integral = ee_integral
         self.dt = float(dt)
         self.reset_integral_on_setpoint_change = bool(reset_integral_on_setpoint_change)
-        self._phi_lo, self._phi_hi = phi_bounds(params)
+        self._phi_lo, self._phi_hi = params.phi_limit.box
         self._q_bounds = q_bounds(params)
         self._state = np.zeros(4)
         self._setpoint: Setpoint | None = None

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 from jax import Array
+from jax.typing import ArrayLike
 
 from hsa_core import jaxsetup
 
@@ -164,6 +165,11 @@ class HsaParams:
         plate = self.m_plate * ((w**2 + h_p**2) / 12.0 + (self.l_dc + h_p / 2.0 - y_c) ** 2)
         return caps + plate
 
+    @property
+    def phi_limit(self) -> PhiLimit:
+        """The rods' twist limit (phi_max with the handedness h)."""
+        return PhiLimit(self.phi_max, self.h)
+
     def replace(self, **changes: Any) -> HsaParams:
         """Return a copy with fields changed (virtual-rod values, as stored), validated like a parameter file."""
         values: dict[str, Any] = {key: np.asarray(getattr(self, key)) for key in _SPECS}
@@ -178,10 +184,37 @@ class HsaParams:
 jax.tree_util.register_dataclass(HsaParams, data_fields=list(_SPECS), meta_fields=list(_META_KEYS))
 
 
-def phi_bounds(params: HsaParams) -> tuple[np.ndarray, np.ndarray]:
-    """The box of admissible twists [rad], per rod: between 0 and h * phi_max (either sign of handedness)."""
-    phi_max = np.asarray(params.phi_max) * np.asarray(params.h)
-    return np.minimum(0.0, phi_max), np.maximum(0.0, phi_max)
+@dataclasses.dataclass(frozen=True, eq=False)
+class PhiLimit:
+    """The twist limit of the rods, the one φ limit of the planner, validator, control laws, driver and simulations.
+
+    Rod i twists between 0 and h_i·φ_max,i. Three views of these numbers: `box` bounds φ^ss (planner, validator,
+    controller setpoints), `clip` bounds the commands φ_cmd = clip(h φ^d, 0, φ_max) of the control laws, and `motor`
+    is the one bound [0, motor] of every motor's goal (the smaller rod limit: the driver and the motor map).
+    """
+
+    phi_max: Array  # per virtual rod [rad], > 0 (NumPy or JAX arrays, also traced ones)
+    h: Array  # handedness per virtual rod, ±1
+
+    @property
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box of admissible twists φ [rad], per rod: between 0 and h·φ_max (either sign of handedness)."""
+        signed = np.asarray(self.phi_max) * np.asarray(self.h)
+        return np.minimum(0.0, signed), np.maximum(0.0, signed)
+
+    def clip(self, phi: ArrayLike) -> Array:
+        """Commands φ_cmd [rad] clipped per rod to [0, φ_max] (jax.numpy: also under jit)."""
+        return jnp.clip(phi, 0.0, self.phi_max)
+
+    @property
+    def motor(self) -> float:
+        """Every motor's goal range is [0, motor] [rad]: the smaller rod limit (one bound for each rod)."""
+        return float(np.min(np.asarray(self.phi_max)))
+
+    @property
+    def handedness(self) -> tuple[int, ...]:
+        """Control handedness h of each virtual rod (±1)."""
+        return tuple(int(v) for v in np.asarray(self.h))
 
 
 def _as_array(key: str, value: Any, spec: _Spec, source: str) -> np.ndarray:

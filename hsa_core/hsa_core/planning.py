@@ -37,7 +37,7 @@ from jax import Array
 from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics, resultcache, simulation
-from hsa_core.params import HsaParams, phi_bounds
+from hsa_core.params import HsaParams
 from hsa_core.reachability import ReachabilityRegion, boundary_phis
 
 PLANNER_KINDS = ("static", "equilibrium", "rollout")
@@ -345,7 +345,7 @@ class Planner:
         self.kind = kind
         self.max_optimality_error = float(max_optimality_error)
         self._max_iter = np.asarray(max_iter, dtype=np.int32)
-        self._phi_lo, self._phi_hi = phi_bounds(params)
+        self._phi_lo, self._phi_hi = params.phi_limit.box
         self._x_lo = np.concatenate([[-np.pi], self._phi_lo])
         self._x_hi = np.concatenate([[np.pi], self._phi_hi])
         self._phi_mid = 0.5 * (self._phi_lo + self._phi_hi)

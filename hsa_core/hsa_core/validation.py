@@ -23,7 +23,7 @@ import numpy as np
 from jax.typing import ArrayLike
 
 from hsa_core import dynamics, kinematics
-from hsa_core.params import HsaParams, phi_bounds
+from hsa_core.params import HsaParams
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
 
 MAX_BEND = 0.5 * math.pi
@@ -96,7 +96,7 @@ class SetpointValidator:
         self.params = params
         self.residual_tol = float(residual_tol)
         self.pose_tol = float(pose_tol)
-        self.phi_lo, self.phi_hi = phi_bounds(params)
+        self.phi_lo, self.phi_hi = params.phi_limit.box
         self.q_bounds = q_bounds(params)
         self._check(np.zeros(3), 0.5 * (self.phi_lo + self.phi_hi))
 

@@ -2,9 +2,9 @@
 
 The driver (real servos), the simulator (emulated servos), the controller (``motor_goal_angles``) and the offline
 simulations all build their :class:`~hsa_core.actuation.MotorMap` through :meth:`Wiring.motor_map`, so motor IDs and
-rod signs cannot disagree between them. Handedness ``h`` and the twist limit ``phi_max`` are properties of the rods:
-they come from the model parameter set (:class:`~hsa_core.params.HsaParams`), the one source of the φ limits that the
-planner, the controller's clip and the driver's goal clamp all use.
+rod signs cannot disagree between them. Handedness ``h`` and the twist limit are properties of the rods: they come
+from the model parameter set's :class:`~hsa_core.params.PhiLimit` (``params.phi_limit``), the one φ limit that the
+planner, the validator, the controller's clip and the driver's goal clamp all use.
 
 File format (packaged: ``config/robots/lab.yaml``): ``motor_ids``, ``rod`` (0-based virtual rod per motor), ``rho``
 (±1 per motor) and ``neutral_ticks`` (nominal φ = 0 positions), one entry per motor.
@@ -16,10 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
-from hsa_core.actuation import MotorMap
+from hsa_core.actuation import MotorMap, check_wiring
 from hsa_core.params import CONFIG_DIR, HsaParams
 
 ROBOTS_DIR = CONFIG_DIR / "robots"
@@ -43,20 +42,12 @@ class Wiring:
 
     def motor_map(self, params: HsaParams, neutral_ticks: tuple[int, ...] | None = None,
                   margin: float = 0.02) -> MotorMap:
-        """The φ ↔ ticks map of this robot with ``params``' handedness and twist limit (neutral: nominal or given)."""
+        """The φ ↔ ticks map of this robot with ``params``' handedness and motor twist limit (``PhiLimit.motor``);
+        neutral: nominal or given."""
         ticks = self.neutral_ticks if neutral_ticks is None else tuple(int(t) for t in neutral_ticks)
-        return MotorMap(ticks, self.motor_ids, self.rod, self.rho, h=handedness(params), phi_max=twist_limit(params),
+        limit = params.phi_limit
+        return MotorMap(ticks, self.motor_ids, self.rod, self.rho, h=limit.handedness, phi_max=limit.motor,
                         margin=margin)
-
-
-def handedness(params: HsaParams) -> tuple[int, ...]:
-    """Control handedness h of each virtual rod (±1) from the parameter set."""
-    return tuple(int(v) for v in np.asarray(params.h))
-
-
-def twist_limit(params: HsaParams) -> float:
-    """The motors' twist limit φ_max [rad]: the smaller rod limit of the parameter set (the same bound for each rod)."""
-    return float(np.min(np.asarray(params.phi_max)))
 
 
 def wiring_path(source: str | Path = "") -> Path:
@@ -85,8 +76,8 @@ def load_wiring(source: str | Path = "") -> Wiring:
             raise WiringError(f"wiring file {path}: key '{key}' must be a list of integers, got {value!r}")
         values[key] = tuple(value)
     wiring = Wiring(**values, source=str(path))
-    try:  # MotorMap's checks: one entry per motor, distinct IDs, every rod driven, signs ±1
-        MotorMap(wiring.neutral_ticks, wiring.motor_ids, wiring.rod, wiring.rho)
+    try:  # one entry per motor, distinct IDs, every rod driven, signs ±1
+        check_wiring(wiring.neutral_ticks, wiring.motor_ids, wiring.rod, wiring.rho)
     except ValueError as exc:
         raise WiringError(f"wiring file {path}: {exc}") from exc
     if not all(0 <= i <= 252 for i in wiring.motor_ids):

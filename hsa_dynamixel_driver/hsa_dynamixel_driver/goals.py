@@ -45,11 +45,12 @@ class GoalPipeline:
         """Stale command (watchdog) or torque off: nothing more is written, the last goal stays."""
         self.target, self.pending = None, False
 
-    def next_goal(self, now: float, motor_map: MotorMap, limits: MotorLimits, phi_max: float, max_rate: float,
+    def next_goal(self, now: float, motor_map: MotorMap, limits: MotorLimits, max_rate: float,
                   period: float) -> GoalStep | None:
-        """The goal to write at ``now`` [s]: a new command's, or the next step of a rate-limited ramp; None when there
-        is nothing new to write. ``max_rate`` [rad/s] (0 = no limit), ``period`` [s] of the control cycle."""
-        fresh, clipped = self.pending, None
+        """The goal to write at ``now`` [s]: a new command's (clipped to the map's [0, phi_max]), or the next step of
+        a rate-limited ramp; None when there is nothing new to write. ``max_rate`` [rad/s] (0 = no limit),
+        ``period`` [s] of the control cycle."""
+        fresh, clipped, phi_max = self.pending, None, motor_map.phi_max
         if fresh:
             phi = np.asarray(self.command.phi)
             within = np.clip(phi, 0.0, phi_max)

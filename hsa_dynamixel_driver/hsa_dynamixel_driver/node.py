@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
@@ -54,17 +54,16 @@ class DynamixelDriver(LifecycleNode):
         self._rejections = RejectionLog()
         self._cycle_timer: Timer | None = None
         self._reconnect_timer: Timer | None = None
+        self._state_pubs: tuple[LifecyclePublisher, ...] = ()  # motor_states, phi_present, motor_goal_stamp
 
-        options = qos.overridable()
-        self._pub_states, self._pub_phi, self._pub_goal = (
-            self.create_publisher(kind, topic, qos.SENSOR, qos_overriding_options=options) for kind, topic in
-            ((JointState, "motor_states"), (PlanarActuation, "phi_present"), (PlanarActuation, "motor_goal_stamp")))
         self.create_subscription(PlanarActuation, "phi_cmd", self._on_command, qos.COMMAND,
-                                 qos_overriding_options=options)
+                                 qos_overriding_options=qos.overridable())
         self.create_service(SetBool, "set_torque", self._on_set_torque)
         self.create_service(Trigger, "reboot", lambda req, res: self._on_reboot(self._servos.ids, res))
         for dxl_id in self._servos.ids:
             self.create_service(Trigger, f"reboot_{dxl_id}", lambda req, res, i=dxl_id: self._on_reboot([i], res))
+        # estop and torque are plain latched publishers: their state goes out in every lifecycle state (torque off
+        # at deactivate, cleanup and shutdown); the servo state topics are lifecycle publishers (on_configure)
         self._pub_estop = self.create_publisher(Bool, "estop", qos.LATCHED)
         self._pub_estop.publish(Bool(data=False))
         self._pub_torque = self.create_publisher(Bool, "torque", qos.LATCHED)
@@ -101,15 +100,21 @@ class DynamixelDriver(LifecycleNode):
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Create the bus and try to open it; while it is absent the reconnect timer keeps trying."""
+        """Create the state publishers and the bus and try to open it; while it is absent the reconnect timer keeps
+        trying."""
+        options = qos.overridable()
+        self._state_pubs = tuple(
+            self.create_lifecycle_publisher(kind, topic, qos.SENSOR, qos_overriding_options=options) for kind, topic
+            in ((JointState, "motor_states"), (PlanarActuation, "phi_present"), (PlanarActuation, "motor_goal_stamp")))
         self._servos.configure()
         # the bus is hardware: reconnection runs on the steady clock, also while simulated time stands still
         self._reconnect_timer = lockstep.wall_timer(self, self._p["reconnect_period"], self._servos.reconnect)
         self._servos.connect()
-        return SUCCESS
+        return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Enable torque holding the present position (if sane) and start the control cycle."""
+        """Enable the state publishers and torque holding the present position (if sane); start the control cycle."""
+        super().on_activate(state)
         self._goals.clear()
         if self._sup.activate():
             self._servos.enable_torque()
@@ -118,17 +123,20 @@ class DynamixelDriver(LifecycleNode):
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop the cycle and switch torque off."""
+        """Stop the cycle, switch torque off and say so on `torque`; the state publishers fall silent."""
         self._stop_cycle()
         self._servos.disable_torque("deactivated")
         self._report_torque()
-        return SUCCESS
+        return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Torque off and close the bus."""
+        """Torque off, close the bus and destroy the state publishers."""
         self._release("cleaned up")
         self._report_torque()
-        return SUCCESS
+        for pub in self._state_pubs:
+            self.destroy_lifecycle_publisher(pub)
+        self._state_pubs = ()
+        return super().on_cleanup(state)
 
     def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
         """Torque off and close the bus: the lifecycle transition, and the runner's exit hook (signals, exceptions)."""
@@ -291,8 +299,7 @@ class DynamixelDriver(LifecycleNode):
             return
         servos, now = self._servos, self._now()
         assert servos.map is not None and servos.limits is not None and servos.bus is not None
-        step = self._goals.next_goal(now, servos.map, servos.limits, servos.phi_max, self._p["max_goal_rate"],
-                                     1.0 / self._p["rate"])
+        step = self._goals.next_goal(now, servos.map, servos.limits, self._p["max_goal_rate"], 1.0 / self._p["rate"])
         if step is None:
             return
         if step.clipped is not None:
@@ -306,7 +313,7 @@ class DynamixelDriver(LifecycleNode):
         # this node has seen the /clock of the tick that sent it
         command = self._goals.command
         issued = convert.stamp_ns(command.header.stamp) if command is not None else 0
-        self._pub_goal.publish(convert.actuation_msg(servos.map.present_twists(step.ticks),
+        self._state_pubs[2].publish(convert.actuation_msg(servos.map.present_twists(step.ticks),
                                                      convert.stamp_msg(max(self.get_clock().now().nanoseconds, issued)),
                                                      source_stamp=self._goals.target_source))
 
@@ -320,8 +327,9 @@ class DynamixelDriver(LifecycleNode):
                             position=ticks_to_angles(ticks, servos.map.neutral_ticks).tolist(),
                             velocity=[velocities[i] * VELOCITY_UNIT_RAD_S for i in servos.ids])
         joints.header.stamp = stamp
-        self._pub_states.publish(joints)
-        self._pub_phi.publish(convert.actuation_msg(servos.map.present_twists(ticks), stamp))
+        motor_states, phi_present, _ = self._state_pubs
+        motor_states.publish(joints)
+        phi_present.publish(convert.actuation_msg(servos.map.present_twists(ticks), stamp))
 
 
 def main() -> None:

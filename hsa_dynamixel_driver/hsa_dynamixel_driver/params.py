@@ -1,4 +1,4 @@
-"""Parameters of the dynamixel_driver: the one list of declarations (SPECS) and the parameter set they select.
+"""Parameters of the dynamixel_driver: the one list of declarations (SPECS).
 
 Names, units and ranges: docs/nodes/hsa_dynamixel_driver.md. Only ``max_goal_rate``, ``command_timeout`` and
 ``watchdog_action`` change at run time; every other parameter is read-only.
@@ -12,9 +12,8 @@ from typing import Any
 from rclpy.parameter import Parameter
 
 from hsa_common.model_params import WIRING_SPEC
-from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_common.parameters import ParamSpec
 from hsa_core.actuation import DEFAULT_MAX_GOAL_RATE
-from hsa_core.params import HsaParams, ParameterError, load_params
 from hsa_dynamixel_driver.bus import SDK_BAUDRATES
 
 
@@ -73,11 +72,3 @@ SPECS = (
               read_only=True),
 )
 
-
-def robot_model(p: dict[str, Any]) -> HsaParams:
-    """The parameter set of ``material``/``params_file``: the rods' h and φ_max (a bad set names its parameter)."""
-    name = "params_file" if p["params_file"] else "material"
-    try:
-        return load_params(p["params_file"] or p["material"])
-    except ParameterError as exc:
-        raise ParameterValidationError(f"parameter '{name}': {exc}") from exc

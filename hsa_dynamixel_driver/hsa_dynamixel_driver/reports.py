@@ -71,7 +71,7 @@ class ControlReport:
         watchdog = sup.watchdog_status(p["watchdog_action"])
         values = {**rates, **{k: counts[k] for k in COMMAND_COUNTS},
                   "watchdog": watchdog, "command_age": age, "command_timeout": p["command_timeout"],
-                  "max_goal_rate": p["max_goal_rate"], "phi_max": self._servos.phi_max}
+                  "max_goal_rate": p["max_goal_rate"], "phi_max": self._servos.limit.motor}
         return Report(WARN if sup.watchdog is Watchdog.EXPIRED else OK, f"watchdog: {watchdog}", values)
 
 

@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from hsa_common.model_params import load_wiring_param
+from hsa_common.model_params import load_model, load_wiring_param
 from hsa_core.actuation import MotorLimits, MotorMap, accept_read_neutral
 from hsa_core.servo_supervision import Alert, Answer, ServoSupervisor
-from hsa_core.wiring import twist_limit
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     BusError,
@@ -31,7 +30,6 @@ from hsa_dynamixel_driver.bus import (
 )
 from hsa_dynamixel_driver.goals import GoalPipeline
 from hsa_dynamixel_driver.neutral import configured_neutral, write_neutral_file
-from hsa_dynamixel_driver.params import robot_model
 
 REBOOT_WAIT_S = 2.0  # wall-clock wait for rebooted servos to answer a ping again (bus-level, like the SDK timeouts)
 COUNTERS = ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
@@ -43,12 +41,12 @@ class Servos:
     """The bus, the φ map and goal limits, and the supervisor they report to; ``p`` are the node's parameters."""
 
     def __init__(self, p: dict[str, Any], logger: Any, now: Callable[[], float]) -> None:
-        """Fix φ_max and the configured neutral (a refused parameter raises ParameterValidationError)."""
+        """Load the model and wiring, fix the configured neutral (a refused parameter raises ParameterValidationError)."""
         self._p, self._log, self._now = p, logger, now
         self.wiring = load_wiring_param(p["wiring_file"])  # motor IDs, rods and rod signs: the robot's wiring file
-        self._model = robot_model(p)  # the rods' handedness and twist limit
+        self._model = load_model(p)  # the rods' handedness and twist limit
+        self.limit = self._model.phi_limit  # the φ limit; the motor map's goal clamp is its `motor` bound
         self.ids: list[int] = list(self.wiring.motor_ids)
-        self.phi_max = twist_limit(self._model)
         self.stored_neutral = configured_neutral(p, self.ids, self.wiring.neutral_ticks)
         self.sup = ServoSupervisor(tuple(self.ids), p["error_limit"], p["neutral_tolerance"],
                                    describe_hardware_error, p["torque_retry_period"], p["torque_retry_max"])

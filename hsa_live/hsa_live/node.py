@@ -41,7 +41,6 @@ from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core import live
-from hsa_core.params import phi_bounds
 from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
 from hsa_core.jaxsetup import configure_jax
 from hsa_live import scene
@@ -116,7 +115,7 @@ class LiveNode(Node):
                 f"parameter 'port': cannot serve on {HOST}:{self._p['port']}: {exc}") from exc
         self._geometry = geometry_fn(self._params, self._p["n_points"])
         self._compute(np.zeros(3))  # JIT-compile now, not on the first state
-        self._phi_box = tuple(np.asarray(b, dtype=float) for b in phi_bounds(self._params))
+        self._phi_box = tuple(np.asarray(b, dtype=float) for b in self._params.phi_limit.box)
         self._throttle = live.Throttle(self._p["scene_rate"])
         self._table = live.DiagnosticsTable(self._p["diagnostics_stale"])
         self._style = self._drawing_style()

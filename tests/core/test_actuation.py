@@ -19,18 +19,25 @@ from hsa_core.actuation import (
 
 NEUTRAL = (2048, -5000, 123456, 0)
 TICK = math.pi / 2048  # rad per tick (4096 per revolution)
+PHI_MAX = math.radians(200.0)  # the FPU set's
 
 
 @pytest.fixture
 def motor_map():
-    return MotorMap(neutral_ticks=NEUTRAL)
+    return MotorMap(neutral_ticks=NEUTRAL, phi_max=PHI_MAX)
 
 
 def test_defaults_follow_spec_wiring():
-    m = MotorMap()
+    m = MotorMap(phi_max=PHI_MAX)
     assert m.ids == (21, 22, 23, 24)
     assert m.rho == (1, -1, 1, -1) and m.h == (1, 1)
-    assert m.phi_max == pytest.approx(math.radians(200))
+    assert m.phi_max == PHI_MAX
+
+
+def test_a_map_has_no_default_twist_limit():
+    """The twist limit comes from the parameter set (Wiring.motor_map), never from a default of the map."""
+    with pytest.raises(TypeError, match="phi_max"):
+        MotorMap()
 
 
 def test_spec_mapping_of_phi_to_motor_angles(motor_map):
@@ -50,7 +57,7 @@ def test_handedness_phi1_drives_motors_23_24_phi2_drives_21_22(motor_map):
 
 
 def test_control_handedness_flips_the_rod():
-    m = MotorMap(h=(-1, 1))
+    m = MotorMap(h=(-1, 1), phi_max=PHI_MAX)
     np.testing.assert_array_equal(m.motor_angles([1.0, 2.0]), [2.0, -2.0, -1.0, 1.0])
     np.testing.assert_allclose(m.rod_twists(m.motor_angles([1.0, 2.0])), [1.0, 2.0])
 
@@ -142,11 +149,11 @@ def test_neutral_deviation_for_start_up_check(motor_map):
 
 def test_invalid_maps_rejected():
     with pytest.raises(ValueError):
-        MotorMap(neutral_ticks=(0, 0, 0))
+        MotorMap(neutral_ticks=(0, 0, 0), phi_max=PHI_MAX)
     with pytest.raises(ValueError):
-        MotorMap(rho=(1, 1, 2, -1))
+        MotorMap(rho=(1, 1, 2, -1), phi_max=PHI_MAX)
     with pytest.raises(ValueError):
-        MotorMap(rod=(0, 0, 0, 0))
+        MotorMap(rod=(0, 0, 0, 0), phi_max=PHI_MAX)
     with pytest.raises(ValueError):
         MotorMap(phi_max=-1.0)
 
@@ -173,7 +180,7 @@ def test_read_neutral_is_accepted_only_near_the_configured_one():
 
 def test_limits_depend_on_the_configured_neutral_only():
     """The goal clamp of a φ command is the same whatever present positions exist: it is built from the map alone."""
-    limits = MotorLimits.from_map(MotorMap(neutral_ticks=(2048,) * 4))
+    limits = MotorLimits.from_map(MotorMap(neutral_ticks=(2048,) * 4, phi_max=PHI_MAX))
     upper = 2048 + math.ceil((math.radians(200) + 0.02) * 2048 / math.pi)
     assert limits.upper[0] == upper and limits.lower[1] == 2048 - upper + 2048
 

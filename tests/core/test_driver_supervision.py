@@ -154,12 +154,12 @@ def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
     # φ = (0.1, 0.2) rad -> ψ = [+φ₂, −φ₂, +φ₁, −φ₁] -> ⌊0.2·2048/π⌋ = 130, ⌊0.1·2048/π⌋ = 65 ticks from neutral
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
-    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD)
+    step = goals.next_goal(1.0, MAP, LIMITS, 0.0, PERIOD)
     np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
     assert not step.rate_limited and step.clipped is None and goals.target_source == "stamp"
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
-    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, RATE, PERIOD)
+    step = goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD)
     np.testing.assert_array_equal(step.ticks, HELD + [STEP, -STEP, 65, -65])  # 130 ticks shortened to 65
     assert step.rate_limited
 
@@ -167,19 +167,19 @@ def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
 def test_pipeline_ramp_continues_then_stops_when_reached() -> None:
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
-    goals.written(goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, RATE, PERIOD).ticks, 1.0)
-    step = goals.next_goal(1.01, MAP, LIMITS, MAP.phi_max, RATE, PERIOD)  # the ramp's next step: not a new command
+    goals.written(goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD).ticks, 1.0)
+    step = goals.next_goal(1.01, MAP, LIMITS, RATE, PERIOD)  # the ramp's next step: not a new command
     np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
     assert not step.rate_limited
     goals.written(step.ticks, 1.01)
-    assert goals.next_goal(1.02, MAP, LIMITS, MAP.phi_max, RATE, PERIOD) is None  # reached: nothing to write
+    assert goals.next_goal(1.02, MAP, LIMITS, RATE, PERIOD) is None  # reached: nothing to write
 
 
 def test_pipeline_clips_phi_and_drops_a_stale_target() -> None:
     goals = pipeline_holding()
     goals.take(Command([-1.0, 10.0]))
-    step = goals.next_goal(1.0, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD)
+    step = goals.next_goal(1.0, MAP, LIMITS, 0.0, PERIOD)
     assert step.clipped is not None and "outside [0, 3.4907]" in step.clipped
     np.testing.assert_array_equal(step.ticks, HELD + [2275, -2275, 0, 0])  # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
     goals.drop_target()
-    assert goals.next_goal(1.01, MAP, LIMITS, MAP.phi_max, 0.0, PERIOD) is None
+    assert goals.next_goal(1.01, MAP, LIMITS, 0.0, PERIOD) is None

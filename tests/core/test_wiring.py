@@ -6,9 +6,11 @@ import math
 import re
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hsa_core import control
 from hsa_core.params import load_params
 from hsa_core.wiring import WiringError, load_wiring
 
@@ -31,6 +33,24 @@ def test_twist_limit_and_handedness_come_from_the_parameter_set(material: str, d
     assert motor_map.phi_max == pytest.approx(math.radians(degrees))
     flipped = params.replace(h=[-1.0, 1.0])
     np.testing.assert_allclose(load_wiring().motor_map(flipped).motor_angles([0.1, 0.7]), [0.7, -0.7, -0.1, 0.1])
+
+
+def test_one_phi_limit_gives_the_box_the_command_clip_and_the_motor_bound() -> None:
+    """PhiLimit, made from the parameter set, is what the planner/validator box, the laws' clip and the motor map
+    read: rods with different limits and handedness show each view."""
+    params = load_params("fpu").replace(phi_max=[2.0, 3.0], h=[-1.0, 1.0])
+    limit = params.phi_limit
+    lo, hi = limit.box
+    np.testing.assert_array_equal(lo, [-2.0, 0.0])
+    np.testing.assert_array_equal(hi, [0.0, 3.0])
+    np.testing.assert_array_equal(np.asarray(limit.clip(np.array([2.5, 2.5]))), [2.0, 2.5])
+    np.testing.assert_array_equal(np.asarray(limit.clip(np.array([-0.1, 4.0]))), [0.0, 3.0])
+    assert limit.motor == 2.0 and limit.handedness == (-1, 1)
+    motor_map = load_wiring().motor_map(params)
+    assert motor_map.phi_max == limit.motor and motor_map.h == limit.handedness
+    phi_cmd, saturated = control._saturate(params, jnp.array([-2.5, 1.0]))  # clip(h φ^d, 0, φ_max)
+    np.testing.assert_array_equal(np.asarray(phi_cmd), [2.0, 1.0])
+    assert bool(saturated)
 
 
 def test_given_neutral_overrides_the_nominal() -> None:

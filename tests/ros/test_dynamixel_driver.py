@@ -13,12 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 
 from hsa_common import qos
+from hsa_core.params import CONFIG_DIR
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
@@ -220,10 +224,42 @@ def test_bus_torque_off_still_works_after_an_exchange_cut_by_a_signal(emulator) 
     bus.close()
 
 
+def test_lifecycle_without_autostart_publishes_state_only_while_active(driver, emulator, ros_node) -> None:
+    """autostart false: nothing until `configure` (no state publisher, bus closed); state publishers from configure,
+    state and torque from activate; deactivate says torque off on the latched `torque` topic; cleanup removes them."""
+    proc = driver("autostart:=false")
+    states: list[JointState] = []
+    reported: list[bool] = []
+    ros_node.create_subscription(JointState, "motor_states", states.append, qos.SENSOR)
+    ros_node.create_subscription(Bool, "torque", lambda m: reported.append(m.data), qos.LATCHED)
+    lifecycle = ros_node.create_client(ChangeState, "dynamixel_driver/change_state")
+    assert lifecycle.wait_for_service(timeout_sec=30.0)
+
+    def transition(kind: int) -> None:
+        response = lifecycle.call(ChangeState.Request(transition=Transition(id=kind)), timeout_sec=30.0)
+        assert response is not None and response.success, kind
+
+    assert wait_until(lambda: ros_node.count_publishers("torque") == 1, 30.0)
+    assert not wait_until(lambda: ros_node.count_publishers("motor_states") > 0, 1.0), "state publisher unconfigured"
+    transition(Transition.TRANSITION_CONFIGURE)
+    assert wait_until(lambda: ros_node.count_publishers("motor_states") == 1, 30.0)
+    assert not wait_until(lambda: bool(states), 0.5) and torque(emulator) == {False}
+    transition(Transition.TRANSITION_ACTIVATE)
+    assert wait_until(lambda: bool(states) and torque(emulator) == {True} and reported[-1:] == [True], 30.0)
+    transition(Transition.TRANSITION_DEACTIVATE)
+    assert torque(emulator) == {False} and wait_until(lambda: reported[-1:] == [False], 30.0), reported
+    transition(Transition.TRANSITION_CLEANUP)
+    assert wait_until(lambda: ros_node.count_publishers("motor_states") == 0, 30.0)
+    assert stop_process(proc) in (0, 1) and torque(emulator) == {False}
+
+
 def test_bad_parameters_exit_2_naming_the_parameter(driver) -> None:
-    cases = {"baudrate": "baudrate:=1234567", "neutral_file": "neutral_source:=file"}  # validator; cross-check
-    procs = {name: driver(override, ready=False) for name, override in cases.items()}  # started together: faster
+    cases = {"baudrate": ("baudrate:=1234567",), "neutral_file": ("neutral_source:=file",),  # validator; cross-check
+             "params_file": ("material:=epu", f"params_file:={CONFIG_DIR / 'fpu.yaml'}")}  # the model's material
+    procs = {name: driver(*overrides, ready=False) for name, overrides in cases.items()}  # started together: faster
+    outputs = {name: proc.communicate(timeout=60.0)[0] for name, proc in procs.items()}
     for name, proc in procs.items():
-        output, _ = proc.communicate(timeout=60.0)
-        assert proc.returncode == 2, output
-        assert f"'{name}'" in output
+        assert proc.returncode == 2, outputs[name]
+        assert f"'{name}'" in outputs[name]
+    refusal = [line for line in outputs["params_file"].splitlines() if "refusing to start" in line]
+    assert len(refusal) == 1 and "is a 'fpu' set but material is 'epu'" in refusal[0], outputs["params_file"]

@@ -5,9 +5,9 @@ middleware's receive threads waiting for a CPU.
 
 ``refusal(priority)`` asks the OS on a short-lived thread whether it grants SCHED_RR at ``priority``
 to this process (CAP_SYS_NICE, or an RLIMIT_RTPRIO of at least ``priority``, in a cgroup allowed
-real-time time) and returns why not; ``apply(priority)`` then switches every thread of the process.
-Threads created later inherit the policy of the thread that creates them (glibc's default
-PTHREAD_INHERIT_SCHED). Linux only.
+real-time time) and returns why not; ``apply(priority)`` then switches every thread of the process
+(``apply(0)``: back to the normal policy). Threads created later inherit the policy of the thread
+that creates them (glibc's default PTHREAD_INHERIT_SCHED). Linux only.
 """
 
 from __future__ import annotations
@@ -46,11 +46,11 @@ def refusal(priority: int) -> str | None:
 
 
 def apply(priority: int) -> None:
-    """Put every thread of this process under SCHED_RR at ``priority``. Raises OSError when the OS
-    refuses (see ``refusal``)."""
-    param = os.sched_param(priority)
+    """Put every thread of this process under SCHED_RR at ``priority`` (0: under the normal
+    SCHED_OTHER). Raises OSError when the OS refuses (see ``refusal``)."""
+    policy, param = (POLICY if priority > 0 else os.SCHED_OTHER), os.sched_param(priority)
     for tid in os.listdir(TASKS):
         try:
-            os.sched_setscheduler(int(tid), POLICY, param)
+            os.sched_setscheduler(int(tid), policy, param)
         except ProcessLookupError:
             pass  # the thread ended since the listing

@@ -5,10 +5,12 @@ where it does not)."""
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import shutil
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -240,6 +242,34 @@ def test_realtime_priority_puts_every_thread_under_sched_rr(controllers) -> None
     assert len(threads) > 1 and set(threads.values()) == {(os.SCHED_RR, RT_PRIORITY)}, threads
     normal, _ = controllers["/c40"]
     assert set(_policies(normal.pid).values()) == {(os.SCHED_OTHER, 0)}
+
+
+SWITCH = """
+import json, os, sys, threading
+from hsa_controller_node import scheduling
+def policies():
+    return sorted({(os.sched_getscheduler(int(t)), os.sched_getparam(int(t)).sched_priority)
+                   for t in os.listdir("/proc/self/task")})
+done = threading.Event()
+threading.Thread(target=done.wait, daemon=True).start()
+scheduling.apply(int(sys.argv[1]))
+later = threading.Thread(target=done.wait, daemon=True)  # started after the switch: inherits it
+later.start()
+on = policies()
+scheduling.apply(0)
+print(json.dumps([on, policies()]))
+done.set()
+"""
+
+
+@pytest.mark.skipif(RT_REFUSED is not None, reason=f"realtime_priority {RT_REFUSED}")
+def test_scheduling_switches_every_thread_and_back() -> None:
+    """scheduling.apply: every thread, and one started afterwards, under SCHED_RR; apply(0), which
+    the node's on_shutdown calls before the teardown, puts them all back under SCHED_OTHER."""
+    out = subprocess.run([sys.executable, "-c", SWITCH, str(RT_PRIORITY)], capture_output=True,
+                         text=True, timeout=60.0, check=True).stdout
+    on, off = json.loads(out)
+    assert on == [[os.SCHED_RR, RT_PRIORITY]] and off == [[os.SCHED_OTHER, 0]]
 
 
 def test_realtime_priority_the_os_refuses_exits_2() -> None:

@@ -1,20 +1,25 @@
 """Setpoint flood benchmark (issue 22, item 1): does controller_node keep its 40 Hz tick under 1 000 setpoints/s?
 
-A real controller_node process (FPU, P-satI-D, 40 Hz, no driver in the graph: ``driver_timeout:=0``) is fed a ready
-state at 200 Hz and the FPU worked-example setpoint by this process; once it tracks, this process publishes valid
-setpoints (each with its own index and stamp) at ``--rate`` per second for ``--seconds`` on its ``setpoint`` topic.
+A real controller_node process (FPU, P-satI-D, 40 Hz, no driver in the graph:
+``driver_timeout:=0``, every thread under SCHED_RR at ``--realtime-priority``, 0 = normal
+scheduling) is fed a ready state at 200 Hz and the FPU worked-example setpoint by this process;
+once it tracks, this process publishes valid setpoints (each with its own index and stamp) at
+``--rate`` per second for ``--seconds`` on its ``setpoint`` topic.
 The tick times are the header stamps of ``controller_info`` (one per tick, the node clock = the wall clock);
 the figures over the flood window: tick rate, longest gap between two ticks, ticks not tracking, /diagnostics reports
 per second, the CPU time the controller process used per second of the window (/proc: the flood's cost, which the
-machine's load does not change much, unlike the tick figures), and the controller's setpoint counters (received,
-activated, superseded, rejected) from its last report.
-Each scenario runs quiet and beside two ``python3 -c "while 1: pass"`` processes (started and killed by PID here),
-and the same window without a flood beside the two processes is the control: what the machine's load alone does to
-the tick. The machine's load average is recorded: on a shared machine the "quiet" runs are not quiet.
+machine's load does not change much, unlike the tick figures), the controller's setpoint
+counters (received, activated, superseded, rejected) and its scheduling from its last report.
+Each scenario runs quiet and beside two ``python3 -c "while 1: pass"`` processes (started and
+killed by PID here, in this process's session; the controller has a session of its own), and the
+same window without a flood beside the two processes is the control: what the machine's load
+alone does to the tick. This process is not real-time. The machine's load average is recorded:
+on a shared machine the "quiet" runs are not quiet.
 Writes benchmarks/results/setpoint_flood.json (``--baseline FILE`` embeds an earlier result, e.g. of the code before
-the fix run with that checkout's interpreter).
+the fix run with that checkout's interpreter, or of ``--realtime-priority 0``).
 
-    .venv/bin/python benchmarks/bench_setpoint_flood.py [--rate 1000] [--seconds 10] [--out FILE] [--baseline FILE]
+    .venv/bin/python benchmarks/bench_setpoint_flood.py [--rate 1000] [--seconds 10]
+        [--realtime-priority 10] [--out FILE] [--baseline FILE] [--label LABEL]
 """
 
 from __future__ import annotations
@@ -180,6 +185,7 @@ def scenario(bench: Bench, rate: float, seconds: float, n_burners: int, pid: int
         "tick_rate_reported_hz": [values.get("tick rate [Hz]") for values in in_window],
         "counters_delta": {k: int(after[k]) - int(before.get(k, 0)) for k in COUNTERS if k in after},
         "newest_setpoint_tracked": bool(newest is not None and newest.trajectory_index == sent - 1) if sent else None,
+        "scheduling": after.get("scheduling"),
     }
 
 
@@ -187,6 +193,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rate", type=float, default=1000.0, help="setpoints per second")
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--realtime-priority", type=int, default=10,
+                        help="controller_node's realtime_priority (SCHED_RR; 0 = normal)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "setpoint_flood.json")
     parser.add_argument("--baseline", type=Path, help="an earlier result to embed (e.g. the code before the fix)")
     parser.add_argument("--label", default="this checkout")
@@ -194,7 +202,8 @@ def main() -> int:
     rosenv.apply()
     controller = subprocess.Popen(
         [find_executable("hsa_controller_node", "controller_node"), "--ros-args", "-r", f"__ns:={NS}",
-         "-p", "driver_timeout:=0.0", "-p", "diagnostics_period:=1.0", "-p", "rejection_log_period:=5.0"],
+         "-p", "driver_timeout:=0.0", "-p", "diagnostics_period:=1.0",
+         "-p", "rejection_log_period:=5.0", "-p", f"realtime_priority:={args.realtime_priority}"],
         env=rosenv.ros_environment(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     rclpy.init()
     bench = Bench()
@@ -203,6 +212,7 @@ def main() -> int:
                                          "load_avg_at_start": os.getloadavg(),
                                          "note": "2-core VM shared with other sessions' work: 'quiet' is not idle"},
         "targets": TARGETS, "method": __doc__.split("\n\n")[1],
+        "realtime_priority": args.realtime_priority,
     }
     try:
         bench.sp_pub.publish(worked_example())

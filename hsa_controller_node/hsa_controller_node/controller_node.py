@@ -16,15 +16,19 @@ for at most `hold_timeout`, after which nothing is sent (the driver's command wa
 the controller steps and `phi_cmd` is published. From the first tracking tick on, `controller_info` reports every
 tick. A setpoint costs O(1) on arrival (its serialized message is kept, at most SETPOINT_INTAKE of them); the tick
 decodes the kept ones and checks at most a few, the newest winning (hsa_core.control_loop), so a setpoint flood
-cannot stall the tick. The math is hsa_core.control's Controller,
-compiled in the constructor; the integrators use dt = 1/rate (or `integrator_dt`) and stay finite by
-construction (Controller.step). With `velocity_estimator` smoothing_spline_16 (the September 2023 stand-in,
-hsa_core.run_conditions.TickEstimator) the rates of the states are not used: each tick fits them to the newest
-state of the last 16 ticks. This node only declares parameters, converts messages, publishes and logs.
+cannot stall the tick. With `realtime_priority` > 0 every thread runs under SCHED_RR once the
+node is built (hsa_controller_node.scheduling), so busy processes cannot keep the tick waiting for
+a CPU either. The math is hsa_core.control's Controller, compiled in the constructor; the
+integrators use dt = 1/rate (or `integrator_dt`) and stay finite by construction (Controller.step).
+With `velocity_estimator` smoothing_spline_16 (the September 2023 stand-in,
+hsa_core.run_conditions.TickEstimator) the rates of the states are not used: each tick fits them to
+the newest state of the last 16 ticks. This node only declares parameters, converts messages,
+publishes and logs.
 """
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from typing import Any
 
@@ -39,7 +43,8 @@ from hsa_common import convert, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.model_params import load_model, load_wiring_param
 from hsa_common.parameters import declare, guard_updates
-from hsa_common.runner import run
+from hsa_common.runner import TEARDOWN_NICE, run
+from hsa_controller_node import scheduling
 from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info, tracking_info
 from hsa_controller_node.parameters import SPECS, check_combination
 from hsa_controller_node.report import ControlReport
@@ -95,11 +100,23 @@ class ControllerNode(Node):
             self.create_subscription(Bool, "torque", self._on_torque, qos.LATCHED,
                                      qos_overriding_options=qos.overridable())
         self.create_timer(1.0 / p["rate"], self._tick)
-        report = ControlReport(self._loop, self._kind.value, p["rate"])
+        policy = scheduling.describe(p["realtime_priority"])
+        report = ControlReport(self._loop, self._kind.value, p["rate"], policy)
         Diagnostics(self, p["diagnostics_period"]).add("control loop", lambda: report(self._now_ns()))
+        if p["realtime_priority"] > 0:  # built and compiled: every thread from now on, and new ones
+            scheduling.apply(p["realtime_priority"])
         driver = (f"watching the driver (timeout {p['driver_timeout']:g} s)" if p["driver_timeout"] > 0.0
                   else "no driver in this graph")
-        self.get_logger().info(f"'{self._kind.value}' at {p['rate']:g} Hz, {driver}, waiting for setpoint")
+        self.get_logger().info(f"'{self._kind.value}' at {p['rate']:g} Hz, {driver}, "
+                               f"scheduling {policy}, waiting for setpoint")
+
+    def on_shutdown(self) -> None:
+        """Before the runner's teardown: back to normal scheduling, at the teardown niceness of the
+        nodes without a hook, so that in a graph stop the driver's torque-off never waits behind
+        this node (hsa_common.runner)."""
+        if self._p["realtime_priority"] > 0:
+            scheduling.apply(0)
+        os.nice(TEARDOWN_NICE)
 
     def _apply(self, changes: dict[str, Any]) -> None:
         """Apply accepted run-time updates to the running controller; the integrator state is kept."""

@@ -6,6 +6,7 @@ from typing import Any
 
 from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC
 from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_controller_node import scheduling
 from hsa_core.control import ControllerKind, EeIntegralGains, default_gains
 from hsa_core.planning import MAX_OPTIMALITY_ERROR
 from hsa_core.profiles import VelocityEstimator
@@ -20,6 +21,11 @@ _EE = EeIntegralGains()
 def _positive(value: Any) -> str | None:
     """Strictly positive (ranges only give >= 0)."""
     return None if value > 0.0 else f"must be > 0, got {value!r}"
+
+
+def _granted(priority: int) -> str | None:
+    """A real-time priority the OS grants this process (0: none asked)."""
+    return scheduling.refusal(priority) if priority > 0 else None
 
 
 SPECS = (
@@ -70,6 +76,10 @@ SPECS = (
               "(all are counted on /diagnostics)", low=0.0, high=3600.0, read_only=True),
     ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
               read_only=True),
+    ParamSpec("realtime_priority", 0, "SCHED_RR priority (1-99) of every thread once the node "
+              "is built, so busy processes cannot delay the tick; 0 = normal scheduling. Needs "
+              "CAP_SYS_NICE or an rtprio limit", low=0, high=99, read_only=True,
+              validator=_granted),
 )
 
 

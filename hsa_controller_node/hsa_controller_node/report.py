@@ -12,9 +12,11 @@ from hsa_core.supervision import Mode
 class ControlReport:
     """Builds each period's report of a ControlLoop; remembers the rejections already reported (WARN on new ones)."""
 
-    def __init__(self, loop: ControlLoop, controller: str, rate: float) -> None:
-        """Report on `loop`, running law `controller` at the nominal `rate` [Hz]."""
+    def __init__(self, loop: ControlLoop, controller: str, rate: float, scheduling: str) -> None:
+        """Report on `loop`, running law `controller` at the nominal `rate` [Hz] under
+        `scheduling` (in words)."""
         self._loop, self._controller, self._rate = loop, controller, rate
+        self._scheduling = scheduling
         self._reported_rejections = 0
 
     def __call__(self, now_ns: int) -> Report:
@@ -31,7 +33,8 @@ class ControlReport:
             "mode": mode.value, "estop": loop.supervisor.estop,
             "driver torque": "off" if loop.supervisor.torque_off else "on or not reported",
             "controller": self._controller,
-            "tick rate [Hz]": f"{rate:.1f}", "nominal rate [Hz]": f"{self._rate:g}", **vars(loop.counters),
+            "tick rate [Hz]": f"{rate:.1f}", "nominal rate [Hz]": f"{self._rate:g}",
+            "scheduling": self._scheduling, **vars(loop.counters),
             "pending_setpoints": loop.pending_setpoints,
             "rejected_states": sum(rejected.states.values()),
             **{f"rejected_states {reason}": n for reason, n in sorted(rejected.states.items())},

@@ -1,8 +1,16 @@
 """controller_node as real processes at 40 Hz and 200 Hz, fed 200 Hz states by the test: rate, source stamps, hold on
-stale states and resume, run-time gain validation, and refusal of a bad start parameter."""
+stale states and resume, run-time gain validation, refusal of a bad start parameter, and
+real-time scheduling (the 200 Hz one under SCHED_RR where the OS grants it; refused in one line
+where it does not)."""
 
 from __future__ import annotations
 
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -16,12 +24,16 @@ from rclpy.serialization import deserialize_message
 from tests.ros.conftest import start_process, stop_process, wait_for_line
 from hsa_common import qos
 from hsa_common.launcher import find_executable
+from hsa_controller_node import scheduling
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 
 pytestmark = pytest.mark.ros
 
 RATES = {"/c40": 40.0, "/c200": 200.0}
 STATE_RATE = 200.0
+RT_PRIORITY = 10
+RT_REFUSED = scheduling.refusal(RT_PRIORITY)  # None where the OS grants SCHED_RR (root, rtprio)
+RT_NS = "/c200"  # the controller given realtime_priority where it is granted
 
 
 def _exe() -> str:
@@ -30,15 +42,18 @@ def _exe() -> str:
 
 
 @pytest.fixture(scope="module")
-def controllers() -> Iterator[None]:
-    """controller_node (FPU, P-satI-D) at 40 Hz in /c40 and at 200 Hz in /c200, started together."""
-    procs = [start_process([_exe(), "--ros-args", "-r", f"__ns:={ns}", "-p", f"rate:={rate}",
-                            "-p", "driver_timeout:=0.0"])
-             for ns, rate in RATES.items()]
-    for proc in procs:
-        wait_for_line(proc, "ready", timeout=120.0)
-    yield
-    for proc in procs:
+def controllers() -> Iterator[dict[str, tuple[subprocess.Popen, list[str]]]]:
+    """controller_node (FPU, P-satI-D) at 40 Hz in /c40 and at 200 Hz in /c200 (realtime_priority
+    RT_PRIORITY where the OS grants it), started together; namespace -> (process, its output up to
+    "ready")."""
+    realtime = ["-p", f"realtime_priority:={RT_PRIORITY}"] if RT_REFUSED is None else []
+    procs = {ns: start_process([_exe(), "--ros-args", "-r", f"__ns:={ns}", "-p", f"rate:={rate}",
+                                "-p", "driver_timeout:=0.0", *(realtime if ns == RT_NS else [])])
+             for ns, rate in RATES.items()}
+    started = {ns: (proc, wait_for_line(proc, "ready", timeout=120.0))
+               for ns, proc in procs.items()}
+    yield started
+    for proc in procs.values():
         assert stop_process(proc) == 0
 
 
@@ -206,6 +221,75 @@ def test_gain_updates_are_validated(controllers, ros_node) -> None:
         assert np.all(np.abs(after.e_int) > np.abs(before.e_int))
     finally:
         feeder.close()
+
+
+def _policies(pid: int) -> dict[str, tuple[int, int]]:
+    """Thread id -> (scheduling policy, real-time priority) of every thread of process pid."""
+    policies = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            policy, param = os.sched_getscheduler(int(tid)), os.sched_getparam(int(tid))
+            policies[tid] = policy, param.sched_priority
+        except ProcessLookupError:
+            pass  # the thread ended since the listing
+    return policies
+
+
+@pytest.mark.skipif(RT_REFUSED is not None, reason=f"realtime_priority {RT_REFUSED}")
+def test_realtime_priority_puts_every_thread_under_sched_rr(controllers) -> None:
+    """Every thread of the real-time controller, also those started after the node was built (the
+    executor's), runs under SCHED_RR at its priority, and the node says so; the other controller
+    keeps the normal policy."""
+    proc, lines = controllers[RT_NS]
+    assert f"scheduling SCHED_RR priority {RT_PRIORITY}" in "".join(lines)
+    threads = _policies(proc.pid)
+    assert len(threads) > 1 and set(threads.values()) == {(os.SCHED_RR, RT_PRIORITY)}, threads
+    normal, _ = controllers["/c40"]
+    assert set(_policies(normal.pid).values()) == {(os.SCHED_OTHER, 0)}
+
+
+SWITCH = """
+import json, os, sys, threading
+from hsa_controller_node import scheduling
+def policies():
+    return sorted({(os.sched_getscheduler(int(t)), os.sched_getparam(int(t)).sched_priority)
+                   for t in os.listdir("/proc/self/task")})
+done = threading.Event()
+threading.Thread(target=done.wait, daemon=True).start()
+scheduling.apply(int(sys.argv[1]))
+later = threading.Thread(target=done.wait, daemon=True)  # started after the switch: inherits it
+later.start()
+on = policies()
+scheduling.apply(0)
+print(json.dumps([on, policies()]))
+done.set()
+"""
+
+
+@pytest.mark.skipif(RT_REFUSED is not None, reason=f"realtime_priority {RT_REFUSED}")
+def test_scheduling_switches_every_thread_and_back() -> None:
+    """scheduling.apply: every thread, and one started afterwards, under SCHED_RR; apply(0), which
+    the node's on_shutdown calls before the teardown, puts them all back under SCHED_OTHER."""
+    out = subprocess.run([sys.executable, "-c", SWITCH, str(RT_PRIORITY)], capture_output=True,
+                         text=True, timeout=60.0, check=True).stdout
+    on, off = json.loads(out)
+    assert on == [[os.SCHED_RR, RT_PRIORITY]] and off == [[os.SCHED_OTHER, 0]]
+
+
+def test_realtime_priority_the_os_refuses_exits_2() -> None:
+    """Without the privilege (CAP_SYS_NICE dropped here; rtprio limit 0) the node refuses to start,
+    in one line that says what to grant, before it builds anything."""
+    command = [_exe(), "--ros-args", "-p", f"realtime_priority:={RT_PRIORITY}"]
+    if RT_REFUSED is None:  # this machine grants it: drop the capability for the node
+        limited = resource.getrlimit(resource.RLIMIT_RTPRIO)[0] == 0
+        if os.geteuid() != 0 or shutil.which("setpriv") is None or not limited:
+            pytest.skip("cannot take the real-time privilege away (needs root, setpriv, rtprio 0)")
+        command = ["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice", *command]
+    proc = start_process(command)
+    assert proc.wait(timeout=60.0) == 2
+    refusal = [line for line in proc.stdout.read().splitlines() if "refusing to start" in line]
+    assert len(refusal) == 1 and "'realtime_priority' is refused by the OS" in refusal[0], refusal
+    assert "CAP_SYS_NICE" in refusal[0]
 
 
 def test_bad_start_parameter_exits_2() -> None:

@@ -9,15 +9,15 @@ the latched ``torque`` topic says whether phi_cmd moves the servos; a command wa
 bus errors are counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
 docs/nodes/hsa_dynamixel_driver.md.
 
-ROS wiring only: the decisions are `hsa_core.servo_supervision.ServoSupervisor`'s, the bus I/O around them
-`servos.Servos`, the goal pipeline `goals.GoalPipeline`, diagnostics `reports`, parameters `params.SPECS`.
+ROS wiring only: the decisions are `hsa_core.servo_supervision.ServoSupervisor`'s; `servos.Servos`
+owns the state (bus, supervisor, goal pipeline `goals.GoalPipeline`, counters) and takes one call
+per event; diagnostics `reports`, parameters `params.SPECS`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.timer import Timer
@@ -29,13 +29,13 @@ from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.parameters import declare, guard_updates
 from hsa_common.runner import run
-from hsa_core.actuation import RejectionLog, ticks_to_angles
+from hsa_core.actuation import ticks_to_angles
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.servo_supervision import Answer, Verdict, WatchdogEvent
-from hsa_dynamixel_driver.bus import VELOCITY_UNIT_RAD_S, BusError, PortError
+from hsa_core.servo_supervision import Answer
+from hsa_dynamixel_driver.bus import VELOCITY_UNIT_RAD_S
 from hsa_dynamixel_driver.params import SPECS
 from hsa_dynamixel_driver.reports import add_statuses
-from hsa_dynamixel_driver.servos import Servos
+from hsa_dynamixel_driver.servos import GoalOut, Servos
 from hsa_msgs.msg import PlanarActuation
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -50,8 +50,6 @@ class DynamixelDriver(LifecycleNode):
         self._p: dict[str, Any] = declare(self, SPECS)
         guard_updates(self, SPECS, self._p.update)
         self._servos = Servos(self._p, self.get_logger(), self._now)
-        self._sup, self._goals, self._counts = self._servos.sup, self._servos.goals, self._servos.counts
-        self._rejections = RejectionLog()
         self._cycle_timer: Timer | None = None
         self._reconnect_timer: Timer | None = None
         self._state_pubs: tuple[LifecyclePublisher, ...] = ()  # motor_states, phi_present, motor_goal_stamp
@@ -83,7 +81,7 @@ class DynamixelDriver(LifecycleNode):
 
     def lockstep_ready(self) -> bool:
         """Lockstep: simulated time may start once the bus is connected, the driver active and torque on if wanted."""
-        return self._sup.active and self._sup.link_up and (self._sup.torque_on or not self._sup.torque_wanted)
+        return self._servos.lockstep_ready()
 
     def _autostart(self) -> None:
         """One-shot: configure and activate without a lifecycle manager."""
@@ -115,9 +113,7 @@ class DynamixelDriver(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Enable the state publishers and torque holding the present position (if sane); start the control cycle."""
         super().on_activate(state)
-        self._goals.clear()
-        if self._sup.activate():
-            self._servos.enable_torque()
+        self._servos.activate()
         self._cycle_timer = self.create_timer(1.0 / self._p["rate"], self._cycle)
         self._report_torque()
         return SUCCESS
@@ -151,7 +147,7 @@ class DynamixelDriver(LifecycleNode):
 
     def _stop_cycle(self) -> None:
         """Deactivate the supervisor and stop the control timer."""
-        self._sup.deactivate()
+        self._servos.deactivate()
         if self._cycle_timer is not None:
             self.destroy_timer(self._cycle_timer)
             self._cycle_timer = None
@@ -166,31 +162,8 @@ class DynamixelDriver(LifecycleNode):
 
     # ------------------------------------------------------------------ commands and services
     def _on_command(self, msg: PlanarActuation) -> None:
-        """Keep the newest finite command (ignored while the E-stop is engaged); the cycle writes it."""
-        verdict = self._sup.command(bool(np.all(np.isfinite(msg.phi))))
-        if verdict is Verdict.REJECT:
-            self._counts["rejected"] += 1
-            self._log_rejection("rejected", f"non-finite phi {list(msg.phi)}")
-            return
-        if verdict is Verdict.IGNORE:
-            self._counts["ignored"] += 1
-            return
-        self._counts["commands"] += 1
-        if verdict is Verdict.WAKE and self._servos.enable_torque() is None:
-            self.get_logger().info("phi_cmd resumed: torque on again after the watchdog relaxed the motors")
-        self._goals.take(msg)
-        self._sup.command_taken(self._now())
-        if self._p["write_on_command"] and self._sup.active and self._sup.link_up:
-            try:  # the goal leaves now instead of waiting up to one read period (compute-path latency)
-                self._write_goal()
-            except BusError as exc:
-                self._servos.count_error(exc)  # the next cycle retries the write and handles a lost link
-
-    def _log_rejection(self, kind: str, detail: str) -> None:
-        """WARN about a rejected or clipped command, throttled by RejectionLog (the counters count every one)."""
-        line = self._rejections.record(kind, detail, self._now())
-        if line is not None:
-            self.get_logger().warning(line)
+        """Hand the command to the servos; publish the goal stamp if its goal left at once."""
+        self._publish_goal(self._servos.take_command(msg))
 
     @staticmethod
     def _answer(response: Any, answer: Answer) -> Any:
@@ -200,12 +173,7 @@ class DynamixelDriver(LifecycleNode):
 
     def _on_set_torque(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
         """Torque on (if active, connected, not E-stopped and sane) or off."""
-        if not request.data:
-            self._sup.torque_unwanted()
-            self._servos.disable_torque("set_torque service")
-            return self._answer(response, Answer(True, "torque off"))
-        refusal = self._sup.set_torque_refusal()
-        return self._answer(response, refusal or self._sup.set_torque_result(self._servos.enable_torque()))
+        return self._answer(response, self._servos.set_torque(request.data))
 
     def _on_reboot(self, ids: list[int], response: Trigger.Response) -> Trigger.Response:
         """Services ``reboot`` (all servos) and ``reboot_<id>``: Protocol 2.0 REBOOT to clear a latched hardware error
@@ -213,14 +181,10 @@ class DynamixelDriver(LifecycleNode):
         return self._answer(response, self._servos.reboot(ids))
 
     def _engage_estop(self, reason: str) -> str:
-        """Torque off at once, stop writing goals and ignore phi_cmd until clear_estop; returns the torque outcome."""
-        unconfirmed = self._servos.disable_torque("E-stop")
-        self._servos.clear_command()
-        outcome = self._sup.torque_off_outcome(unconfirmed)
-        if self._sup.engage_estop(reason, self._now()):
-            self._counts["estops"] += 1
+        """Engage the E-stop (publish it when newly engaged); returns the torque-off outcome."""
+        engaged, outcome = self._servos.engage_estop(reason)
+        if engaged:
             self._pub_estop.publish(Bool(data=True))
-            self.get_logger().error(f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until clear_estop")
         return outcome
 
     def _on_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -234,88 +198,37 @@ class DynamixelDriver(LifecycleNode):
 
     def _on_clear_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Service ``clear_estop``: release only if torque can be re-enabled safely (same checks as a reconnect)."""
-        answer = self._sup.clear_estop_refusal()
-        if answer is None:
-            answer = self._sup.clear_estop_result(self._servos.enable_torque())
-            if answer.success:
-                self._pub_estop.publish(Bool(data=False))
-                self.get_logger().warning("E-stop cleared: torque on, holding the present positions")
+        answer, released = self._servos.clear_estop()
+        if released:
+            self._pub_estop.publish(Bool(data=False))
         return self._answer(response, answer)
 
     # ------------------------------------------------------------------ control cycle
     def _report_torque(self) -> None:
         """Publish on `torque` whether phi_cmd moves the servos (hsa_core ServoSupervisor.takes_commands), on change."""
-        value = self._sup.takes_commands()
+        value = self._servos.sup.takes_commands()
         if value != self._torque_reported:
             self._torque_reported = value
             self._pub_torque.publish(Bool(data=value))
 
     def _cycle(self) -> None:
-        """One control cycle (then the torque report): see `_exchange`."""
-        self._exchange()
+        """One control cycle (`Servos.exchange`): publish what it wrote and read, then `torque`."""
+        exchange = self._servos.exchange()
+        self._publish_goal(exchange.goal)
+        if exchange.reading is not None:
+            self._publish_state(exchange.reading.ticks, exchange.reading.velocities)
         self._report_torque()
 
-    def _exchange(self) -> None:
-        """Watchdog, a due torque-on retry, at most one sync write of the newest command, then one sync read."""
-        now = self._now()
-        self._counts["cycles"] += 1
-        if not self._sup.link_up:
+    def _publish_goal(self, goal: GoalOut | None) -> None:
+        """Publish motor_goal_stamp of a written goal: never stamped before the command it came from
+        (under simulated time a phi_cmd may be taken before this node has seen the /clock of the
+        tick that sent it)."""
+        if goal is None:
             return
-        self._check_watchdog(now)
-        if self._sup.torque_retry_due(now):
-            self._servos.enable_torque()
-        try:
-            self._write_goal()
-            reading = self._servos.bus.read_positions()
-            self._counts["reads"] += 1
-            self._publish_state(reading.ticks, reading.velocities)
-            if self._sup.alerts_changed(reading.alerts):
-                self._servos.alerts(reading.alerts)
-        except BusError as exc:
-            self._servos.count_error(exc)
-            if self._sup.cycle_failed(isinstance(exc, PortError)):
-                self._servos.lose_link(exc)
-            return
-        self._sup.cycle_succeeded()
-
-    def _check_watchdog(self, now: float) -> None:
-        """Command watchdog: act on the supervisor's decision (log once on expiry, relax, drop a stale target)."""
-        timeout = self._p["command_timeout"]
-        decision = self._sup.check_watchdog(now, timeout, self._p["watchdog_action"])
-        if decision.event in (WatchdogEvent.HOLD, WatchdogEvent.RELAX):
-            self.get_logger().warning(f"no phi_cmd for > {timeout} s: " + (
-                "relaxing (torque off)" if decision.event is WatchdogEvent.RELAX else "holding the last goal"))
-        if decision.torque_off:
-            self._servos.disable_torque("watchdog: no phi_cmd")
-        if decision.stale:
-            self._goals.drop_target()
-        elif decision.event is WatchdogEvent.RESUMED:
-            self.get_logger().info("phi_cmd resumed")
-
-    def _write_goal(self) -> None:
-        """Sync-write the clamped (and rate-limited) goal of the newest command, if there is something to write."""
-        if not self._sup.torque_on:
-            self._goals.pending = False
-            return
-        servos, now = self._servos, self._now()
-        assert servos.map is not None and servos.limits is not None and servos.bus is not None
-        step = self._goals.next_goal(now, servos.map, servos.limits, self._p["max_goal_rate"], 1.0 / self._p["rate"])
-        if step is None:
-            return
-        if step.clipped is not None:
-            self._counts["clamped"] += 1
-            self._log_rejection("clipped", step.clipped)
-        self._counts["rate_limited"] += step.rate_limited
-        servos.bus.write_goals({i: int(t) for i, t in zip(servos.ids, step.ticks)})
-        self._goals.written(step.ticks, now)
-        self._counts["writes"] += 1
-        # a goal cannot leave before the command it came from: under simulated time a phi_cmd may be taken before
-        # this node has seen the /clock of the tick that sent it
-        command = self._goals.command
-        issued = convert.stamp_ns(command.header.stamp) if command is not None else 0
-        self._state_pubs[2].publish(convert.actuation_msg(servos.map.present_twists(step.ticks),
-                                                     convert.stamp_msg(max(self.get_clock().now().nanoseconds, issued)),
-                                                     source_stamp=self._goals.target_source))
+        issued = convert.stamp_ns(goal.issued) if goal.issued is not None else 0
+        stamp = convert.stamp_msg(max(self.get_clock().now().nanoseconds, issued))
+        msg = convert.actuation_msg(goal.phi, stamp, source_stamp=goal.source_stamp)
+        self._state_pubs[2].publish(msg)
 
     def _publish_state(self, ticks_by_id: dict[int, int], velocities: dict[int, int]) -> None:
         """Publish motor_states and phi_present of one sync read."""

@@ -17,14 +17,15 @@ from typing import Any
 import numpy as np
 
 from hsa_common.model_params import load_model, load_wiring_param
-from hsa_core.actuation import MotorLimits, MotorMap, accept_read_neutral
-from hsa_core.servo_supervision import Alert, Answer, ServoSupervisor
+from hsa_core.actuation import MotorLimits, MotorMap, RejectionLog, accept_read_neutral
+from hsa_core.servo_supervision import Alert, Answer, ServoSupervisor, Verdict, WatchdogEvent
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     BusError,
     CommError,
     DynamixelBus,
     PortError,
+    PositionReading,
     ServoStatusError,
     describe_hardware_error,
 )
@@ -37,8 +38,28 @@ COUNTERS = ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ign
             "reboots")
 
 
+@dataclasses.dataclass(frozen=True)
+class GoalOut:
+    """A goal written to the bus: as twists [rad], with its command's header stamp (None: no
+    command) and source stamp."""
+
+    phi: np.ndarray
+    issued: Any
+    source_stamp: Any
+
+
+@dataclasses.dataclass(frozen=True)
+class Exchange:
+    """What one control cycle wrote and read (None: nothing)."""
+
+    goal: GoalOut | None = None
+    reading: PositionReading | None = None
+
+
 class Servos:
-    """The bus, the φ map and goal limits, and the supervisor they report to; ``p`` are the node's parameters."""
+    """The bus, the φ map and goal limits, the goal pipeline, the counters and the supervisor: the
+    owner of the driver's state. The node calls one method per event and publishes what it returns;
+    ``p`` are its parameters."""
 
     def __init__(self, p: dict[str, Any], logger: Any, now: Callable[[], float]) -> None:
         """Load the model and wiring, fix the configured neutral (a refused parameter raises ParameterValidationError)."""
@@ -52,6 +73,7 @@ class Servos:
                                    describe_hardware_error, p["torque_retry_period"], p["torque_retry_max"])
         self.goals = GoalPipeline()
         self.counts = dict.fromkeys(COUNTERS, 0)
+        self._rejections = RejectionLog()
         self.bus: DynamixelBus | None = None
         self.map: MotorMap | None = None
         self.limits: MotorLimits | None = None
@@ -66,7 +88,7 @@ class Servos:
     def clear_command(self) -> None:
         """Discard the command, its target and the watchdog's arming."""
         self.goals.clear()
-        self.sup.clear_command()
+        self.sup.commands.clear()
 
     # ------------------------------------------------------------------ neutral ticks
     def _set_neutral(self, ticks: list[int]) -> None:
@@ -74,19 +96,20 @@ class Servos:
         read neutral may later replace the map's zero (``_refine_map``), never these limits."""
         self.map = self.wiring.motor_map(self._model, neutral_ticks=tuple(ticks), margin=self._p["goal_margin"])
         self.limits = MotorLimits.from_map(self.map)
-        self.sup.calibrate(self.map)
+        self.sup.positions.calibrate(self.map)
 
     def _refine_map(self) -> None:
         """neutral_source 'read': the present positions become the φ map's zero if they lie within neutral_tolerance
         of the configured neutral ticks; the goal limits stay where the configuration put them."""
-        assert self.bus is not None and self.map is not None and self.sup.neutral is not None
+        neutral = self.sup.positions.neutral
+        assert self.bus is not None and self.map is not None and neutral is not None
         ticks = self.present_ticks(self.bus.read_positions().ticks).tolist()
-        problem = accept_read_neutral(ticks, self.sup.neutral, self._p["neutral_tolerance"])
+        problem = accept_read_neutral(ticks, neutral, self._p["neutral_tolerance"])
         if problem is not None:
             self._log.warning(f"{problem}: the φ map keeps the configured neutral ticks")
             return
         self.map = dataclasses.replace(self.map, neutral_ticks=tuple(ticks))
-        self._log.info(f"φ map zero read from the servos: {ticks} (limits on {self.sup.neutral.tolist()})")
+        self._log.info(f"φ map zero read from the servos: {ticks} (limits on {neutral.tolist()})")
 
     def _adopt_present_as_neutral(self) -> None:
         """First start with a missing neutral file: the present positions become the stored calibration, unless the
@@ -95,7 +118,7 @@ class Servos:
         ticks = self.present_ticks(self.bus.read_positions().ticks).tolist()
         self._set_neutral(ticks)  # also gives the state topics their zero while uncalibrated
         path = self._p["neutral_file"]
-        problem = self.sup.first_calibration(path)
+        problem = self.sup.positions.first_calibration(path)
         if problem is not None:
             self._log.error(f"not calibrating: {problem}")
             return
@@ -124,20 +147,22 @@ class Servos:
         try:
             self.bus.close()
             self.bus.open()
-            if self.sup.needs_held_check():  # before configure() turns torque off: still held?
-                self.sup.held = all(self.bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1 for i in self.ids)
+            positions = self.sup.positions
+            if positions.needs_held_check():  # before configure() turns torque off: still held?
+                positions.held = all(self.bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1
+                                     for i in self.ids)
             self.bus.configure(return_delay=self._p["return_delay"])
             if self.map is None:
                 self._adopt_present_as_neutral()
-            elif self._p["neutral_source"] == "read" and not self.sup.startup_checked:
+            elif self._p["neutral_source"] == "read" and not self.sup.positions.startup_checked:
                 self._refine_map()
         except BusError as exc:
             self.count_error(exc)
             self.bus.close()
-            if self.sup.connect_failed(str(exc)):
+            if self.sup.link.connect_failed(str(exc)):
                 self._log.warning(f"bus not ready ({exc}); retrying every {self._p['reconnect_period']} s")
             return
-        outage = self.sup.connected(self._now())
+        outage = self.sup.link.connected(self._now())
         if outage is not None:
             self.counts["reconnects"] += 1
             self._log.info(f"bus reconnected after {outage:.3f} s")
@@ -151,7 +176,7 @@ class Servos:
 
     def reconnect(self) -> None:
         """Reconnect timer: reopen the bus while it is down."""
-        if not self.sup.link_up:
+        if not self.sup.link.up:
             self.counts["reconnect_attempts"] += 1
             self.connect()
 
@@ -181,11 +206,12 @@ class Servos:
     # ------------------------------------------------------------------ torque
     def _checked(self, check: Callable[[], str | None]) -> str | None:
         """Run one of the supervisor's torque-on checks; warn once when it keeps the pose of servos held at start."""
-        checked = self.sup.startup_checked
+        positions = self.sup.positions
+        checked = positions.startup_checked
         problem = check()
-        if not checked and self.sup.startup_checked and self.sup.held:
+        if not checked and positions.startup_checked and positions.held:
             self._log.warning("servos still held at start (driver restart): keeping their pose within the limits "
-                              f"of the configured neutral ticks {self.sup.neutral.tolist()}")
+                              f"of the configured neutral ticks {positions.neutral.tolist()}")
         return problem
 
     def enable_torque(self) -> str | None:
@@ -245,7 +271,7 @@ class Servos:
         event = self.sup.hardware_errors(alerts, errors)
         if event is Alert.FAULT:
             self.disable_torque("hardware error")
-            problem = self.sup.hardware_problem() or ""
+            problem = self.sup.hardware.problem() or ""
             self.sup.torque_refused(problem)
             self._log.error(f"torque off: {problem}")
         elif event is Alert.CLEARED:
@@ -287,3 +313,150 @@ class Servos:
                               "positions within the limits; torque off until set_torque(true)")
         return Answer(problem is None, f"rebooted IDs {ids}; " + (f"torque stays off: {problem}" if problem else
                       "hardware errors cleared, positions within the limits: call set_torque(true)"))
+
+    # ------------------------------------------------------------------ node events
+    def activate(self) -> None:
+        """The node activates: discard the command, torque on if it is due."""
+        self.goals.clear()
+        if self.sup.activate():
+            self.enable_torque()
+
+    def deactivate(self) -> None:
+        """The node deactivates (the caller switches torque off where needed)."""
+        self.sup.deactivate()
+
+    def lockstep_ready(self) -> bool:
+        """Connected, active and torque on if wanted."""
+        sup = self.sup
+        return sup.active and sup.link.up and (sup.torque_on or not sup.torque_wanted)
+
+    def take_command(self, phi_cmd: Any) -> GoalOut | None:
+        """A phi_cmd (PlanarActuation) arrived: keep the newest finite one (ignored while the E-stop
+        is engaged); with ``write_on_command`` its goal leaves now and is returned."""
+        verdict = self.sup.command(bool(np.all(np.isfinite(phi_cmd.phi))))
+        if verdict is Verdict.REJECT:
+            self.counts["rejected"] += 1
+            self._log_rejection("rejected", f"non-finite phi {list(phi_cmd.phi)}")
+            return None
+        if verdict is Verdict.IGNORE:
+            self.counts["ignored"] += 1
+            return None
+        self.counts["commands"] += 1
+        if verdict is Verdict.WAKE and self.enable_torque() is None:
+            self._log.info("phi_cmd resumed: torque on again after the watchdog relaxed the motors")
+        self.goals.take(phi_cmd)
+        self.sup.commands.taken(self._now())
+        if not (self._p["write_on_command"] and self.sup.active and self.sup.link.up):
+            return None
+        try:  # the goal leaves now instead of waiting up to one read period (compute-path latency)
+            return self._write_goal()
+        except BusError as exc:
+            self.count_error(exc)  # the next cycle retries the write and handles a lost link
+            return None
+
+    def _log_rejection(self, kind: str, detail: str) -> None:
+        """WARN about a rejected or clipped command, throttled by RejectionLog (the counters count
+        every one)."""
+        line = self._rejections.record(kind, detail, self._now())
+        if line is not None:
+            self._log.warning(line)
+
+    def set_torque(self, on: bool) -> Answer:
+        """set_torque: off at once (and unwanted), or on if active, connected, unstopped, sane."""
+        if not on:
+            self.sup.torque_unwanted()
+            self.disable_torque("set_torque service")
+            return Answer(True, "torque off")
+        refusal = self.sup.set_torque_refusal()
+        return refusal or self.sup.set_torque_result(self.enable_torque())
+
+    def engage_estop(self, reason: str) -> tuple[bool, str]:
+        """Torque off at once, stop writing goals and ignore phi_cmd until clear_estop; returns
+        whether this engaged the E-stop (it was released: publish) and the torque-off outcome."""
+        unconfirmed = self.disable_torque("E-stop")
+        self.clear_command()
+        outcome = self.sup.torque_off_outcome(unconfirmed)
+        engaged = self.sup.estop.engage(reason, self._now())
+        if engaged:
+            self.counts["estops"] += 1
+            self._log.error(f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until "
+                            "clear_estop")
+        return engaged, outcome
+
+    def clear_estop(self) -> tuple[Answer, bool]:
+        """clear_estop: release only if torque can be re-enabled safely (same checks as a
+        reconnect); returns the answer and whether the E-stop was released (publish)."""
+        answer = self.sup.clear_estop_refusal()
+        if answer is not None:
+            return answer, False
+        answer = self.sup.clear_estop_result(self.enable_torque())
+        if answer.success:
+            self._log.warning("E-stop cleared: torque on, holding the present positions")
+        return answer, answer.success
+
+    # ------------------------------------------------------------------ control cycle
+    def exchange(self) -> Exchange:
+        """One control cycle: watchdog, a due torque-on retry, at most one sync write of the newest
+        command, one sync read, the hardware errors if the alerts changed; a failure counts towards
+        losing the bus."""
+        now = self._now()
+        self.counts["cycles"] += 1
+        if not self.sup.link.up:
+            return Exchange()
+        self._check_watchdog(now)
+        if self.sup.torque_retry_due(now):
+            self.enable_torque()
+        assert self.bus is not None
+        goal = reading = None
+        try:
+            goal = self._write_goal()
+            reading = self.bus.read_positions()
+            self.counts["reads"] += 1
+            if self.sup.hardware.changed(reading.alerts):
+                self.alerts(reading.alerts)
+        except BusError as exc:
+            self.count_error(exc)
+            if self.sup.link.cycle_failed(isinstance(exc, PortError)):
+                self.lose_link(exc)
+            return Exchange(goal, reading)
+        self.sup.link.cycle_succeeded()
+        return Exchange(goal, reading)
+
+    def _check_watchdog(self, now: float) -> None:
+        """Command watchdog: act on the supervisor's decision (log once on expiry, relax, drop a
+        stale target)."""
+        timeout = self._p["command_timeout"]
+        decision = self.sup.check_watchdog(now, timeout, self._p["watchdog_action"])
+        if decision.event in (WatchdogEvent.HOLD, WatchdogEvent.RELAX):
+            relax = decision.event is WatchdogEvent.RELAX
+            self._log.warning(f"no phi_cmd for > {timeout} s: "
+                              + ("relaxing (torque off)" if relax else "holding the last goal"))
+        if decision.torque_off:
+            self.disable_torque("watchdog: no phi_cmd")
+        if decision.stale:
+            self.goals.drop_target()
+        elif decision.event is WatchdogEvent.RESUMED:
+            self._log.info("phi_cmd resumed")
+
+    def _write_goal(self) -> GoalOut | None:
+        """Sync-write the clamped (and rate-limited) goal of the newest command, if there is
+        something to write."""
+        if not self.sup.torque_on:
+            self.goals.pending = False
+            return None
+        now = self._now()
+        assert self.map is not None and self.limits is not None and self.bus is not None
+        period = 1.0 / self._p["rate"]
+        step = self.goals.next_goal(now, self.map, self.limits, self._p["max_goal_rate"], period)
+        if step is None:
+            return None
+        if step.clipped is not None:
+            self.counts["clamped"] += 1
+            self._log_rejection("clipped", step.clipped)
+        self.counts["rate_limited"] += step.rate_limited
+        self.bus.write_goals({i: int(t) for i, t in zip(self.ids, step.ticks)})
+        self.goals.written(step.ticks, now)
+        self.counts["writes"] += 1
+        command = self.goals.command
+        issued = command.header.stamp if command is not None else None
+        return GoalOut(self.map.present_twists(step.ticks), issued, self.goals.target_source)

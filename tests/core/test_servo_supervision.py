@@ -37,14 +37,14 @@ def configured(error_limit: int = 3) -> ServoSupervisor:
     """A supervisor after configure with the configured neutral NEUTRAL (not yet connected or active)."""
     sup = ServoSupervisor(IDS, error_limit, TOLERANCE, describe)
     sup.configured(neutral_known=True)
-    sup.calibrate(MAP)
+    sup.positions.calibrate(MAP)
     return sup
 
 
 def running(error_limit: int = 3) -> ServoSupervisor:
     """Connected, active, start-up check passed at the neutral, torque on."""
     sup = configured(error_limit)
-    sup.connected(0.0)
+    sup.link.connected(0.0)
     assert sup.activate()
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
     sup.torque_enabled()
@@ -56,7 +56,8 @@ def test_torque_is_due_only_when_active_connected_wanted_and_not_stopped() -> No
     sup = configured()
     assert not sup.torque_due() and sup.note == "inactive"
     assert not sup.activate()  # active, but the bus is not connected yet
-    assert sup.torque_wanted and sup.connected(1.0) is None  # a first connection is not a reconnect
+    assert sup.torque_wanted
+    assert sup.link.connected(1.0) is None  # a first connection is not a reconnect
     assert sup.torque_due()
     sup.deactivate()
     assert not (sup.active or sup.torque_wanted or sup.torque_due())
@@ -64,16 +65,16 @@ def test_torque_is_due_only_when_active_connected_wanted_and_not_stopped() -> No
 
 def test_activate_discards_the_command() -> None:
     sup = running()
-    sup.command_taken(5.0)
+    sup.commands.taken(5.0)
     sup.deactivate()
     assert sup.activate()
-    assert sup.command_time is None and sup.watchdog is Watchdog.WAITING
+    assert sup.commands.command_time is None and sup.commands.state is Watchdog.WAITING
 
 
 def test_release_disconnects_and_deactivates() -> None:
     sup = running()
     sup.released()
-    assert not (sup.link_up or sup.active or sup.torque_wanted)
+    assert not (sup.link.up or sup.active or sup.torque_wanted)
 
 
 def test_torque_on_and_off_bookkeeping() -> None:
@@ -92,11 +93,11 @@ def test_set_torque_true_is_refused_while_stopped_inactive_or_disconnected() -> 
     sup = configured()
     assert sup.set_torque_refusal() == Answer(False, "node is not active")
     sup.activate()
-    sup.connect_failed("no such port")
+    sup.link.connect_failed("no such port")
     assert sup.set_torque_refusal() == Answer(False, "bus not connected: no such port")
-    sup.connected(0.0)
+    sup.link.connected(0.0)
     assert sup.set_torque_refusal() is None  # try it
-    sup.engage_estop("estop service", 1.0)
+    sup.estop.engage("estop service", 1.0)
     assert sup.set_torque_refusal() == Answer(False, "E-stop engaged (estop service): call clear_estop")
 
 
@@ -116,7 +117,7 @@ def test_set_torque_false_keeps_torque_off_across_a_reconnect() -> None:
     sup.torque_unwanted()
     sup.torque_disabled("set_torque service")
     sup.link_lost("timeout", 2.0)
-    sup.connected(2.5)
+    sup.link.connected(2.5)
     assert not sup.torque_due()
 
 
@@ -125,7 +126,7 @@ def test_command_verdicts() -> None:
     sup = running()
     assert sup.command(finite=False) is Verdict.REJECT
     assert sup.command(finite=True) is Verdict.ACCEPT
-    sup.engage_estop("estop_request topic", 1.0)
+    sup.estop.engage("estop_request topic", 1.0)
     assert sup.command(finite=True) is Verdict.IGNORE
     assert sup.command(finite=False) is Verdict.REJECT  # non-finite is rejected (and counted) first
 
@@ -133,24 +134,24 @@ def test_command_verdicts() -> None:
 def test_watchdog_arms_with_the_first_command_and_holds() -> None:
     sup = running()
     assert sup.check_watchdog(100.0, 0.5, "hold").event is WatchdogEvent.NONE  # no command yet: nothing expires
-    sup.command_taken(2.0)
-    assert sup.watchdog is Watchdog.WAITING
+    sup.commands.taken(2.0)
+    assert sup.commands.state is Watchdog.WAITING
     assert sup.check_watchdog(2.5, 0.5, "hold").event is WatchdogEvent.NONE  # age == timeout: not older
-    assert sup.watchdog is Watchdog.FRESH
+    assert sup.commands.state is Watchdog.FRESH
     first = sup.check_watchdog(2.75, 0.5, "hold")
     assert first.event is WatchdogEvent.HOLD and first.stale and not first.torque_off
     assert sup.torque_on and not sup.relaxed
     assert sup.watchdog_status("hold") == "expired (hold)"
     again = sup.check_watchdog(2.76, 0.5, "hold")
     assert again.event is WatchdogEvent.STALE and again.stale  # warned once, still nothing to write
-    sup.command_taken(3.0)
+    sup.commands.taken(3.0)
     assert sup.check_watchdog(3.01, 0.5, "hold").event is WatchdogEvent.RESUMED
     assert sup.watchdog_status("hold") == "fresh"
 
 
 def test_watchdog_relax_switches_torque_off_and_the_next_command_wakes() -> None:
     sup = running()
-    sup.command_taken(2.0)
+    sup.commands.taken(2.0)
     sup.check_watchdog(2.1, 0.5, "relax")
     relax = sup.check_watchdog(2.75, 0.5, "relax")
     assert relax.event is WatchdogEvent.RELAX and relax.torque_off and relax.stale
@@ -166,7 +167,7 @@ def test_watchdog_relax_switches_torque_off_and_the_next_command_wakes() -> None
 
 def test_watchdog_relax_with_torque_already_off_only_reports() -> None:
     sup = running()
-    sup.command_taken(2.0)
+    sup.commands.taken(2.0)
     sup.torque_disabled("set_torque service")
     relax = sup.check_watchdog(3.0, 0.5, "relax")
     assert relax.event is WatchdogEvent.RELAX and not relax.torque_off and not sup.relaxed
@@ -175,7 +176,7 @@ def test_watchdog_relax_with_torque_already_off_only_reports() -> None:
 
 def test_no_wake_unless_torque_is_still_wanted() -> None:
     sup = running()
-    sup.command_taken(2.0)
+    sup.commands.taken(2.0)
     sup.check_watchdog(3.0, 0.5, "relax")
     sup.torque_unwanted()  # set_torque(false) after the relax
     assert sup.command(finite=True) is Verdict.ACCEPT
@@ -183,19 +184,20 @@ def test_no_wake_unless_torque_is_still_wanted() -> None:
 
 def test_watchdog_off_and_cleared_command() -> None:
     sup = running()
-    sup.command_taken(2.0)
+    sup.commands.taken(2.0)
     assert sup.check_watchdog(1000.0, 0.0, "relax").event is WatchdogEvent.NONE  # timeout 0: off
-    sup.clear_command()
-    assert sup.command_time is None and sup.watchdog_status("hold") == "waiting for the first command"
+    sup.commands.clear()
+    assert sup.commands.command_time is None
+    assert sup.watchdog_status("hold") == "waiting for the first command"
     assert sup.check_watchdog(2000.0, 0.5, "hold").event is WatchdogEvent.NONE
 
 
 # ------------------------------------------------------------------ E-stop
 def test_estop_latches_with_its_first_reason() -> None:
     sup = running()
-    assert sup.engage_estop("estop service", 4.0) is True
-    assert sup.engage_estop("estop_request topic", 5.0) is False  # idempotent
-    assert sup.estop == "estop service" and sup.estop_since == 4.0
+    assert sup.estop.engage("estop service", 4.0) is True
+    assert sup.estop.engage("estop_request topic", 5.0) is False  # idempotent
+    assert sup.estop.reason == "estop service" and sup.estop.since == 4.0
 
 
 def test_torque_off_outcome() -> None:
@@ -208,60 +210,60 @@ def test_torque_off_outcome() -> None:
 
 def test_estop_survives_lifecycle_and_reconnect() -> None:
     sup = running()
-    sup.engage_estop("estop service", 1.0)
+    sup.estop.engage("estop service", 1.0)
     sup.torque_disabled("E-stop")
     sup.deactivate()
     assert not sup.activate()  # no torque on while stopped
     sup.link_lost("timeout", 2.0)
-    sup.connected(3.0)
-    assert not sup.torque_due() and sup.estop == "estop service"
+    sup.link.connected(3.0)
+    assert not sup.torque_due() and sup.estop.reason == "estop service"
 
 
 def test_clear_estop_refusals_and_release() -> None:
     sup = configured()
     assert sup.clear_estop_refusal() == Answer(True, "E-stop was not engaged")
-    sup.engage_estop("estop service", 1.0)
+    sup.estop.engage("estop service", 1.0)
     assert sup.clear_estop_refusal() == Answer(False, "E-stop stays engaged: node is not active")
     sup.activate()
-    sup.connect_failed("no servo answers")
+    sup.link.connect_failed("no servo answers")
     assert sup.clear_estop_refusal() == Answer(False, "E-stop stays engaged: bus not connected: no servo answers")
-    sup.connected(2.0)
+    sup.link.connected(2.0)
     assert sup.clear_estop_refusal() is None  # try torque on
     assert sup.clear_estop_result("hardware error X") == Answer(False, "E-stop stays engaged: hardware error X")
-    assert sup.estop == "estop service"
+    assert sup.estop.reason == "estop service"
     sup.torque_unwanted()
     assert sup.clear_estop_result(None) == Answer(True, "E-stop cleared, torque on")
-    assert sup.estop is None and sup.torque_wanted and not sup.relaxed
+    assert sup.estop.reason is None and sup.torque_wanted and not sup.relaxed
 
 
 # ------------------------------------------------------------------ link
 def test_bus_is_lost_after_error_limit_failures_in_a_row() -> None:
     sup = running(error_limit=3)
-    assert [sup.cycle_failed(port_error=False) for _ in range(2)] == [False, False]
-    sup.cycle_succeeded()  # a good cycle restarts the count
-    assert [sup.cycle_failed(port_error=False) for _ in range(3)] == [False, False, True]
-    assert sup.consecutive_failures == 3
+    assert [sup.link.cycle_failed(port_error=False) for _ in range(2)] == [False, False]
+    sup.link.cycle_succeeded()  # a good cycle restarts the count
+    assert [sup.link.cycle_failed(port_error=False) for _ in range(3)] == [False, False, True]
+    assert sup.link.consecutive_failures == 3
 
 
 def test_port_error_loses_the_bus_at_once() -> None:
     sup = running(error_limit=3)
-    assert sup.cycle_failed(port_error=True) is True
+    assert sup.link.cycle_failed(port_error=True) is True
 
 
 def test_reconnect_reports_the_outage_and_re_enables_torque() -> None:
     sup = running()
-    sup.cycle_failed(port_error=True)
+    sup.link.cycle_failed(port_error=True)
     sup.link_lost("unplugged", 10.0)
     sup.torque_disabled("bus lost")
-    assert not sup.link_up and not sup.torque_due()
-    assert sup.connect_failed("no such port") is True
-    assert sup.connect_failed("no such port") is False  # logged once
-    assert sup.connect_failed("servo 22 silent") is True
-    assert sup.connected(10.75) == pytest.approx(0.75)
-    assert sup.last_outage_s == pytest.approx(0.75) and sup.lost_at is None
-    assert sup.link_up and sup.bus_problem == "" and sup.consecutive_failures == 0
+    assert not sup.link.up and not sup.torque_due()
+    assert sup.link.connect_failed("no such port") is True
+    assert sup.link.connect_failed("no such port") is False  # logged once
+    assert sup.link.connect_failed("servo 22 silent") is True
+    assert sup.link.connected(10.75) == pytest.approx(0.75)
+    assert sup.link.last_outage_s == pytest.approx(0.75) and sup.link.lost_at is None
+    assert sup.link.up and sup.link.problem == "" and sup.link.consecutive_failures == 0
     assert sup.torque_due()  # still wanted: torque comes back on (if the positions are sane)
-    assert sup.connected(11.0) is None  # no loss in between
+    assert sup.link.connected(11.0) is None  # no loss in between
 
 
 # ------------------------------------------------------------------ torque-on retry
@@ -269,13 +271,13 @@ def _failed_torque_on(sup: ServoSupervisor) -> None:
     """A reconnect after a bus loss whose torque-on then fails."""
     sup.link_lost("servo 24 silent", 0.0)
     sup.torque_disabled("bus lost")
-    sup.connected(1.0)
+    sup.link.connected(1.0)
     assert sup.torque_due()
 
 
 def test_a_failed_torque_on_is_retried_with_backoff_until_it_comes_on() -> None:
     sup = running()
-    sup.retry_period, sup.retry_max = 0.25, 1.5
+    sup.retry.period, sup.retry.longest = 0.25, 1.5
     _failed_torque_on(sup)
     problem = "torque-on failed: write_register(64) on ID 24: There is no status packet!"
     now, delays = 1.0, []
@@ -287,7 +289,7 @@ def test_a_failed_torque_on_is_retried_with_backoff_until_it_comes_on() -> None:
         now += delay
     assert delays == [0.25, 0.5, 1.0, 1.5, 1.5]  # doubling, capped at retry_max
     assert sup.torque_enabled() == 5 and sup.takes_commands()
-    assert sup.retry_at is None and not sup.torque_retry_due(now + 10.0)
+    assert sup.retry.at is None and not sup.torque_retry_due(now + 10.0)
     _failed_torque_on(sup)
     assert sup.torque_failed(problem, 20.0) == 0.25  # a new failure starts the backoff again
     for k in range(2000):  # hours of failures: the delay stays at retry_max
@@ -304,7 +306,7 @@ def test_retries_end_when_torque_is_refused_or_no_longer_due(end: str) -> None:
     elif end == "set_torque(false)":
         sup.torque_unwanted()
     elif end == "E-stop":
-        sup.engage_estop("estop service", 1.1)
+        sup.estop.engage("estop service", 1.1)
     elif end == "bus lost":  # the reconnect tries torque on itself
         sup.link_lost("unplugged", 1.1)
     else:
@@ -323,26 +325,27 @@ def test_a_failure_while_torque_is_not_due_schedules_no_retry() -> None:
 def test_takes_commands_while_torque_is_on_or_relaxed_by_the_watchdog() -> None:
     sup = running()
     assert sup.takes_commands()
-    sup.command_taken(0.0)
+    sup.commands.taken(0.0)
     assert sup.check_watchdog(1.0, 0.1, "relax").torque_off
     sup.torque_disabled("watchdog: no phi_cmd")
     assert sup.takes_commands()  # the next phi_cmd switches torque on again
-    sup.engage_estop("estop service", 1.0)
+    sup.estop.engage("estop service", 1.0)
     assert not sup.takes_commands()
 
 
 # ------------------------------------------------------------------ hardware errors
 def test_hardware_error_turns_torque_off_until_asked_again() -> None:
     sup = running()
-    assert sup.alerts_changed(frozenset({22}))
+    assert sup.hardware.changed(frozenset({22}))
     assert sup.hardware_errors(frozenset({22}), {22: 4}) is Alert.FAULT
-    assert not sup.torque_wanted and not sup.alerts_changed(frozenset({22}))
-    assert sup.hardware_problem() == ("hardware error {22: 'bits 4'}: call reboot (or reboot_<id>), or power-cycle "
-                                      "the servo")
+    assert not sup.torque_wanted and not sup.hardware.changed(frozenset({22}))
+    assert sup.hardware.problem() == ("hardware error {22: 'bits 4'}: call reboot "
+                                      "(or reboot_<id>), or power-cycle the servo")
     assert sup.hardware_errors(frozenset({22, 23}), {22: 4}) is Alert.NONE  # same errors: nothing new
-    assert sup.torque_on_problem(AT_NEUTRAL, frozenset({22}), None) == sup.hardware_problem()
+    assert sup.torque_on_problem(AT_NEUTRAL, frozenset({22}), None) == sup.hardware.problem()
     assert sup.hardware_errors(frozenset(), {}) is Alert.CLEARED
-    assert sup.hardware_problem() is None and not sup.torque_wanted  # stays off until set_torque(true)
+    assert sup.hardware.problem() is None
+    assert not sup.torque_wanted  # stays off until set_torque(true)
 
 
 def test_torque_on_check_keeps_known_errors_when_none_were_read() -> None:
@@ -355,13 +358,13 @@ def test_torque_on_check_keeps_known_errors_when_none_were_read() -> None:
 # ------------------------------------------------------------------ start-up positions
 def test_start_up_check_refuses_a_twisted_pose_unless_held() -> None:
     sup = configured()
-    assert sup.needs_held_check()
+    assert sup.positions.needs_held_check()
     problem = sup.torque_on_problem(TWISTED, frozenset(), None)
     assert problem is not None and "deviate" in problem and "not held" in problem
-    assert not sup.startup_checked
-    sup.held = True  # every servo still had torque on: a driver restart
+    assert not sup.positions.startup_checked
+    sup.positions.held = True  # every servo still had torque on: a driver restart
     assert sup.torque_on_problem(TWISTED, frozenset(), None) is None
-    assert sup.startup_checked and not sup.needs_held_check()
+    assert sup.positions.startup_checked and not sup.positions.needs_held_check()
 
 
 def test_start_up_check_runs_once_per_configure() -> None:
@@ -369,7 +372,7 @@ def test_start_up_check_runs_once_per_configure() -> None:
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
     assert sup.torque_on_problem(TWISTED, frozenset(), None) is None  # later: only the sane range applies
     sup.configured(neutral_known=True)
-    sup.calibrate(MAP)
+    sup.positions.calibrate(MAP)
     assert sup.torque_on_problem(TWISTED, frozenset(), None) is not None
 
 
@@ -386,10 +389,11 @@ def test_sane_range_is_the_goal_limits_widened_by_the_tolerance() -> None:
 def test_first_calibration_is_refused_on_held_servos() -> None:
     sup = ServoSupervisor(IDS, 3, TOLERANCE, describe)
     sup.configured(neutral_known=False)
-    assert sup.needs_held_check() and sup.startup_checked  # nothing configured to check against
-    sup.held = True
-    sup.calibrate(MAP)  # the present positions give the map its zero
-    problem = sup.first_calibration("/tmp/neutral.yaml")
+    assert sup.positions.needs_held_check()
+    assert sup.positions.startup_checked  # nothing configured to check against
+    sup.positions.held = True
+    sup.positions.calibrate(MAP)  # the present positions give the map its zero
+    problem = sup.positions.first_calibration("/tmp/neutral.yaml")
     assert problem is not None and "no neutral file /tmp/neutral.yaml" in problem and "held" in problem
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) == problem  # torque stays off
 
@@ -397,21 +401,21 @@ def test_first_calibration_is_refused_on_held_servos() -> None:
 def test_first_calibration_at_rest_is_accepted() -> None:
     sup = ServoSupervisor(IDS, 3, TOLERANCE, describe)
     sup.configured(neutral_known=False)
-    sup.calibrate(MAP)
-    assert sup.first_calibration("/tmp/neutral.yaml") is None
-    assert not sup.needs_held_check()
+    sup.positions.calibrate(MAP)
+    assert sup.positions.first_calibration("/tmp/neutral.yaml") is None
+    assert not sup.positions.needs_held_check()
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
 
 
 # ------------------------------------------------------------------ reboot
 def test_reboot_refused_while_tracking_with_torque_on() -> None:
     sup = running()
-    sup.command_taken(1.0)
+    sup.commands.taken(1.0)
     sup.check_watchdog(1.01, 0.5, "hold")  # fresh
     assert "tracking" in sup.reboot_refusal()
     sup.check_watchdog(2.0, 0.5, "hold")  # expired: holding
     assert sup.reboot_refusal() is None
-    sup.command_taken(2.0)
+    sup.commands.taken(2.0)
     sup.check_watchdog(2.01, 0.5, "hold")
     sup.torque_disabled("set_torque service")
     assert sup.reboot_refusal() is None  # fresh commands but torque off
@@ -431,7 +435,7 @@ def test_reboot_rechecks_positions_and_leaves_torque_off() -> None:
     sup.reboot_started()
     assert not sup.torque_wanted and not sup.relaxed
     assert sup.rebooted(AT_NEUTRAL, frozenset(), {}) is None
-    assert sup.hw_errors == {} and not sup.torque_on and not sup.torque_due()
+    assert sup.hardware.errors == {} and not sup.torque_on and not sup.torque_due()
     assert sup.set_torque_refusal() is None  # torque on only when asked, with the checks again
 
 
@@ -442,4 +446,5 @@ def test_reboot_names_the_lost_multi_turn_count_or_the_error() -> None:
     assert sup.rebooted(beyond, frozenset(), {}) == (
         "present positions of IDs [21] are outside the goal limits (servo power-cycled or turned?); "
         + MULTI_TURN_NOTE)
-    assert sup.rebooted(beyond, frozenset({21}), {21: 1}) == sup.hardware_problem()  # the error, no note
+    # the error, no note
+    assert sup.rebooted(beyond, frozenset({21}), {21: 1}) == sup.hardware.problem()

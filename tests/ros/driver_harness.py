@@ -7,11 +7,10 @@ import math
 import os
 import subprocess
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import pytest
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
@@ -21,9 +20,10 @@ from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator, RegisterWrite, ServoModel
 from tests.ros.conftest import CollectedProcess, wait_until
 
-__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX", "TICKS_PER_RAD",
-           "DriverProcess", "DriverServices", "clamp_range", "command", "drivers", "goal_writes", "make_emulator", "start_drivers",
-           "torque", "torque_off_time", "torque_on_time", "wait_until"]
+__all__ = ["ADDR_GOAL", "ADDR_TORQUE", "DRIVER", "IDS", "NEUTRAL", "NEUTRAL_PARAM", "PHI_MAX",
+           "TICKS_PER_RAD", "DriverProcess", "DriverServices", "clamp_range", "command", "driver_args",
+           "goal_writes", "make_emulator", "start_drivers", "torque", "torque_off_time",
+           "torque_on_time", "wait_until"]
 
 DRIVER = find_executable("hsa_dynamixel_driver", "dynamixel_driver")
 IDS = (21, 22, 23, 24)
@@ -42,15 +42,22 @@ def make_emulator(tmp_path: Path, name: str = "ttyDXL") -> MX28Emulator:
     return MX28Emulator(IDS, model=FAST_SERVO, initial_ticks=NEUTRAL, link_path=tmp_path / name).start()
 
 
+def driver_args(port: str, overrides: Sequence[str] = (), name: str | None = None) -> list[str]:
+    """The driver's command line on ``port`` with the test neutral, a 0.2 s reconnect period and
+    ``overrides`` (``name``: remap the node name)."""
+    args = [DRIVER, "--ros-args"] + (["-r", f"__node:={name}"] if name is not None else [])
+    args += ["-p", f"port:={port}", "-p", "reconnect_period:=0.2", "-p", NEUTRAL_PARAM]
+    for override in overrides:
+        args += ["-p", override]
+    return args
+
+
 class DriverProcess(CollectedProcess):
     """A dynamixel_driver process on ``port`` whose output is collected by a reader thread after ``ready``."""
 
     def __init__(self, port: str, overrides: Sequence[str] = (), env: dict[str, str] | None = None,
                  name: str = "dynamixel_driver") -> None:
-        args = [DRIVER, "--ros-args", "-r", f"__node:={name}", "-p", f"port:={port}", "-p", "reconnect_period:=0.2",
-                "-p", NEUTRAL_PARAM]
-        for override in overrides:
-            args += ["-p", override]
+        args = driver_args(port, overrides, name)
         super().__init__(subprocess.Popen(args, env=rosenv.ros_environment({**os.environ, **(env or {})}),
                                           start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                           text=True))
@@ -67,16 +74,6 @@ def start_drivers(specs: Sequence[tuple[str, str, dict[str, str] | None]]) -> li
     for proc in procs:
         proc.wait_ready()
     return procs
-
-
-@pytest.fixture
-def drivers() -> Iterator[list[DriverProcess]]:
-    """A list the test appends its DriverProcess objects to; every one still running is stopped at teardown."""
-    procs: list[DriverProcess] = []
-    yield procs
-    for proc in procs:
-        if proc.proc.poll() is None:
-            proc.stop()
 
 
 def torque(emulator: MX28Emulator) -> set[bool]:

@@ -9,7 +9,6 @@ import math
 import random
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import matplotlib
@@ -20,49 +19,28 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
-from tests.ros.conftest import ParameterClient
-from tests.ros.driver_harness import (
-    ADDR_TORQUE,
-    IDS,
-    NEUTRAL,
-    PHI_MAX,
-    TICKS_PER_RAD,
-    DriverProcess,
-    DriverServices,
-    clamp_range,
-    command,
-    drivers,
-    goal_writes,
-    make_emulator,
-    torque,
-    torque_off_time,
-    torque_on_time,
-    wait_until,
-)
+from tests.ros import driver_harness as dh
+from tests.ros.conftest import ParameterClient, wait_until
+from tests.ros.driver_fixtures import drivers, emulator
 from tests.ros.faults import DiagnosticsLog, fault
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
 
 pytestmark = pytest.mark.ros
-__all__ = ["drivers"]  # fixture used by the tests below
+__all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 
 BUS, SERVOS, CONTROL = "dynamixel_driver: bus", "dynamixel_driver: servos", "dynamixel_driver: control"
 FIGURES = Path(__file__).resolve().parents[2] / "out" / "faults"
 ADDR_RETURN_DELAY, ADDR_MODE = 9, 11  # MX-28(2.0) control table (EEPROM)
 
 
-@pytest.fixture
-def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    emu = make_emulator(tmp_path)
-    yield emu
-    emu.stop()
 
-
-def start(emulator: MX28Emulator, drivers: list[DriverProcess], *overrides: str) -> DriverProcess:
+def start(emulator: MX28Emulator, drivers: list[dh.DriverProcess], *overrides: str
+          ) -> dh.DriverProcess:
     """A driver on the emulator, ready and holding with torque on."""
-    drivers.append(driver := DriverProcess(emulator.port, overrides).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
+    drivers.append(driver := dh.DriverProcess(emulator.port, overrides).wait_ready())
+    assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
     return driver
 
 
@@ -72,13 +50,14 @@ def now_ns(node) -> int:
 
 def test_corrupt_statuses_silent_servo_and_hardware_error(emulator, drivers, ros_node) -> None:
     driver = start(emulator, drivers)
-    services = DriverServices(ros_node)
+    services = dh.DriverServices(ros_node)
     diagnostics = DiagnosticsLog(ros_node)
 
     # A few corrupted statuses: counted as comm errors; fewer than error_limit failed cycles in a row keep the link.
     emulator.corrupt_next_statuses(3)
     _, values = diagnostics.wait(BUS, lambda s, v: int(v["comm_errors"]) >= 1, after_ns=now_ns(ros_node))
-    assert torque(emulator) == {True} and not driver.log("bus lost") and values["bus_losses"] == "0"
+    assert dh.torque(emulator) == {True} and not driver.log("bus lost")
+    assert values["bus_losses"] == "0"
     fault("3 corrupted status packets", f"{values['comm_errors']} comm errors counted, link kept, torque stays on",
           "none needed")
 
@@ -86,17 +65,20 @@ def test_corrupt_statuses_silent_servo_and_hardware_error(emulator, drivers, ros
     # executes the broadcast torque-off); reconnects every reconnect_period until it answers, then torque on again.
     silenced = time.monotonic()
     emulator.set_responsive(22, False)
-    assert wait_until(lambda: torque_off_time(emulator, silenced) is not None, 5.0), driver.output()
-    detection = torque_off_time(emulator, silenced) - silenced
-    assert torque(emulator) == {False} and driver.log("bus lost")
+    assert wait_until(lambda: dh.torque_off_time(emulator, silenced) is not None, 5.0), \
+        driver.output()
+    detection = dh.torque_off_time(emulator, silenced) - silenced
+    assert dh.torque(emulator) == {False} and driver.log("bus lost")
     status, values = diagnostics.wait(BUS, lambda s, v: s.level == DiagnosticStatus.ERROR, after_ns=now_ns(ros_node))
     assert "disconnected" in status.message and "22" in values["last_error"]
     time.sleep(0.5)
-    assert torque_on_time(emulator, silenced) is None, "torque re-enabled while servo 22 was silent"
+    assert dh.torque_on_time(emulator, silenced) is None, \
+        "torque re-enabled while servo 22 was silent"
     answered = time.monotonic()
     emulator.set_responsive(22, True)
-    assert wait_until(lambda: torque_on_time(emulator, answered) is not None, 5.0), driver.output()
-    recovery = torque_on_time(emulator, answered) - answered
+    assert wait_until(lambda: dh.torque_on_time(emulator, answered) is not None, 5.0), \
+        driver.output()
+    recovery = dh.torque_on_time(emulator, answered) - answered
     _, values = diagnostics.wait(BUS, lambda s, v: s.level == DiagnosticStatus.OK, after_ns=now_ns(ros_node))
     assert int(values["reconnects"]) == 1 and int(values["bus_losses"]) == 1
     assert recovery < 0.2 + 0.5, f"reconnect took {recovery:.3f} s with reconnect_period 0.2 s"
@@ -107,34 +89,34 @@ def test_corrupt_statuses_silent_servo_and_hardware_error(emulator, drivers, ros
     # are clean again (each reconnect attempt uses up one status with its first ping).
     burst = time.monotonic()
     emulator.corrupt_next_statuses(44)
-    assert wait_until(lambda: torque_off_time(emulator, burst) is not None, 5.0), driver.output()
-    assert wait_until(lambda: torque_on_time(emulator, burst) is not None, 10.0), driver.output()
+    assert wait_until(lambda: dh.torque_off_time(emulator, burst) is not None, 5.0), driver.output()
+    assert wait_until(lambda: dh.torque_on_time(emulator, burst) is not None, 10.0), driver.output()
     fault("burst of 44 corrupted statuses", "bus lost, torque off, reconnect after the burst, torque on again",
-          torque_on_time(emulator, burst) - burst)
+          dh.torque_on_time(emulator, burst) - burst)
 
     # Hardware error (overload on 22): torque off for every servo; torque-on refused until the error is gone.
     injected = time.monotonic()
     emulator.set_hardware_error(22, HW_OVERLOAD)
-    assert wait_until(lambda: torque(emulator) == {False}, 2.0), "torque stayed on after an overload"
-    stop_latency = torque_off_time(emulator, injected) - injected
+    assert wait_until(lambda: dh.torque(emulator) == {False}, 2.0), "torque stayed on after an overload"
+    stop_latency = dh.torque_off_time(emulator, injected) - injected
     answer = services.set_torque(True)
-    assert not answer.success and "overload" in answer.message and torque(emulator) == {False}
+    assert not answer.success and "overload" in answer.message and dh.torque(emulator) == {False}
     _, values = diagnostics.wait(SERVOS, lambda s, v: v["hardware_error_22"] == "overload", after_ns=now_ns(ros_node))
     emulator.set_hardware_error(22, 0)  # what a reboot does to the latched error
     assert wait_until(lambda: bool(driver.log("hardware errors cleared")), 5.0), driver.output()
-    assert torque(emulator) == {False}, "torque came back without being asked"
+    assert dh.torque(emulator) == {False}, "torque came back without being asked"
     cleared = time.monotonic()
     answer = services.set_torque(True)
-    assert answer.success and torque(emulator) == {True}, answer.message
+    assert answer.success and dh.torque(emulator) == {True}, answer.message
     fault("hardware error (overload, ID 22)", f"torque off on all servos {stop_latency * 1e3:.1f} ms after the alert, "
           "set_torque(true) refused naming the error; stays off after the error clears until set_torque(true)",
-          torque_on_time(emulator, cleared) - cleared)
+          dh.torque_on_time(emulator, cleared) - cleared)
     assert driver.proc.poll() is None
 
 
 def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_node) -> None:
     driver = start(emulator, drivers)
-    services = DriverServices(ros_node)
+    services = dh.DriverServices(ros_node)
     diagnostics = DiagnosticsLog(ros_node)
     unplugged = time.monotonic()
     emulator.unplug()
@@ -143,8 +125,9 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     assert int(values["port_errors"]) >= 1 and driver.proc.poll() is None
     replugged = time.monotonic()
     emulator.replug()
-    assert wait_until(lambda: torque_on_time(emulator, replugged) is not None, 5.0), driver.output()
-    recovery = torque_on_time(emulator, replugged) - replugged
+    assert wait_until(lambda: dh.torque_on_time(emulator, replugged) is not None, 5.0), \
+        driver.output()
+    recovery = dh.torque_on_time(emulator, replugged) - replugged
     assert recovery < 0.2 + 0.5
     fault("U2D2 unplugged, replugged after " f"{replugged - unplugged:.1f} s", "driver keeps running, bus lost at "
           f"the next cycle, {values['reconnect_attempts']} reconnect attempts while absent, torque on after the "
@@ -156,22 +139,22 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     # "bus lost (<cause>)" once per loss; the torque-off attempt of a loss may add "torque off (bus lost) not
     # confirmed", depending on whether the port failed before or during that write (seen beside two busy processes)
     assert wait_until(lambda: len(driver.log("bus lost (")) == 2, 2.0), driver.output()
-    for dxl_id in IDS:
-        emulator.poke(dxl_id, ADDR_TORQUE, 0)
-    emulator.set_present_ticks(21, NEUTRAL[21] + 8192)
+    for dxl_id in dh.IDS:
+        emulator.poke(dxl_id, dh.ADDR_TORQUE, 0)
+    emulator.set_present_ticks(21, dh.NEUTRAL[21] + 8192)
     replugged = time.monotonic()
     emulator.replug()
     assert wait_until(lambda: len(driver.log("bus reconnected")) == 2, 5.0), driver.output()
     time.sleep(0.3)
-    assert torque_on_time(emulator, replugged) is None and torque(emulator) == {False}
+    assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}
     status, _ = diagnostics.wait(SERVOS, lambda s, v: "outside the goal limits" in s.message,
                                  after_ns=now_ns(ros_node))
     assert status.level == DiagnosticStatus.ERROR
     answer = services.set_torque(True)
     assert not answer.success and "IDs [21]" in answer.message
-    emulator.set_present_ticks(21, NEUTRAL[21])
+    emulator.set_present_ticks(21, dh.NEUTRAL[21])
     answer = services.set_torque(True)
-    assert answer.success and torque(emulator) == {True}, answer.message
+    assert answer.success and dh.torque(emulator) == {True}, answer.message
     fault("servo power-cycled while unplugged (ID 21 off by 2 rev)", "reconnect succeeds, torque-on refused (ERROR "
           "naming ID 21), set_torque(true) accepted once the position is sane", "manual")
 
@@ -187,7 +170,7 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(emulator, drive
         end = time.monotonic() + seconds
         while True:
             last = time.monotonic()
-            pub.publish(command(phi, phi))
+            pub.publish(dh.command(phi, phi))
             if last > end:
                 return last
             time.sleep(0.025)
@@ -198,8 +181,8 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(emulator, drive
     time.sleep(0.3)
     quiet = time.monotonic()
     time.sleep(0.5)
-    writes = goal_writes(emulator, quiet)
-    assert writes == [] and torque(emulator) == {True}, f"{len(writes)} goal writes after the commands stopped"
+    writes = dh.goal_writes(emulator, quiet)
+    assert writes == [] and dh.torque(emulator) == {True}, f"{len(writes)} goal writes after the commands stopped"
     assert driver.log("holding the last goal")
     status, _ = diagnostics.wait(CONTROL, lambda s, v: "expired (hold)" in v["watchdog"], after_ns=now_ns(ros_node))
     assert status.level == DiagnosticStatus.WARN
@@ -210,9 +193,9 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(emulator, drive
     assert params.set("watchdog_action", "relax").successful
     assert not params.set("watchdog_action", "limp").successful and params.get("watchdog_action") == "relax"
     last = stream(1.0, 0.5)
-    assert wait_until(lambda: torque_off_time(emulator, last) is not None, 2.0), driver.output()
-    off = torque_off_time(emulator, last)
-    received = max(w.time for w in goal_writes(emulator, last - 0.5) if w.time < off)
+    assert wait_until(lambda: dh.torque_off_time(emulator, last) is not None, 2.0), driver.output()
+    off = dh.torque_off_time(emulator, last)
+    received = max(w.time for w in dh.goal_writes(emulator, last - 0.5) if w.time < off)
     expiry = off - received
     # the last goal write follows the command's arrival by the write itself (ms): allow 10 ms below the timeout
     assert 0.1 - 0.01 <= expiry < 0.1 + 0.1, f"relaxed {expiry:.3f} s after the last goal write (timeout 0.1 s)"
@@ -220,12 +203,12 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(emulator, drive
     assert status.level == DiagnosticStatus.WARN
     quiet = time.monotonic()
     time.sleep(0.3)
-    assert torque_on_time(emulator, quiet) is None and torque(emulator) == {False}
+    assert dh.torque_on_time(emulator, quiet) is None and dh.torque(emulator) == {False}
     resumed = time.monotonic()
     stream(0.2, 0.3)
-    on = torque_on_time(emulator, resumed)
-    assert on is not None and torque(emulator) == {True}, driver.output()
-    target = NEUTRAL[21] + math.trunc(0.2 * TICKS_PER_RAD)
+    on = dh.torque_on_time(emulator, resumed)
+    assert on is not None and dh.torque(emulator) == {True}, driver.output()
+    target = dh.NEUTRAL[21] + math.trunc(0.2 * dh.TICKS_PER_RAD)
     assert wait_until(lambda: abs(emulator.goal_ticks()[21] - target) <= 1, 2.0), emulator.goal_ticks()
     fault("phi_cmd stops (watchdog_action relax)", f"torque off {expiry:.3f} s after the last command arrived "
           "(timeout 0.1 s), re-enabled holding the present positions by the next phi_cmd", on - resumed)
@@ -237,26 +220,27 @@ def test_no_goal_outside_the_clamp_range_whatever_arrives_and_the_rate_limit(emu
     params = ParameterClient(ros_node, "/dynamixel_driver")
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     rng = random.Random(6)
-    specials = [math.nan, math.inf, -math.inf, 1e300, -1e300, -5.0, -1e-9, 0.0, PHI_MAX, PHI_MAX + 1e-9, 100.0,
+    specials = [math.nan, math.inf, -math.inf, 1e300, -1e300, -5.0, -1e-9, 0.0, dh.PHI_MAX, dh.PHI_MAX + 1e-9, 100.0,
                 5e-324, -0.0, 2.0 * math.pi]
     barrage = [(rng.choice(specials), rng.choice(specials)) for _ in range(300)]
     barrage += [(rng.uniform(-50.0, 50.0), rng.uniform(-50.0, 50.0)) for _ in range(100)]
     began = time.monotonic()
     for phi in barrage:
-        pub.publish(command(*phi))
+        pub.publish(dh.command(*phi))
         time.sleep(0.004)
-    pub.publish(command(-3.0, 1e9))  # the last word: saturates at φ = (0, φ_max)
-    expected = {21: NEUTRAL[21] + math.trunc(PHI_MAX * TICKS_PER_RAD), 22: NEUTRAL[22] - math.trunc(
-        PHI_MAX * TICKS_PER_RAD), 23: NEUTRAL[23], 24: NEUTRAL[24]}
+    pub.publish(dh.command(-3.0, 1e9))  # the last word: saturates at φ = (0, φ_max)
+    full = math.trunc(dh.PHI_MAX * dh.TICKS_PER_RAD)
+    expected = {21: dh.NEUTRAL[21] + full, 22: dh.NEUTRAL[22] - full, 23: dh.NEUTRAL[23],
+                24: dh.NEUTRAL[24]}
     # repeated: the default rate limit ramps the goal there, and the watchdog holds it if the commands stop
-    assert wait_until(lambda: emulator.goal_ticks() == expected, 5.0, step=lambda: pub.publish(command(-3.0, 1e9))), \
+    assert wait_until(lambda: emulator.goal_ticks() == expected, 5.0, step=lambda: pub.publish(dh.command(-3.0, 1e9))), \
         emulator.goal_ticks()
-    writes = goal_writes(emulator, began)
-    outside = [w for w in writes if not clamp_range(w.dxl_id)[0] <= w.value <= clamp_range(w.dxl_id)[1]]
+    writes = dh.goal_writes(emulator, began)
+    outside = [w for w in writes if not dh.clamp_range(w.dxl_id)[0] <= w.value <= dh.clamp_range(w.dxl_id)[1]]
     assert writes and not outside, f"goals outside the clamp range: {outside[:5]}"
     _, values = diagnostics.wait(CONTROL, lambda s, v: int(v["rejected"]) > 0, after_ns=now_ns(ros_node))
     non_finite = sum(not (math.isfinite(a) and math.isfinite(b)) for a, b in barrage)
-    assert int(values["rejected"]) <= non_finite and torque(emulator) == {True}
+    assert int(values["rejected"]) <= non_finite and dh.torque(emulator) == {True}
     fault("barrage of 401 bad phi_cmd (NaN, ±inf, ±1e300, negative, > phi_max, random ±50 rad)",
           f"{len(writes)} goal writes, all inside the clamp range; {values['rejected']} non-finite rejected, "
           f"{values['clamped']} clipped/clamped", "none needed")
@@ -267,23 +251,23 @@ def test_no_goal_outside_the_clamp_range_whatever_arrives_and_the_rate_limit(emu
     assert not params.set("max_goal_rate", -1.0).successful and params.get("max_goal_rate") == rate
     began = time.monotonic()
     for k in range(60):
-        phi = PHI_MAX if (k // 15) % 2 == 0 else 0.0
-        pub.publish(command(phi, phi))
+        phi = dh.PHI_MAX if (k // 15) % 2 == 0 else 0.0
+        pub.publish(dh.command(phi, phi))
         time.sleep(0.025)
     time.sleep(0.1)
-    writes = goal_writes(emulator, began)
+    writes = dh.goal_writes(emulator, began)
     slack = 0.02  # s: pty delivery jitter of a write (driver clock vs the emulator's stamps), twice
     worst = 0.0
-    for dxl_id in IDS:
+    for dxl_id in dh.IDS:
         series = [(w.time, w.value) for w in writes if w.dxl_id == dxl_id]
         assert len(series) > 20
         for i, (t_i, g_i) in enumerate(series):
             for t_j, g_j in series[i + 1:]:
-                assert abs(g_j - g_i) <= rate * TICKS_PER_RAD * (t_j - t_i + 2 * slack) + 1, \
+                assert abs(g_j - g_i) <= rate * dh.TICKS_PER_RAD * (t_j - t_i + 2 * slack) + 1, \
                     f"ID {dxl_id}: {g_i} -> {g_j} in {t_j - t_i:.3f} s exceeds {rate} rad/s"
                 if t_j - t_i >= 0.2:
-                    worst = max(worst, abs(g_j - g_i) / TICKS_PER_RAD / (t_j - t_i))
-        assert all(clamp_range(dxl_id)[0] <= g <= clamp_range(dxl_id)[1] for _, g in series)
+                    worst = max(worst, abs(g_j - g_i) / dh.TICKS_PER_RAD / (t_j - t_i))
+        assert all(dh.clamp_range(dxl_id)[0] <= g <= dh.clamp_range(dxl_id)[1] for _, g in series)
     assert worst > 0.8 * rate, f"the ramp hardly moved (max {worst:.2f} rad/s)"
     fault("square-wave phi_cmd 0 <-> phi_max with max_goal_rate 2 rad/s",
           f"goal speed at most {worst:.2f} rad/s over >= 0.2 s windows, never above the limit", "none needed")
@@ -303,7 +287,7 @@ class BusTrace:
     def _loop(self) -> None:
         emu = self._emulator
         while not self._stop.wait(0.002):
-            self.samples.append((time.monotonic(), emu.present_ticks(), {i: emu.torque_enabled(i) for i in IDS},
+            self.samples.append((time.monotonic(), emu.present_ticks(), {i: emu.torque_enabled(i) for i in dh.IDS},
                                  emu.hardware_errors()))
 
     def stop(self) -> None:
@@ -322,7 +306,7 @@ class CommandStream:
 
     def _loop(self) -> None:
         while not self._stop.wait(0.02):
-            self._pub.publish(command(self._phi, self._phi))
+            self._pub.publish(dh.command(self._phi, self._phi))
 
     def stop(self) -> None:
         self._stop.set()
@@ -333,19 +317,19 @@ def plot_reboot_recovery(trace: BusTrace, goals: list, events: dict[str, float],
     """Twist of motor 22 (present and goal) and every servo's torque over overload → reboot → torque on, with the
     events (times from the emulator's write log and the service calls) as marked lines."""
     t = np.array([s[0] for s in trace.samples]) - zero
-    psi = np.array([(s[1][22] - NEUTRAL[22]) / TICKS_PER_RAD for s in trace.samples])
+    psi = np.array([(s[1][22] - dh.NEUTRAL[22]) / dh.TICKS_PER_RAD for s in trace.samples])
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(8.0, 4.8), height_ratios=(1.4, 1.6))
     top.plot(t, psi, color="C0", marker=".", ms=3, label=r"present $\psi_{22}$ (sampled every 2 ms)")
-    top.step([w.time - zero for w in goals], [(w.value - NEUTRAL[22]) / TICKS_PER_RAD for w in goals], where="post",
+    top.step([w.time - zero for w in goals], [(w.value - dh.NEUTRAL[22]) / dh.TICKS_PER_RAD for w in goals], where="post",
              color="C1", ls="--", label=r"goal $\psi_{22}$ written")
     top.set_ylabel(r"$\psi_{22}$ [rad]")
     top.legend(loc="lower right", fontsize=7)
-    for k, dxl_id in enumerate(IDS):
+    for k, dxl_id in enumerate(dh.IDS):
         bottom.step(t, [k * 1.5 + s[2][dxl_id] for s in trace.samples], where="post", color="k", lw=1.2)
     error = np.array([s[3][22] != 0 for s in trace.samples])
     bottom.fill_between(t, -0.3, 6.0, where=error, step="post", color="red", alpha=0.15,
                         label="overload latched in ID 22")
-    bottom.set_yticks([k * 1.5 + 0.5 for k in range(len(IDS))], [f"ID {i}" for i in IDS])
+    bottom.set_yticks([k * 1.5 + 0.5 for k in range(len(dh.IDS))], [f"ID {i}" for i in dh.IDS])
     bottom.set_ylabel("torque (low = off)")
     bottom.set_xlabel("time since the overload was injected [s]")
     styles = ["-", "--", "-.", ":"]
@@ -366,24 +350,24 @@ def plot_reboot_recovery(trace: BusTrace, goals: list, events: dict[str, float],
 
 def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> None:
     driver = start(emulator, drivers)
-    services = DriverServices(ros_node, reboot=True)
+    services = dh.DriverServices(ros_node, reboot=True)
     diagnostics = DiagnosticsLog(ros_node)
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
     phi = 0.3
-    target = NEUTRAL[22] - math.trunc(phi * TICKS_PER_RAD)  # spec §7: motor 22 turns by −φ₂
+    target = dh.NEUTRAL[22] - math.trunc(phi * dh.TICKS_PER_RAD)  # spec §7: motor 22 turns by −φ₂
     trace = BusTrace(emulator)
     stream = CommandStream(pub, phi)
     try:
         assert wait_until(lambda: abs(emulator.present_ticks()[22] - target) <= 3, 5.0), driver.output()
         # Tracking with torque on: a reboot would drop the servo mid-motion, so it is refused and nothing changes.
         answer, _, _ = services.reboot(22)
-        assert not answer.success and "tracking" in answer.message and torque(emulator) == {True}, answer.message
+        assert not answer.success and "tracking" in answer.message and dh.torque(emulator) == {True}, answer.message
 
         injected = time.monotonic()
         emulator.set_hardware_error(22, HW_OVERLOAD)
-        assert wait_until(lambda: torque_off_time(emulator, injected) is not None, 2.0), driver.output()
-        events = {"overload": injected, "torque off (all)": torque_off_time(emulator, injected)}
+        assert wait_until(lambda: dh.torque_off_time(emulator, injected) is not None, 2.0), driver.output()
+        events = {"overload": injected, "torque off (all)": dh.torque_off_time(emulator, injected)}
         answer = services.set_torque(True)
         assert not answer.success and "overload" in answer.message and "reboot" in answer.message, answer.message
 
@@ -394,16 +378,17 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
         answer, sent, answered = services.reboot(22)
         events["reboot_22 request"], events["reboot_22 answer"] = sent, answered
         assert answer.success and "set_torque(true)" in answer.message, answer.message
-        assert emulator.hardware_errors()[22] == 0 and torque(emulator) == {False}
+        assert emulator.hardware_errors()[22] == 0 and dh.torque(emulator) == {False}
         assert emulator.peek(22, ADDR_MODE) == 4 and emulator.peek(22, ADDR_RETURN_DELAY) == 0  # extended position
         asked = time.monotonic()
         answer = services.set_torque(True)
-        assert answer.success and torque(emulator) == {True}, answer.message
-        assert torque_on_time(emulator, injected) >= asked, "torque came back before set_torque(true)"
-        on = torque_on_time(emulator, asked)
+        assert answer.success and dh.torque(emulator) == {True}, answer.message
+        assert dh.torque_on_time(emulator, injected) >= asked, "torque came back before set_torque(true)"
+        on = dh.torque_on_time(emulator, asked)
         events["set_torque(true)"], events["torque on (all)"] = asked, on
-        assert wait_until(lambda: goal_writes(emulator, on + 1e-6), 2.0), "tracking did not resume"
-        resumed = goal_writes(emulator, on + 1e-6)[0].time
+        assert wait_until(lambda: dh.goal_writes(emulator, on + 1e-6), 2.0), \
+            "tracking did not resume"
+        resumed = dh.goal_writes(emulator, on + 1e-6)[0].time
         events["tracking again (first goal)"] = resumed
         assert wait_until(lambda: abs(emulator.present_ticks()[22] - target) <= 3, 5.0)
         time.sleep(0.2)
@@ -412,7 +397,7 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
         trace.stop()
     _, values = diagnostics.wait(SERVOS, lambda s, v: v["reboots"] == "1", after_ns=now_ns(ros_node))
     assert values["hardware_error_22"] == "none" and "IDs [22]" in values["last_reboot"]
-    plot_reboot_recovery(trace, [w for w in goal_writes(emulator, injected - 0.3) if w.dxl_id == 22], events,
+    plot_reboot_recovery(trace, [w for w in dh.goal_writes(emulator, injected - 0.3) if w.dxl_id == 22], events,
                          injected, FIGURES / "driver_reboot_recovery")
     reboot_s, recovery = answered - sent, on - sent
     assert recovery < 2.0, f"reboot -> torque on took {recovery:.3f} s"
@@ -428,10 +413,11 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
     assert wait_until(lambda: bool(driver.log("holding the last goal")), 2.0), driver.output()
     answer, sent, answered = services.reboot()
     assert not answer.success and "IDs [23, 24]" in answer.message and "multi-turn" in answer.message, answer.message
-    wrapped = (NEUTRAL[24] - math.trunc(phi * TICKS_PER_RAD)) % 4096  # spec §7: motor 24 turns by −φ₁
-    assert torque(emulator) == {False} and abs(emulator.present_ticks()[24] - wrapped) <= 3
+    wrapped = (dh.NEUTRAL[24] - math.trunc(phi * dh.TICKS_PER_RAD)) % 4096  # spec §7: motor 24 turns by −φ₁
+    assert dh.torque(emulator) == {False} and abs(emulator.present_ticks()[24] - wrapped) <= 3
     answer = services.set_torque(True)
-    assert not answer.success and "IDs [23, 24]" in answer.message and torque(emulator) == {False}
+    assert not answer.success and "IDs [23, 24]" in answer.message
+    assert dh.torque(emulator) == {False}
     fault("reboot of all servos while holding, two of them beyond one turn", "torque off first, every servo "
           f"rebooted in {(answered - sent) * 1e3:.1f} ms; positions re-checked: torque refused for IDs 23, 24 "
           "(multi-turn count lost)", "manual (re-home)")

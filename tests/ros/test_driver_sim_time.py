@@ -18,7 +18,8 @@ from sensor_msgs.msg import JointState
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator
-from tests.ros.driver_harness import DriverProcess, command, drivers, goal_writes, make_emulator, torque, wait_until
+from tests.ros.driver_fixtures import drivers
+from tests.ros.driver_harness import DriverProcess, command, goal_writes, make_emulator, torque, wait_until
 from tests.ros.faults import BEST_EFFORT, fault
 
 pytestmark = pytest.mark.ros

@@ -7,8 +7,7 @@ import os
 import signal
 import subprocess
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -27,10 +26,12 @@ from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
 
-from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
-from tests.ros.driver_harness import DRIVER, IDS, NEUTRAL, NEUTRAL_PARAM, PHI_MAX, clamp_range, make_emulator
+from tests.ros.conftest import stop_process, wait_for_line, wait_until
+from tests.ros.driver_fixtures import driver, emulator
+from tests.ros.driver_harness import IDS, NEUTRAL, PHI_MAX, clamp_range, torque
 
 pytestmark = pytest.mark.ros
+__all__ = ["driver", "emulator"]  # fixtures used by the tests below
 
 TICK = math.pi / 2048
 
@@ -39,41 +40,6 @@ def spec_goal_ticks(phi1: float, phi2: float) -> dict[int, int]:
     """Goal ticks by planning_and_control.md §7, computed independently of hsa_core."""
     psi = {21: phi2, 22: -phi2, 23: phi1, 24: -phi1}
     return {i: NEUTRAL[i] + math.trunc(psi[i] * 2048 / math.pi) for i in IDS}
-
-
-@pytest.fixture
-def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    """The emulated bus with the test neutrals and fast servos."""
-    emu = make_emulator(tmp_path)
-    try:
-        yield emu
-    finally:
-        emu.stop()
-
-
-@pytest.fixture
-def driver(emulator: MX28Emulator) -> Iterator[Callable[..., subprocess.Popen]]:
-    """``driver(*overrides)`` starts the driver on the emulated bus and waits until it is ready."""
-    procs: list[subprocess.Popen] = []
-
-    def _start(*overrides: str, ready: bool = True) -> subprocess.Popen:
-        args = [DRIVER, "--ros-args", "-p", f"port:={emulator.port}", "-p", "reconnect_period:=0.2",
-                "-p", NEUTRAL_PARAM]
-        for override in overrides:
-            args += ["-p", override]
-        proc = start_process(args)
-        procs.append(proc)
-        if ready:
-            wait_for_line(proc, "ready", timeout=60.0)
-        return proc
-
-    yield _start
-    for proc in procs:
-        stop_process(proc)
-
-
-def torque(emulator: MX28Emulator) -> set[bool]:
-    return {emulator.torque_enabled(i) for i in IDS}
 
 
 def assert_signal_turns_torque_off(proc: subprocess.Popen, sig: signal.Signals, emulator: MX28Emulator) -> None:

@@ -5,8 +5,6 @@ emulator executed torque-enable = 0 on every servo)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -14,38 +12,23 @@ from std_msgs.msg import Bool
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
-from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
-from tests.ros.driver_harness import (
-    DriverProcess,
-    command,
-    drivers,
-    goal_writes,
-    DriverServices,
-    make_emulator,
-    torque,
-    torque_off_time,
-    torque_on_time,
-    wait_until,
-)
+from hsa_sim_node.mx28_emulator import HW_OVERLOAD
+from tests.ros import driver_harness as dh
+from tests.ros.conftest import wait_until
+from tests.ros.driver_fixtures import drivers, emulator
 from tests.ros.faults import DiagnosticsLog, fault
 
 pytestmark = pytest.mark.ros
-__all__ = ["drivers"]  # fixture used by the tests below
+__all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 
 STOP_BOUND = 0.1  # s: request → torque off on every servo (the shutdown requirement; the E-stop must be no slower)
 
 
-@pytest.fixture
-def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    emu = make_emulator(tmp_path)
-    yield emu
-    emu.stop()
-
 
 def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_it(emulator, drivers, ros_node) -> None:
-    drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
-    services = DriverServices(ros_node)
+    drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
+    assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
+    services = dh.DriverServices(ros_node)
     diagnostics = DiagnosticsLog(ros_node)
     latched: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: latched.append(m.data), qos.LATCHED)
@@ -56,17 +39,17 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     def drive(phi1: float, phi2: float, seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            pub.publish(command(phi1, phi2))
+            pub.publish(dh.command(phi1, phi2))
             time.sleep(0.02)
 
     drive(0.5, 0.5, 0.3)
-    assert goal_writes(emulator), "commands did not reach the servos before the E-stop"
+    assert dh.goal_writes(emulator), "commands did not reach the servos before the E-stop"
 
     # 1. Service: torque off at once, latched True, commands ignored, set_torque and estop_request False refused.
     response, sent = services.call("estop")
     assert response.success and "torque off confirmed" in response.message, response.message
-    off = torque_off_time(emulator, sent)
-    assert off is not None and torque(emulator) == {False}
+    off = dh.torque_off_time(emulator, sent)
+    assert off is not None and dh.torque(emulator) == {False}
     service_latency = off - sent
     assert service_latency < STOP_BOUND, f"E-stop took {service_latency * 1e3:.1f} ms"
     assert wait_until(lambda: latched[-1:] == [True], timeout=10.0)
@@ -76,8 +59,8 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     answer = services.set_torque(True)
     assert not answer.success and "clear_estop" in answer.message
     time.sleep(0.2)
-    assert goal_writes(emulator, quiet_since) == [], "a goal was written during the E-stop"
-    assert torque_on_time(emulator, quiet_since) is None and torque(emulator) == {False}
+    assert dh.goal_writes(emulator, quiet_since) == [], "a goal was written during the E-stop"
+    assert dh.torque_on_time(emulator, quiet_since) is None and dh.torque(emulator) == {False}
     late: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: late.append(m.data), qos.LATCHED)
     assert wait_until(lambda: late == [True], timeout=10.0), f"a late subscriber got {late}"
@@ -91,42 +74,43 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     # 2. clear_estop: torque on holding the present positions, latched False, commands followed again.
     response, sent = services.call("clear_estop")
     assert response.success, response.message
-    on = torque_on_time(emulator, sent)
-    assert on is not None and torque(emulator) == {True}
+    on = dh.torque_on_time(emulator, sent)
+    assert on is not None and dh.torque(emulator) == {True}
     assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
     resumed = time.monotonic()
     drive(1.0, 1.0, 0.3)
-    assert goal_writes(emulator, resumed), "commands not followed after clear_estop"
+    assert dh.goal_writes(emulator, resumed), "commands not followed after clear_estop"
     fault("E-stop clear", "clear_estop re-enables torque holding the present positions, /estop False, phi_cmd "
           "followed again", on - sent)
 
     # 3. estop_request True (button / GUI): same stop; a hardware error makes clear_estop refuse and stay latched.
     sent = time.monotonic()
     request_pub.publish(Bool(data=True))
-    assert wait_until(lambda: torque_off_time(emulator, sent) is not None, 2.0), "estop_request True did not stop"
-    topic_latency = torque_off_time(emulator, sent) - sent
+    assert wait_until(lambda: dh.torque_off_time(emulator, sent) is not None, 2.0), "estop_request True did not stop"
+    topic_latency = dh.torque_off_time(emulator, sent) - sent
     assert topic_latency < STOP_BOUND, f"E-stop by topic took {topic_latency * 1e3:.1f} ms"
     assert wait_until(lambda: latched[-1:] == [True], timeout=10.0)
     emulator.set_hardware_error(22, HW_OVERLOAD)
     assert wait_until(lambda: bool(driver.log("hardware error")), 5.0), driver.output()
     response, _ = services.call("clear_estop")
-    assert not response.success and "overload" in response.message and torque(emulator) == {False}
+    assert not response.success and "overload" in response.message
+    assert dh.torque(emulator) == {False}
     assert latched[-1] is True
     emulator.set_hardware_error(22, 0)  # what a reboot does to the error
     assert wait_until(lambda: bool(driver.log("hardware errors cleared")), 5.0), driver.output()
     response, sent = services.call("clear_estop")
-    assert response.success and torque(emulator) == {True}, response.message
+    assert response.success and dh.torque(emulator) == {True}, response.message
     assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
     fault("E-stop request topic", f"estop_request True: torque off in {topic_latency * 1e3:.1f} ms; clear_estop "
           "refused while a servo reports overload (stays latched), accepted after the error cleared",
-          torque_on_time(emulator, sent) - sent)
+          dh.torque_on_time(emulator, sent) - sent)
     assert driver.proc.poll() is None
 
 
 def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(emulator, drivers, ros_node) -> None:
-    drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
-    services = DriverServices(ros_node)
+    drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
+    assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
+    services = dh.DriverServices(ros_node)
     emulator.unplug()
     assert wait_until(lambda: bool(driver.log("bus lost")), 5.0), driver.output()
     response, _ = services.call("estop")
@@ -137,8 +121,8 @@ def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(emulator
     emulator.replug()
     assert wait_until(lambda: bool(driver.log("bus reconnected")), 10.0), driver.output()
     time.sleep(0.3)
-    assert torque_on_time(emulator, replugged) is None and torque(emulator) == {False}, "torque on during E-stop"
+    assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}, "torque on during E-stop"
     response, sent = services.call("clear_estop")
-    assert response.success and torque(emulator) == {True}, response.message
+    assert response.success and dh.torque(emulator) == {True}, response.message
     fault("E-stop with the bus unplugged", "latched without bus access, clear refused while disconnected, torque "
-          "stays off through the reconnect", torque_on_time(emulator, sent) - sent)
+          "stays off through the reconnect", dh.torque_on_time(emulator, sent) - sent)

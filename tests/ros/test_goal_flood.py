@@ -10,43 +10,24 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
-from hsa_sim_node.mx28_emulator import MX28Emulator
-from tests.ros.driver_harness import (
-    IDS,
-    PHI_MAX,
-    TICKS_PER_RAD,
-    DriverProcess,
-    clamp_range,
-    command,
-    drivers,
-    goal_writes,
-    make_emulator,
-    torque,
-    wait_until,
-)
+from tests.ros import driver_harness as dh
+from tests.ros.conftest import wait_until
+from tests.ros.driver_fixtures import drivers, emulator
 from tests.ros.faults import DiagnosticsLog, fault
 
 pytestmark = pytest.mark.ros
-__all__ = ["drivers"]  # fixture used by the tests below
+__all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 
 NO_LOAD_SPEED = 55.0 * 2.0 * math.pi / 60.0  # rad/s, MX-28 at 12 V
 DOCUMENTED_RATE = 2.0 * NO_LOAD_SPEED  # the documented default max_goal_rate
 FLOOD_S = 2.0
 SLACK_S = 0.05  # s: pty delivery jitter between the driver's clock and the emulator's stamps, under load
 
-
-@pytest.fixture
-def emulator(tmp_path: Path) -> Iterator[MX28Emulator]:
-    emu = make_emulator(tmp_path)
-    yield emu
-    emu.stop()
 
 
 def flood(pub, make, seconds: float) -> int:
@@ -60,48 +41,48 @@ def flood(pub, make, seconds: float) -> int:
 
 
 def test_full_range_flood_is_rate_limited_by_default(emulator, drivers, ros_node) -> None:
-    drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
+    drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
+    assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)  # reliable
     assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
     began = time.monotonic()
-    sent = flood(pub, lambda k: command(*(2 * [PHI_MAX if k % 2 else 0.0])), FLOOD_S)
+    sent = flood(pub, lambda k: dh.command(*(2 * [dh.PHI_MAX if k % 2 else 0.0])), FLOOD_S)
     ended = time.monotonic()
     time.sleep(0.3)
-    writes = [w for w in goal_writes(emulator, began) if w.time <= ended + SLACK_S]
+    writes = [w for w in dh.goal_writes(emulator, began) if w.time <= ended + SLACK_S]
     worst_path = span = 0.0
-    for dxl_id in IDS:
+    for dxl_id in dh.IDS:
         series = [(w.time, w.value) for w in writes if w.dxl_id == dxl_id]
         assert len(series) > 20, f"ID {dxl_id}: only {len(series)} goals during the flood"
-        low, high = clamp_range(dxl_id)
+        low, high = dh.clamp_range(dxl_id)
         assert all(low <= g <= high for _, g in series)
         for i, (t_i, g_i) in enumerate(series):
             for t_j, g_j in series[i + 1:]:
-                assert abs(g_j - g_i) <= DOCUMENTED_RATE * TICKS_PER_RAD * (t_j - t_i + 2 * SLACK_S) + 1, \
+                assert abs(g_j - g_i) <= DOCUMENTED_RATE * dh.TICKS_PER_RAD * (t_j - t_i + 2 * SLACK_S) + 1, \
                     f"ID {dxl_id}: {g_i} -> {g_j} in {t_j - t_i:.3f} s exceeds {DOCUMENTED_RATE:.2f} rad/s"
-        path = sum(abs(b[1] - a[1]) for a, b in zip(series, series[1:])) / TICKS_PER_RAD
+        path = sum(abs(b[1] - a[1]) for a, b in zip(series, series[1:])) / dh.TICKS_PER_RAD
         assert path <= DOCUMENTED_RATE * (ended - began + 2 * SLACK_S), f"ID {dxl_id}: goals travelled {path:.1f} rad"
         worst_path = max(worst_path, path)
-        span = max(span, (max(g for _, g in series) - min(g for _, g in series)) / TICKS_PER_RAD)
-    fault(f"1 kHz phi_cmd flood of full-range swings ({sent} in {FLOOD_S:.0f} s)", f"{len(writes) // len(IDS)} goal "
+        span = max(span, (max(g for _, g in series) - min(g for _, g in series)) / dh.TICKS_PER_RAD)
+    fault(f"1 kHz phi_cmd flood of full-range swings ({sent} in {FLOOD_S:.0f} s)", f"{len(writes) // len(dh.IDS)} goal "
           f"writes per motor, goal speed <= {DOCUMENTED_RATE:.2f} rad/s by default (path {worst_path:.1f} rad, span "
-          f"{span:.2f} rad of the {PHI_MAX:.2f} rad range)", "none needed")
+          f"{span:.2f} rad of the {dh.PHI_MAX:.2f} rad range)", "none needed")
 
 
 def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros_node) -> None:
-    drivers.append(driver := DriverProcess(emulator.port).wait_ready())
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), driver.output()
+    drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
+    assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
     diagnostics = DiagnosticsLog(ros_node)
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
     began = time.monotonic()
-    sent = flood(pub, lambda k: command(math.nan if k % 2 else math.inf, 0.5), FLOOD_S)
+    sent = flood(pub, lambda k: dh.command(math.nan if k % 2 else math.inf, 0.5), FLOOD_S)
     after = ros_node.get_clock().now().nanoseconds
     _, values = diagnostics.wait("dynamixel_driver: control", lambda s, v: int(v["rejected"]) >= 100,
                                  after_ns=after, timeout=10.0)
     lines = driver.log("non-finite phi")
     assert 1 <= len(lines) <= 2, f"{len(lines)} log lines for {sent} rejected commands:\n{''.join(lines[:5])}"
-    assert not goal_writes(emulator, began), "a non-finite command reached the bus"
+    assert not dh.goal_writes(emulator, began), "a non-finite command reached the bus"
     fault(f"1 kHz flood of non-finite phi_cmd ({sent} in {FLOOD_S:.0f} s)", f"{values['rejected']} rejected "
           f"(counted in /diagnostics), {len(lines)} WARN lines (throttled to one per 5 s), no goal written",
           "none needed")

@@ -19,8 +19,9 @@ import pytest
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
 from tests.ros.conftest import PEERS, CollectedProcess, start_process, stop_process, wait_for_line
-from tests.ros.driver_harness import (IDS, NEUTRAL, NEUTRAL_PARAM, DriverProcess, command, drivers, make_emulator,
-                                     torque, torque_off_time, wait_until)
+from tests.ros.driver_fixtures import drivers
+from tests.ros.driver_harness import (IDS, NEUTRAL, NEUTRAL_PARAM, DriverProcess, command, make_emulator, torque,
+                                     torque_off_time, wait_until)
 from tests.ros.faults import BEST_EFFORT, fault
 
 pytestmark = pytest.mark.ros

@@ -11,9 +11,10 @@ import functools
 from typing import Any
 
 from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC
-from hsa_common.parameters import ParameterValidationError, ParamSpec
+from hsa_common.parameters import ParameterValidationError, ParamSpec, typed
 from hsa_controller_node import scheduling
-from hsa_core.control import ControllerKind, EeIntegralGains, default_gains
+from hsa_core.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains, Tuning,
+                              default_gains)
 from hsa_core.planning import MAX_OPTIMALITY_ERROR
 from hsa_core.profiles import VelocityEstimator
 from hsa_core.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
@@ -117,3 +118,25 @@ def check_combination(p: dict[str, Any]) -> None:
     if p["ee_integral"] and ControllerKind(p["controller"]) is ControllerKind.PID:
         raise ParameterValidationError("parameter 'ee_integral' applies to the collocated laws only, not 'pid'")
 
+
+def gains(kind: ControllerKind, p: dict[str, Any]) -> CollocatedGains | PidGains:
+    """The law's gains: kp, ki, kd, gamma (collocated laws) or kp_pid, ki_pid, kd_pid."""
+    if kind is ControllerKind.PID:
+        return typed(PidGains, p, kp="kp_pid", ki="ki_pid", kd="kd_pid")
+    return typed(CollocatedGains, p)
+
+
+def ee_gains(p: dict[str, Any]) -> EeIntegralGains:
+    """The EE-integral gains: ee_ki, ee_e_on, ee_z_max, ee_reset_on_setpoint_change."""
+    return typed(EeIntegralGains, p, ki_ee="ee_ki", e_on="ee_e_on", z_max="ee_z_max",
+                 reset_on_setpoint_change="ee_reset_on_setpoint_change")
+
+
+def tuning(kind: ControllerKind, p: dict[str, Any]) -> Tuning:
+    """What a run-time update may change on the running controller; a bad gain is a
+    ParameterValidationError."""
+    law, ee = gains(kind, p), ee_gains(p)
+    try:
+        return Tuning(law, ee, bool(p["reset_integral_on_setpoint_change"]))
+    except ValueError as exc:
+        raise ParameterValidationError(f"controller gains: {exc}") from exc

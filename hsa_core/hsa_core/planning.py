@@ -370,7 +370,7 @@ class Planner:
         """
         p, no_iter = np.array([0.0, float(self.params.l)]), np.asarray(0, dtype=np.int32)
         x0 = np.concatenate([[0.0], self._phi_mid])
-        if self.kind is not PlannerKind.EQUILIBRIUM:  # the rollout planner is seeded by static inversion
+        if self.kind is not PlannerKind.EQUILIBRIUM:  # rollout: seeded by static inversion
             jax.block_until_ready(_solve_static(self.params, p, x0, self._x_lo, self._x_hi, no_iter))
         if self.kind is PlannerKind.ROLLOUT:
             s0 = _lm_init(self._phi_mid, jnp.zeros(3), self._phi_lo, self._phi_hi, 2)

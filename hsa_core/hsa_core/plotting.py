@@ -105,14 +105,15 @@ class RunLabel:
 
 def subplots(*args: Any, figsize: tuple[float, float] | None = None, layout: str | None = None,
              **kwargs: Any) -> tuple[Figure, Any]:
-    """A figure and its axes, as ``pyplot.subplots`` takes them, made without pyplot: no backend is chosen and
-    nothing global changes; ``savefig`` picks the writer of each file's format."""
+    """A figure and its axes, as ``pyplot.subplots`` takes them, made without pyplot: no
+    backend is chosen and nothing global changes; ``savefig`` picks each format's writer."""
     fig = Figure(figsize=figsize, layout=layout)
     return fig, fig.subplots(*args, **kwargs)
 
 
 def save(fig: Figure, path: Path | str) -> Path:
-    """Lay out and write a figure (creating missing directories) in the format of ``path``; returns it."""
+    """Lay out and write a figure (creating missing directories) in ``path``'s format; returns
+    the path."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -186,8 +187,8 @@ def _panel_grid(n: int, height: float = 1.9) -> tuple[Figure, list[Axes]]:
     """A grid of n panels, STEP_COLUMNS wide, spare panels removed."""
     cols = min(n, STEP_COLUMNS)
     rows = math.ceil(n / cols)
-    fig, axes = subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.8), squeeze=False, sharex=True,
-                             layout="constrained")
+    fig, axes = subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.8), squeeze=False,
+                         sharex=True, layout="constrained")
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.remove()
@@ -272,7 +273,8 @@ def _path_axes(ax: Axes) -> None:
     ax.legend(loc="best")
 
 
-def actuation_figure(log: RunLog, label: RunLabel, phi_max: float | Sequence[float] | None = None) -> Figure:
+def actuation_figure(log: RunLog, label: RunLabel,
+                     phi_max: float | Sequence[float] | None = None) -> Figure:
     """φ₁, φ₂: command (saturated), measured, φ^ss (laws that have it) and the limits [0, φ_max]."""
     limits = _phi_max(log, phi_max)
     fig, axes = _figure(2, 5.2)
@@ -421,8 +423,8 @@ def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> F
     """Every run's path in the x–y plane over the setpoints or reference paths (each distinct one)."""
     points = np.concatenate([np.concatenate([log.chiee[:, :2], log.chiee_des[:, :2]]) for log in logs])
     width, height = np.ptp(points, axis=0) + 1e-3  # m; the plane's height for the width, legend below
-    fig, ax = subplots(figsize=(6.5, float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)),
-                           layout="constrained")
+    fig_height = float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)
+    fig, ax = subplots(figsize=(6.5, fig_height), layout="constrained")
     for i, (log, label) in enumerate(zip(logs, labels)):
         ax.plot(log.chiee[:, 0] * MM, log.chiee[:, 1] * MM, color=f"C{i}", lw=0.8, label=label.short, gid=f"run:{i}")
     for i, color, whose in _references(logs, labels):

@@ -1,9 +1,9 @@
-"""Refused inputs as typed values: the reason (an enum member, for counters) carried with the one-line text (for
-logs and /diagnostics).
+"""Refused inputs as typed values: the reason (an enum member, for counters) carried with the
+one-line text (for logs and /diagnostics).
 
-A :class:`Refusal` is a ``str`` (the text), so that whoever shows it needs nothing more; whoever counts refusals
-keys by :attr:`Refusal.reason`, never by parsing the text. Each part that refuses inputs has its own reasons
-(:class:`StateRejection` here; :class:`hsa_core.validation.SetpointRejection`,
+A :class:`Refusal` is a ``str`` (the text), so whoever shows it needs nothing more; whoever counts
+refusals keys by :attr:`Refusal.reason`, never by parsing the text. Each part that refuses inputs
+has its own reasons (:class:`StateRejection` here; :class:`hsa_core.validation.SetpointRejection`,
 :class:`hsa_core.mocap_gate.Rejection`); their values are the names shown on /diagnostics.
 """
 
@@ -30,8 +30,8 @@ class Refusal(str):
 
 
 class StateRejection(enum.StrEnum):
-    """Why the controller refuses a measured state: implausible values (hsa_core.validation.state_problem) or its
-    stamp's order (hsa_core.supervision.Supervisor.state)."""
+    """Why the controller refuses a measured state: implausible values
+    (hsa_core.validation.state_problem) or its stamp's order (Supervisor.state)."""
 
     NON_FINITE_POSE = "non-finite pose or configuration"
     IMPLAUSIBLE_POSE = "implausible pose or configuration"

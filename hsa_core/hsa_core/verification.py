@@ -177,7 +177,7 @@ def format_table(results: dict[str, Verification]) -> str:
 def plot(result: Verification, path: Path, window: tuple[float, float] | None = (0.0, 4.0), title: str = "") -> Path:
     """The paper's verification figure: strains (kappa left, sigma_sh and sigma_ax right) and EE pose (x, y in mm
     left, theta right), measured solid, simulated dashed, over `window` s (None: the whole record)."""
-    from hsa_core.plotting import save, subplots  # matplotlib is imported only when a figure is drawn
+    from hsa_core.plotting import save, subplots  # matplotlib only where a figure is drawn
 
     t = result.t
     if window is None:

@@ -96,7 +96,7 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
     """
     from matplotlib import colormaps
 
-    from hsa_core.plotting import save, subplots  # matplotlib is imported only when a figure is drawn
+    from hsa_core.plotting import save, subplots  # matplotlib only where a figure is drawn
 
     fig, ax = subplots(figsize=(6.5, 6.5))
     pts = wmap.chiee.reshape(-1, 3)

@@ -1,5 +1,5 @@
-"""hsa_core.cli: the shared argument types refuse what the CLIs' docs refuse, and a refusal is one line on
-stderr with exit status 2."""
+"""hsa_core.cli: the shared argument types refuse what the CLIs' docs refuse, and a refusal is
+one line on stderr with exit status 2."""
 
 from __future__ import annotations
 
@@ -61,8 +61,9 @@ def test_a_bad_argument_is_one_line_on_stderr_and_exit_2(capsys) -> None:
 
 
 def test_unknown_arguments_and_non_numbers_are_refused_the_same_way(capsys) -> None:
+    not_an_int = "argument --plants: invalid positive_int value: 'many'"
     for args, message in ((["--speed", "1"], "unrecognized arguments: --speed 1"),
-                          (["--plants", "many"], "argument --plants: invalid positive_int value: 'many'")):
+                          (["--plants", "many"], not_an_int)):
         with pytest.raises(SystemExit) as done:
             _parser().parse_args(args)
         assert done.value.code == 2
@@ -70,4 +71,5 @@ def test_unknown_arguments_and_non_numbers_are_refused_the_same_way(capsys) -> N
 
 
 def test_good_arguments_parse() -> None:
-    assert vars(_parser().parse_args(["--rate", "100", "--plants", "3"])) == {"rate": 100.0, "plants": 3}
+    parsed = _parser().parse_args(["--rate", "100", "--plants", "3"])
+    assert vars(parsed) == {"rate": 100.0, "plants": 3}

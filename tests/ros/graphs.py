@@ -1,5 +1,5 @@
-"""Graph set-ups shared by the ROS tests: node groups started together (they compile in parallel), each stopped
-cleanly (exit 0) at the end of its test module."""
+"""Graph set-ups shared by the ROS tests: node groups started together (they compile in
+parallel), each stopped cleanly (exit 0) at the end of its test module."""
 
 from __future__ import annotations
 
@@ -17,9 +17,10 @@ def stop_all(procs: dict[str, NodeProcess]) -> None:
 
 def estimation_graph(ns: str, controller: Sequence[str] = (),
                      **more: tuple[str, Sequence[str]]) -> Iterator[dict[str, NodeProcess]]:
-    """mocap_bridge (platform poses on ``<ns>/mocap/platform/pose``), kinematics_node and controller_node
-    (FPU, P-satI-D, no driver in the graph, ``controller`` arguments added) in ``ns``, diagnostics at 5 Hz,
-    and the ``more`` nodes (key: executable, arguments); a module fixture yields from it."""
+    """mocap_bridge (platform poses on ``<ns>/mocap/platform/pose``), kinematics_node and
+    controller_node (FPU, P-satI-D, no driver in the graph, ``controller`` arguments added) in
+    ``ns``, diagnostics at 5 Hz, and the ``more`` nodes (key: executable, arguments); a module
+    fixture yields from it."""
     common = ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ]
     procs = start_all({
         "bridge": ("mocap_bridge", [*common, "-p", f"platform_topic:={ns}/mocap/platform/pose"]),
@@ -32,8 +33,8 @@ def estimation_graph(ns: str, controller: Sequence[str] = (),
 
 
 def controller_alone(ns: str) -> Iterator[NodeProcess]:
-    """controller_node (FPU, P-satI-D, 40 Hz) in ``ns`` without a driver, diagnostics at 5 Hz; a module
-    fixture yields from it."""
+    """controller_node (FPU, P-satI-D, 40 Hz) in ``ns`` without a driver, diagnostics at 5 Hz;
+    a module fixture yields from it."""
     procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ,
                                                           "-p", "driver_timeout:=0.0"])})
     yield procs["controller"]

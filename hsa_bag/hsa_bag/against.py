@@ -17,13 +17,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
 from hsa_bag.analysis import FIGURES, STEP_RUN_DURATION, TOPIC, load_run, run_name
 from hsa_bag.bagio import BagError
 from hsa_core import reference, sim_to_real
-from hsa_core.plotting import save_all_formats
+from hsa_core.plotting import save_all_formats, subplots
 from hsa_core.sim_to_real import StepRun, StepTable
 
 
@@ -128,7 +127,7 @@ SETPOINT_STYLE = {"color": "k", "lw": 0.8, "ls": "--"}
 
 def xy_figure(result: Against, folder: Path) -> list[Path]:
     """x and y [mm] over time: run, reference and the run's setpoints; each run's step instants as thin lines."""
-    fig, axes = plt.subplots(2, 1, sharex=True, figsize=(7.5, 4.6), layout="constrained")
+    fig, axes = subplots(2, 1, sharex=True, figsize=(7.5, 4.6), layout="constrained")
     run, ref = result.run.run, result.ref.run
     for axis, (ax, label) in enumerate(zip(axes, ("x", "y"))):
         keep = ref.t < ref.end
@@ -155,8 +154,8 @@ def steps_figure(result: Against, folder: Path) -> list[Path]:
     table = result.steps
     n = len(table.steps)
     cols = 5
-    fig, axes = plt.subplots(-(-n // cols), cols, sharex=True, sharey=True, figsize=(10.0, 4.4), layout="constrained",
-                             squeeze=False)
+    fig, axes = subplots(-(-n // cols), cols, sharex=True, sharey=True, figsize=(10.0, 4.4),
+                         layout="constrained", squeeze=False)
     offsets = np.arange(round(sim_to_real.HORIZON / sim_to_real.GRID)) * sim_to_real.GRID
     errors = []
     for source in (result.run, result.ref):

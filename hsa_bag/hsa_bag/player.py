@@ -61,7 +61,7 @@ from hsa_bag.qos import publisher_profile
 from hsa_common import convert, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_core.lockstep import Barrier
-from hsa_core.playback import LockstepPlayback
+from hsa_core.playback import Action, LockstepPlayback
 from hsa_msgs.msg import LockstepAck
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -247,18 +247,18 @@ class Player:
             step = playback.step(None if upcoming is None else upcoming[1], matched, time.monotonic())
             if playback.barrier.started and not started:
                 logger.info(f"lockstep: simulated time starts ({len(playback.barrier.reports)} participants)")
-            if step.action == "publish":
+            if step.action is Action.PUBLISH:
                 assert upcoming is not None
                 self.publishers[upcoming[0]].publish(upcoming[2])
                 published += 1
                 upcoming = next(timeline, None)
-            elif step.action in ("lead", "clock"):
-                clock = self.lead if step.action == "lead" else self.clock
+            elif step.action in (Action.LEAD, Action.CLOCK):
+                clock = self.lead if step.action is Action.LEAD else self.clock
                 assert clock is not None and step.t_ns is not None
                 clock.publish(convert.clock_msg(step.t_ns))
-            elif step.action == "done":
+            elif step.action is Action.DONE:
                 break
-            elif step.action == "fail":
+            elif step.action is Action.FAIL:
                 failure = step.reason
                 logger.error(failure)
                 break

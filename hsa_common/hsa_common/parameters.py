@@ -7,15 +7,17 @@ have (a typo in a parameter file or on the command line, which rclpy would silen
 An integer given for a floating-point parameter (``rate:=2``) is taken as the float it spells.
 :func:`guard_updates` installs the on-set callback that refuses out-of-range or read-only updates at run time with a
 reason naming the parameter; the node keeps running with the old value. The callback has no side effects: accepted
-values are applied by the post-set callback the node passes in.
+values are applied by the post-set callback the node passes in. :func:`typed` builds the frozen
+dataclass that ROS-free code takes from the values (no dict of parameters crosses into hsa_core).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
@@ -25,6 +27,7 @@ QOS_OVERRIDES = "qos_overrides."
 """Prefix of the standard QoS override parameters, declared when the publisher or subscription is created."""
 
 Validator = Callable[[Any], str | None]  # returns an error message, or None if the value is acceptable
+T = TypeVar("T")
 
 
 class ParameterValidationError(ValueError):
@@ -100,6 +103,17 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
             f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant for another "
             f"node?); known: {sorted(s.name for s in specs)}")
     return values
+
+
+def typed(cls: type[T], values: Mapping[str, Any], **names: str) -> T:
+    """The dataclass ``cls`` from parameter values: each field takes the parameter of its name, or
+    the one ``names`` gives it; the class's own check (a ValueError) becomes a
+    ParameterValidationError naming those parameters."""
+    fields = {f.name: names.get(f.name, f.name) for f in dataclasses.fields(cls) if f.init}
+    try:
+        return cls(**{name: values[parameter] for name, parameter in fields.items()})
+    except ValueError as exc:
+        raise ParameterValidationError(f"parameters {sorted(fields.values())}: {exc}") from exc
 
 
 def _accept_integer_spelling(node: Node, spec: ParamSpec) -> None:

@@ -46,9 +46,9 @@ from hsa_common.parameters import declare, guard_updates
 from hsa_common.runner import TEARDOWN_NICE, run
 from hsa_controller_node import scheduling
 from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info, tracking_info
-from hsa_controller_node.parameters import SPECS, check_combination
+from hsa_controller_node.parameters import SPECS, check_combination, ee_gains, gains, tuning
 from hsa_controller_node.report import ControlReport
-from hsa_core.control import Controller, ControllerKind, ee_gains_from_parameters, gains_from_parameters, retune
+from hsa_core.control import Controller, ControllerKind, retune
 from hsa_core.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.planning import Setpoint as CoreSetpoint
@@ -70,8 +70,8 @@ class ControllerNode(Node):
         self._kind = ControllerKind(p["controller"])
         params = load_model(p)
         controller = Controller(
-            self._kind, params, gains_from_parameters(self._kind, p), dt=p["integrator_dt"] or 1.0 / p["rate"],
-            ee_integral=ee_gains_from_parameters(p) if p["ee_integral"] else None,
+            self._kind, params, gains(self._kind, p), dt=p["integrator_dt"] or 1.0 / p["rate"],
+            ee_integral=ee_gains(p) if p["ee_integral"] else None,
             reset_integral_on_setpoint_change=p["reset_integral_on_setpoint_change"],
         )
         validator = SetpointValidator(params, p["setpoint_residual_tol"], p["setpoint_pose_tol"])
@@ -123,7 +123,7 @@ class ControllerNode(Node):
         if not changes:
             return
         self._p.update(changes)
-        retune(self._loop.controller, self._p)
+        retune(self._loop.controller, tuning(self._kind, self._p))
         self.get_logger().info(f"parameters updated: {changes}")
 
     def _now_ns(self) -> int:

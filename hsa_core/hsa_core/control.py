@@ -24,7 +24,7 @@ import math
 from collections.abc import Mapping
 from functools import lru_cache, partial
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -104,7 +104,7 @@ def load_gains(path: str | Path, kind: ControllerKind | str) -> CollocatedGains 
     try:
         document = yaml.safe_load(Path(path).read_text())
         values = next(iter(document.values()))["ros__parameters"]
-        gains = gains_from_parameters(kind, {k: float(v) for k, v in values.items() if not isinstance(v, str)})
+        gains = _gains(kind, {k: float(v) for k, v in values.items() if not isinstance(v, str)})
     except (OSError, yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: not a gains file for {ControllerKind(kind).value} ({exc!r})") from exc
     validate_gains(gains)
@@ -117,26 +117,40 @@ def default_gains(kind: ControllerKind | str, material: str = "fpu") -> Collocat
     return load_gains(gains_file(kind, material), kind)
 
 
-def gains_from_parameters(kind: ControllerKind | str, values: Mapping[str, Any]) -> CollocatedGains | PidGains:
-    """The law's gains from flat parameter values: kp, ki, kd, gamma (collocated laws) or kp_pid, ki_pid, kd_pid."""
+def _gains(kind: ControllerKind | str, values: Mapping[str, float]) -> CollocatedGains | PidGains:
+    """The law's gains from a gains file's values: kp, ki, kd, gamma (collocated laws) or kp_pid,
+    ki_pid, kd_pid."""
     if ControllerKind(kind) is ControllerKind.PID:
         return PidGains(kp=values["kp_pid"], ki=values["ki_pid"], kd=values["kd_pid"])
     return CollocatedGains(kp=values["kp"], ki=values["ki"], kd=values["kd"], gamma=values["gamma"])
 
 
-def ee_gains_from_parameters(values: Mapping[str, Any]) -> EeIntegralGains:
-    """EE-integral gains from flat parameter values: ee_ki, ee_e_on, ee_z_max, ee_reset_on_setpoint_change."""
-    return EeIntegralGains(ki_ee=values["ee_ki"], e_on=values["ee_e_on"], z_max=values["ee_z_max"],
-                           reset_on_setpoint_change=values["ee_reset_on_setpoint_change"])
+@dataclasses.dataclass(frozen=True)
+class Tuning:
+    """What a running controller may change: the law's gains, the EE-integral gains (taken only
+    where the extension is on) and the e_int reset flag; a bad gain is a one-line ValueError."""
+
+    gains: CollocatedGains | PidGains
+    ee_gains: EeIntegralGains
+    reset_integral_on_setpoint_change: bool
+
+    def __post_init__(self) -> None:
+        """Refuse gains that are not finite and >= 0 (> 0 for gamma and e_on)."""
+        validate_gains(self.gains)
+        validate_gains(self.ee_gains)
 
 
-def retune(controller: Controller, values: Mapping[str, Any]) -> None:
-    """Give a running controller the gains (EE gains if enabled) and the e_int reset flag of flat parameter values;
-    the integrator state is kept and nothing is recompiled."""
-    controller.gains = gains_from_parameters(controller.kind, values)
+def retune(controller: Controller, tuning: Tuning) -> None:
+    """Give a running controller new gains (EE gains if enabled) and e_int reset flag; the
+    integrator state is kept and nothing is recompiled. Gains of another law are a ValueError."""
+    expected = PidGains if controller.kind is ControllerKind.PID else CollocatedGains
+    if not isinstance(tuning.gains, expected):
+        raise ValueError(f"controller '{controller.kind.value}' needs {expected.__name__}, got "
+                         f"{type(tuning.gains).__name__}")
+    controller.gains = tuning.gains
     if controller.ee_integral is not None:
-        controller.ee_integral = ee_gains_from_parameters(values)
-    controller.reset_integral_on_setpoint_change = bool(values["reset_integral_on_setpoint_change"])
+        controller.ee_integral = tuning.ee_gains
+    controller.reset_integral_on_setpoint_change = tuning.reset_integral_on_setpoint_change
 
 
 def validate_gains(gains: CollocatedGains | PidGains | EeIntegralGains) -> None:

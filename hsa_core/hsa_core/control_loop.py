@@ -43,8 +43,9 @@ from numpy.typing import ArrayLike
 from hsa_core.control import Controller, ControllerInfo, Measurement
 from hsa_core.rate_meter import RateMeter
 from hsa_core.planning import Setpoint
+from hsa_core.refusal import Refusal, StateRejection
 from hsa_core.supervision import Action, Decision, Mode, Supervisor
-from hsa_core.validation import q_bounds, state_problem
+from hsa_core.validation import SetpointRejection, q_bounds, state_problem
 
 DEADLINE_FACTOR = 1.5
 """A tick that starts more than 1.5 periods after the previous one counts as a deadline miss."""
@@ -67,7 +68,7 @@ class Activation:
     """A queued setpoint a tick tried to activate: its tag (e.g. the message) and why it was refused (None: active)."""
 
     tag: Any
-    problem: str | None
+    problem: Refusal | None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,10 +118,10 @@ class Counters:
 
 @dataclasses.dataclass
 class Rejections:
-    """Refused inputs per reason (the text before the first ':') and the newest refusal of each kind ("-": none)."""
+    """Refused inputs per reason and the text of the newest refusal of each kind ("-": none)."""
 
-    states: Counter[str] = dataclasses.field(default_factory=Counter)
-    setpoints: Counter[str] = dataclasses.field(default_factory=Counter)
+    states: Counter[StateRejection] = dataclasses.field(default_factory=Counter)
+    setpoints: Counter[SetpointRejection] = dataclasses.field(default_factory=Counter)
     last_state: str = "-"
     last_setpoint: str = "-"
 
@@ -137,7 +138,7 @@ class ControlLoop:
     """The controller's supervised tick; every method takes the time as int nanoseconds (see the module docstring)."""
 
     def __init__(self, controller: Controller, supervisor: Supervisor, start_ns: int = 0,
-                 check: Callable[[Setpoint], str | None] | None = None) -> None:
+                 check: Callable[[Setpoint], Refusal | None] | None = None) -> None:
         """Wrap a compiled controller and a supervisor; `check` is the physical setpoint check before activation."""
         self.controller, self.supervisor, self._check = controller, supervisor, check
         self._q_bounds = q_bounds(controller.params)
@@ -168,11 +169,11 @@ class ControlLoop:
         self.counters.received_setpoints += count
         self.counters.superseded_setpoints += count
 
-    def refuse_setpoint(self, problem: str) -> None:
-        """A setpoint that arrived but could not be read (e.g. malformed CDR): received, and refused for ``problem``
-        ('reason: detail'); the active setpoint stays."""
+    def refuse_setpoint(self, text: str) -> None:
+        """A setpoint that arrived but could not be read (e.g. malformed CDR): received and refused
+        as undecodable, ``text`` saying why; the active setpoint stays."""
         self.counters.received_setpoints += 1
-        self._refused(problem)
+        self._refused(Refusal(SetpointRejection.UNDECODABLE, text))
 
     @property
     def pending_setpoints(self) -> int:
@@ -180,7 +181,7 @@ class ControlLoop:
         return len(self._intake)
 
     def state(self, stamp_ns: int, now_ns: int, q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
-              chiee_dot: ArrayLike, velocity_valid: bool = True) -> str | None:
+              chiee_dot: ArrayLike, velocity_valid: bool = True) -> Refusal | None:
         """A measured state: why it is refused (counted), or None; only accepted ones with valid velocities are used."""
         problem = state_problem(self._q_bounds, q, q_dot, chiee, chiee_dot, velocity_valid)
         if problem is None and velocity_valid:
@@ -188,7 +189,7 @@ class ControlLoop:
             if problem is None:
                 self._newest = (stamp_ns, Measurement(q, q_dot, chiee, chiee_dot))
         if problem is not None:
-            self.rejections.states[problem.split(":")[0]] += 1
+            self.rejections.states[problem.reason] += 1
             self.rejections.last_state = problem
         return problem
 
@@ -261,20 +262,20 @@ class ControlLoop:
                 self._refused(activation.problem)
         return tuple(tried)
 
-    def _refused(self, problem: str) -> None:
-        """Count a refused setpoint under its reason (the text before the first ':')."""
+    def _refused(self, problem: Refusal) -> None:
+        """Count a refused setpoint under its reason."""
         self.counters.rejected_setpoints += 1
-        self.rejections.setpoints[problem.split(":")[0]] += 1
+        self.rejections.setpoints[problem.reason] += 1
         self.rejections.last_setpoint = problem
 
-    def _problem(self, setpoint: Setpoint) -> str | None:
+    def _problem(self, setpoint: Setpoint) -> Refusal | None:
         """Why a setpoint is refused (physical check, then the law's own checks), or None: it is active now."""
         problem = self._check(setpoint) if self._check is not None else None
         if problem is None:
             try:
                 self.controller.set_setpoint(setpoint)
             except ValueError as exc:
-                problem = str(exc)
+                problem = Refusal(SetpointRejection.LAW, str(exc))
         return problem
 
     def _step(self, now_ns: int, decision: Decision, activated: tuple[Activation, ...]) -> Tick:

@@ -35,6 +35,7 @@ only ≈ 0.24 µs, which limits the relative accuracy of Δt at 200 Hz to ≈ 5e
 
 from __future__ import annotations
 
+import enum
 import functools
 import math
 from dataclasses import dataclass
@@ -43,22 +44,43 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-MODE_REGULAR = "regular"
-MODE_IRREGULAR = "irregular"
-MODE_STARTUP = "startup"
-MODE_NOT_READY = "not_ready"
-MODE_REJECTED = "rejected"
+
+
+class EstimateMode(enum.StrEnum):
+    """How an estimate was obtained (module docstring); values are the names on /diagnostics."""
+
+    REGULAR = "regular"
+    IRREGULAR = "irregular"
+    STARTUP = "startup"
+    NOT_READY = "not_ready"
+    REJECTED = "rejected"
+
+
+class SampleRejection(enum.StrEnum):
+    """Why the estimator rejects a sample; values are the kinematics node's counter names."""
+
+    NON_FINITE = "non-finite stamp or sample"
+    DUPLICATE = "duplicate stamp"
+    OUT_OF_ORDER = "out-of-order stamp"
+
 
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
-    """Result of one estimator update: newest sample, its time derivative (or None) and how it was obtained."""
+    """Result of one estimator update: newest sample, its time derivative (or None) and how it was
+    obtained; ``reason`` says why a sample was rejected (``rejection``) or the window restarted."""
 
     value: np.ndarray | None
     derivative: np.ndarray | None
     ready: bool
-    mode: str
+    mode: EstimateMode
     reason: str = ""
+    rejection: SampleRejection | None = None
+
+
+def _rejected(rejection: SampleRejection, detail: str) -> Estimate:
+    """The estimate of a rejected sample; its reason is the rejection's name and ``detail``."""
+    return Estimate(None, None, False, EstimateMode.REJECTED, f"{rejection}{detail}", rejection)
 
 
 def derivative_coefficients(tau: ArrayLike, order: int) -> np.ndarray:
@@ -128,11 +150,13 @@ class SavitzkyGolayDifferentiator:
         t = float(t)
         # one NaN or inf makes the sum non-finite (a sum is cheaper than np.isfinite(x).all())
         if not (math.isfinite(t) and math.isfinite(x.dot(self._ones))):
-            return Estimate(None, None, False, MODE_REJECTED, "non-finite stamp or sample")
+            return _rejected(SampleRejection.NON_FINITE, "")
         step = t - self._t_last
-        if step <= 0.0:
-            reason = "duplicate stamp" if step == 0.0 else f"out-of-order stamp ({-step:.6g} s older than the newest)"
-            return Estimate(None, None, False, MODE_REJECTED, reason)
+        if step == 0.0:
+            return _rejected(SampleRejection.DUPLICATE, "")
+        if step < 0.0:
+            return _rejected(SampleRejection.OUT_OF_ORDER,
+                             f" ({-step:.6g} s older than the newest)")
         reason = ""
         if self._count and step > self._max_gap:
             reason = f"gap of {step:.6g} s > {self.gap_factor} nominal periods: window restarted"
@@ -155,21 +179,21 @@ class SavitzkyGolayDifferentiator:
         lo = head + 1
         if not self._n_off_grid:
             derivative = self.coefficients.dot(self._x[lo : lo + n_win]) / ((t - self._t[lo]) / (n_win - 1))
-            return Estimate(x, derivative, True, MODE_REGULAR, reason)
+            return Estimate(x, derivative, True, EstimateMode.REGULAR, reason)
         derivative = self._fit_true_stamps(lo, n_win, self.order)
-        return Estimate(x, derivative, True, MODE_IRREGULAR, reason)
+        return Estimate(x, derivative, True, EstimateMode.IRREGULAR, reason)
 
     def _startup(self, x: np.ndarray, n: int, reason: str) -> Estimate:
         """Estimate while the window is filling: nothing, or the optional lower-order fit."""
         if self.startup_order is None or n < self.order + 1:
-            return Estimate(x, None, False, MODE_NOT_READY, reason)
+            return Estimate(x, None, False, EstimateMode.NOT_READY, reason)
         lo = self._head + 1 + self.window - n
         if not self._n_off_grid:
             mean_dt = (self._t[lo + n - 1] - self._t[lo]) / (n - 1)
             derivative = self._startup_coefficients[n].dot(self._x[lo : lo + n]) / mean_dt
         else:
             derivative = self._fit_true_stamps(lo, n, self.startup_order)
-        return Estimate(x, derivative, False, MODE_STARTUP, reason)
+        return Estimate(x, derivative, False, EstimateMode.STARTUP, reason)
 
     def _fit_true_stamps(self, lo: int, n: int, order: int) -> np.ndarray:
         """End-point derivative of a least-squares fit on the true stamps of buffer rows lo … lo+n−1."""

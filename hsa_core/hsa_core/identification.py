@@ -555,9 +555,9 @@ def format_report(result: IdentificationResult, reference: dict[str, float] | No
 
 def plot_fit(result: IdentificationResult, path: Path) -> Path:
     """Figure: measured target b against the fitted A Pi per step and row type (points on the diagonal = perfect)."""
-    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
+    from hsa_core.plotting import save, subplots  # matplotlib only where a figure is drawn
 
-    fig, axes = plt.subplots(1, len(result.fits), figsize=(4.2 * len(result.fits), 4.0))
+    fig, axes = subplots(1, len(result.fits), figsize=(4.2 * len(result.fits), 4.0))
     for ax, (name, fit) in zip(np.atleast_1d(axes), result.fits.items()):
         predicted = fit.b - fit.residuals
         for kind in np.unique(fit.row_types):

@@ -43,8 +43,25 @@ import numpy as np
 
 from hsa_core import mocap
 
-REASONS = ("frame", "non_finite", "quaternion", "stale", "future", "duplicate", "out_of_order", "no_base",
-           "base_stale", "workspace", "jump")
+
+
+class Rejection(enum.StrEnum):
+    """Why the gate rejects a sample (module docstring); values: the bridge's /diagnostics names."""
+
+    FRAME = "frame"
+    NON_FINITE = "non_finite"
+    QUATERNION = "quaternion"
+    STALE = "stale"
+    FUTURE = "future"
+    DUPLICATE = "duplicate"
+    OUT_OF_ORDER = "out_of_order"
+    NO_BASE = "no_base"
+    BASE_STALE = "base_stale"
+    WORKSPACE = "workspace"
+    JUMP = "jump"
+
+
+REASONS = tuple(Rejection)
 """Rejection reasons of platform samples in check order."""
 
 BASE_REASONS = REASONS[:7]
@@ -100,7 +117,7 @@ class Sample(NamedTuple):
 class Verdict(NamedTuple):
     """Outcome of one check: reason None when accepted (chiee set for a platform sample), else the reason and a text."""
 
-    reason: str | None
+    reason: Rejection | None
     text: str
     chiee: np.ndarray | None = None
 
@@ -178,20 +195,21 @@ class MocapGate:
             return verdict
         mode = self.base_mode(now_ns, sample.stamp_ns)
         if mode is BaseMode.WAITING:
-            return Verdict("no_base", "no valid base pose yet")
+            return Verdict(Rejection.NO_BASE, "no valid base pose yet")
         if mode is BaseMode.STALE:
-            return Verdict("base_stale", f"newest valid base pose {self.base_age(now_ns, sample.stamp_ns):.3g} s old "
-                                         f"(base_timeout {self.config.base_timeout} s)")
+            age = self.base_age(now_ns, sample.stamp_ns)
+            return Verdict(Rejection.BASE_STALE, f"newest valid base pose {age:.3g} s old "
+                                                 f"(base_timeout {self.config.base_timeout} s)")
         base_position, base_quaternion = self.base if mode is BaseMode.LIVE else (self.base_position, None)
         chiee = mocap.world_to_planar(base_position, sample.position, sample.quaternion, self.chain, base_quaternion)
         problem = self.config.workspace.problem(chiee)
         if problem:
-            return Verdict("workspace", problem)
+            return Verdict(Rejection.WORKSPACE, problem)
         if self.last_chiee is not None:
             problem = mocap.jump_problem(self.last_chiee, chiee, (sample.stamp_ns - self.last_stamp_ns) * 1e-9,
                                          self.config.max_speed, self.config.max_angular_speed)
             if problem:
-                return Verdict("jump", problem)
+                return Verdict(Rejection.JUMP, problem)
         self.last_stamp_ns, self.last_at_ns, self.last_chiee = sample.stamp_ns, now_ns, chiee
         return Verdict(None, "", chiee)
 
@@ -209,22 +227,25 @@ class MocapGate:
         if they pass."""
         c = self.config
         if sample.frame_id != c.frame_id:
-            return Verdict("frame", f"frame_id {sample.frame_id!r}, expected {c.frame_id!r}")
+            return Verdict(Rejection.FRAME,
+                           f"frame_id {sample.frame_id!r}, expected {c.frame_id!r}")
         if mocap.pose_problem(sample.position, sample.quaternion, norm_tol=math.inf):  # checks finiteness only
-            return Verdict("non_finite", "non-finite position or quaternion")
+            return Verdict(Rejection.NON_FINITE, "non-finite position or quaternion")
         problem = mocap.pose_problem(sample.position, sample.quaternion, c.quaternion_tolerance)
         if problem:
-            return Verdict("quaternion", problem)
+            return Verdict(Rejection.QUATERNION, problem)
         age = (now_ns - sample.stamp_ns) * 1e-9
         if c.max_age and age > c.max_age:
-            return Verdict("stale", f"stamp {age:.3g} s old (max_age {c.max_age} s)")
+            return Verdict(Rejection.STALE, f"stamp {age:.3g} s old (max_age {c.max_age} s)")
         if -age > c.max_future:
-            return Verdict("future", f"stamp {-age:.3g} s ahead of the clock (max_future {c.max_future} s)")
+            return Verdict(Rejection.FUTURE,
+                           f"stamp {-age:.3g} s ahead of the clock (max_future {c.max_future} s)")
         if last_ns is not None and sample.stamp_ns == last_ns:
-            return Verdict("duplicate", "stamp equals the newest accepted one")
+            return Verdict(Rejection.DUPLICATE, "stamp equals the newest accepted one")
         if last_ns is not None and sample.stamp_ns < last_ns:
-            return Verdict("out_of_order", f"stamp {(last_ns - sample.stamp_ns) * 1e-9:.3g} s older than the newest "
-                                           "accepted")
+            behind = (last_ns - sample.stamp_ns) * 1e-9
+            return Verdict(Rejection.OUT_OF_ORDER,
+                           f"stamp {behind:.3g} s older than the newest accepted")
         return None
 
 

@@ -40,8 +40,18 @@ from hsa_core import dynamics, kinematics, resultcache, simulation
 from hsa_core.params import HsaParams
 from hsa_core.reachability import ReachabilityRegion, boundary_phis
 
-PLANNER_KINDS = ("static", "equilibrium", "rollout")
-DEFAULT_PLANNER = {"fpu": "static", "epu": "static"}
+
+
+class PlannerKind(enum.StrEnum):
+    """Which solver plans a setpoint (§2); values are the names on the ROS interface."""
+
+    STATIC = "static"
+    EQUILIBRIUM = "equilibrium"
+    ROLLOUT = "rollout"
+
+
+PLANNER_KINDS = tuple(kind.value for kind in PlannerKind)
+DEFAULT_PLANNER = {"fpu": PlannerKind.STATIC, "epu": PlannerKind.STATIC}
 """Default planner per material; unknown materials use "static"."""
 
 MAX_OPTIMALITY_ERROR = 1e-3
@@ -96,7 +106,7 @@ class PlanResult:
     optimality_error: float
     iterations: int
     solve_time_s: float
-    planner: str
+    planner: PlannerKind
 
 
 class _LmState(NamedTuple):
@@ -330,19 +340,19 @@ class Planner:
     def __init__(
         self,
         params: HsaParams,
-        kind: str | None = None,
+        kind: PlannerKind | str | None = None,
         *,
         max_optimality_error: float = MAX_OPTIMALITY_ERROR,
         max_iter: int = 100,
     ) -> None:
         """Select the planner (default per material), build the reachability region and compile the solvers."""
-        kind = DEFAULT_PLANNER.get(params.material, "static") if kind is None else kind
+        kind = DEFAULT_PLANNER.get(params.material, PlannerKind.STATIC) if kind is None else kind
         if kind not in PLANNER_KINDS:
             raise ValueError(f"unknown planner kind {kind!r}; expected one of {PLANNER_KINDS}")
         if not max_optimality_error > 0.0:
             raise ValueError(f"max_optimality_error must be > 0, got {max_optimality_error!r}")
         self.params = params
-        self.kind = kind
+        self.kind = PlannerKind(kind)
         self.max_optimality_error = float(max_optimality_error)
         self._max_iter = np.asarray(max_iter, dtype=np.int32)
         self._phi_lo, self._phi_hi = params.phi_limit.box
@@ -360,15 +370,15 @@ class Planner:
         """
         p, no_iter = np.array([0.0, float(self.params.l)]), np.asarray(0, dtype=np.int32)
         x0 = np.concatenate([[0.0], self._phi_mid])
-        if self.kind in ("static", "rollout"):  # the rollout planner is seeded by static inversion
+        if self.kind is not PlannerKind.EQUILIBRIUM:  # rollout: seeded by static inversion
             jax.block_until_ready(_solve_static(self.params, p, x0, self._x_lo, self._x_hi, no_iter))
-        if self.kind == "rollout":
+        if self.kind is PlannerKind.ROLLOUT:
             s0 = _lm_init(self._phi_mid, jnp.zeros(3), self._phi_lo, self._phi_hi, 2)
             x_t, dx = _lm_propose_jit(s0, self._phi_lo, self._phi_hi)
             _lm_accept_jit(s0, x_t, dx, s0.r, s0.J, s0.aux, ftol=ROLLOUT_FTOL, xtol=ROLLOUT_XTOL)
             rollout_steady_state.lower(self.params, self._phi_mid).compile()
             jax.block_until_ready(_solve_rollout(self.params, p, self._phi_mid, self._phi_lo, self._phi_hi, 0))
-        if self.kind == "equilibrium":
+        if self.kind is PlannerKind.EQUILIBRIUM:
             args = (self.params, p, self._phi_mid, np.zeros(3), self._phi_lo, self._phi_hi, no_iter)
             jax.block_until_ready(_solve_equilibrium(*args))
 
@@ -425,7 +435,7 @@ class Planner:
         ends at the static equilibrium, §2.3), reached with one or two rollouts instead of several LM iterations.
         """
         phi0 = self._phi_mid if warm is None else warm[0][1:]
-        if self.kind == "equilibrium":
+        if self.kind is PlannerKind.EQUILIBRIUM:
             q0 = np.zeros(3) if warm is None else warm[1]
             sol = _solve_equilibrium(self.params, p, phi0, q0, self._phi_lo, self._phi_hi, self._max_iter)
             if self._acceptable(sol):
@@ -434,7 +444,7 @@ class Planner:
             return rollout, int(sol.iterations) + int(rollout.iterations)
         x0 = np.concatenate([[0.0], phi0]) if warm is None else warm[0]
         sol = _solve_static(self.params, p, x0, self._x_lo, self._x_hi, self._max_iter)
-        if self.kind == "static":
+        if self.kind is PlannerKind.STATIC:
             return sol, int(sol.iterations)
         seed = np.asarray(sol.x)[1:] if self._acceptable(sol) else phi0
         rollout = _solve_rollout(self.params, p, seed, self._phi_lo, self._phi_hi, self._max_iter)

@@ -22,6 +22,7 @@ state machine; the player feeds it the playback time of the next message and the
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -30,13 +31,29 @@ from hsa_core.lockstep import Barrier
 START, MOVE, LEAD, FINISH, OVER = "start", "move", "lead", "finish", "over"
 
 
+class Action(enum.StrEnum):
+    """What a lockstep coordinator does now (a player: :class:`LockstepPlayback`; the simulator:
+    :class:`hsa_core.sim_lockstep.SimLockstep`); values are the names in the docs."""
+
+    WAIT = "wait"  # the barrier holds: ``reason`` says why
+    START = "start"  # simulated time starts (simulator)
+    RUN = "run"  # run the world to ``t_ns`` and publish its samples, no /clock (simulator)
+    INSTANT = "instant"  # run the world to the instant ``t_ns``, which must then settle (simulator)
+    LEAD = "lead"  # publish ``t_ns`` on the lead clock
+    CLOCK = "clock"  # publish /clock at ``t_ns`` (with a ``reason``: resent, the barrier holds)
+    FINISH = "finish"  # the instant ``t_ns`` is finished (simulator)
+    PUBLISH = "publish"  # publish the next message (player)
+    STOP = "stop"  # an expected participant left: simulated time stops (simulator)
+    DONE = "done"  # nothing more to do
+    FAIL = "fail"  # a wait took too long: ``reason`` names what holds the barrier
+
+
 @dataclass(frozen=True)
 class Step:
-    """What the coordinator does now: ``wait``, ``lead`` (publish ``t_ns`` on the lead clock), ``clock`` (publish
-    /clock at ``t_ns``), ``publish`` (the next message), ``done`` or ``fail`` (the simulator's own actions:
-    :mod:`hsa_core.sim_lockstep`); ``reason`` says what holds the barrier (wait, fail, a resent clock)."""
+    """What the coordinator does now (:class:`Action`) at ``t_ns``; ``reason`` says what holds the
+    barrier (wait, fail, a resent clock)."""
 
-    action: str
+    action: Action
     t_ns: int | None = None
     reason: str = ""
 
@@ -70,9 +87,9 @@ class LockstepPlayback:
             problem = self.barrier.finish_problem(self.instant)
             if problem is not None:
                 failed = self._wait(problem, now, self.timeout)
-                if failed.action == "wait" and now - self._clock_sent >= self.resend:
+                if failed.action is Action.WAIT and now - self._clock_sent >= self.resend:
                     self._clock_sent = now
-                    return Step("clock", self.instant, problem)
+                    return Step(Action.CLOCK, self.instant, problem)
                 return failed
             self._progress(MOVE, now)
         if self.phase == LEAD:
@@ -84,28 +101,28 @@ class LockstepPlayback:
         if self.phase == MOVE:
             if next_ns is not None and self.instant is not None and next_ns <= self.instant:
                 self._progress(MOVE, now)
-                return Step("publish", self.instant)
+                return Step(Action.PUBLISH, self.instant)
             problem = self.barrier.settle_problem()
             if problem is not None:
                 return self._wait(problem, now, self.timeout)
             if next_ns is None:
                 self.phase = OVER
-                return Step("done", self.instant)
+                return Step(Action.DONE, self.instant)
             due = self.barrier.next_due_ns()
             if self.instant is not None and due is not None and self.instant < due < next_ns:
                 next_ns = due
             self.instant = next_ns
             if due is not None and due <= next_ns and self.barrier.needs_lead():
                 self._progress(LEAD, now)
-                return Step("lead", self.instant)
+                return Step(Action.LEAD, self.instant)
             return self._move_clock(now)
-        return Step("done", self.instant)
+        return Step(Action.DONE, self.instant)
 
     def _move_clock(self, now: float) -> Step:
         """/clock moves to the instant, which must then finish."""
         self._progress(FINISH, now)
         self._clock_sent = now
-        return Step("clock", self.instant)
+        return Step(Action.CLOCK, self.instant)
 
     def _progress(self, phase: str, now: float) -> None:
         """Enter ``phase``; the wait for it starts now."""
@@ -117,8 +134,8 @@ class LockstepPlayback:
         assert self._since is not None
         waited = now - self._since
         if waited <= limit:
-            return Step("wait", self.instant, problem)
+            return Step(Action.WAIT, self.instant, problem)
         where = "before simulated time started" if self.phase == START else \
             f"at t = {(self.instant or 0) * 1e-9:.3f} s"
-        return Step("fail", self.instant,
+        return Step(Action.FAIL, self.instant,
                     f"lockstep barrier {where} not finished after {waited:.1f} s of wall time: {problem}")

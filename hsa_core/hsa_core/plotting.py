@@ -26,14 +26,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from typing import Any
+
 import matplotlib
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")  # headless: figures are files
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hsa_core.metrics import step_bounds, tracking_rmse  # noqa: E402
-from hsa_core.runlog import RunLog  # noqa: E402
+from hsa_core.metrics import step_bounds, tracking_rmse
+from hsa_core.runlog import RunLog
 
 MM = 1e3  # m → mm for axes
 FORMATS = ("pdf", "png")
@@ -102,25 +103,32 @@ class RunLabel:
         return f"{what}\n{self.short}"
 
 
-def save(fig: plt.Figure, path: Path | str) -> Path:
-    """Lay out, write (creating missing directories) and close a figure in the format of ``path``; returns it."""
+def subplots(*args: Any, figsize: tuple[float, float] | None = None, layout: str | None = None,
+             **kwargs: Any) -> tuple[Figure, Any]:
+    """A figure and its axes, as ``pyplot.subplots`` takes them, made without pyplot: no
+    backend is chosen and nothing global changes; ``savefig`` picks each format's writer."""
+    fig = Figure(figsize=figsize, layout=layout)
+    return fig, fig.subplots(*args, **kwargs)
+
+
+def save(fig: Figure, path: Path | str) -> Path:
+    """Lay out and write a figure (creating missing directories) in ``path``'s format; returns
+    the path."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
-def save_all_formats(fig: plt.Figure, stem: Path) -> list[Path]:
-    """Write ``stem.pdf`` (vector, for the paper) and ``stem.png`` (for a quick look), close the figure."""
+def save_all_formats(fig: Figure, stem: Path) -> list[Path]:
+    """Write ``stem.pdf`` (vector, for the paper) and ``stem.png`` (for a quick look)."""
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = []
     for fmt in FORMATS:
         path = stem.with_name(f"{stem.name}.{fmt}")
         fig.savefig(path, dpi=PNG_DPI, bbox_inches="tight")
         paths.append(path)
-    plt.close(fig)
     return paths
 
 
@@ -136,18 +144,18 @@ def _error_mm(log: RunLog) -> np.ndarray:
     return np.maximum(np.linalg.norm(log.chiee_des[:, :2] - log.chiee[:, :2], axis=1) * MM, ERROR_FLOOR)
 
 
-def _error_axis(ax: plt.Axes) -> None:
+def _error_axis(ax: Axes) -> None:
     """Log-scale ‖e‖ axis with its label."""
     ax.set_yscale("log")
     ax.set_ylabel(r"$\Vert p^d_\mathrm{ee} - p_\mathrm{ee} \Vert$ [mm]")
 
 
-def _figure(rows: int, height: float, **kwargs: object) -> tuple[plt.Figure, np.ndarray]:
+def _figure(rows: int, height: float, **kwargs: object) -> tuple[Figure, np.ndarray]:
     """A figure of ``rows`` panels over a shared time axis, laid out so that a legend fits below them."""
-    return plt.subplots(rows, 1, sharex=True, figsize=(7.5, height), layout="constrained", **kwargs)
+    return subplots(rows, 1, sharex=True, figsize=(7.5, height), layout="constrained", **kwargs)
 
 
-def _finish(fig: plt.Figure, axes: Sequence[plt.Axes], title: str, t_end: float, columns: int = 4) -> None:
+def _finish(fig: Figure, axes: Sequence[Axes], title: str, t_end: float, columns: int = 4) -> None:
     """Time axis label and range, the title, and one legend of every labelled line below the panels."""
     axes[-1].set_xlabel("$t$ [s]")
     axes[-1].set_xlim(0.0, t_end)
@@ -175,12 +183,12 @@ def _step_window(log: RunLog, start: int, stop: int) -> tuple[np.ndarray, np.nda
     return (tau >= STEP_WINDOW[0]) & (tau < STEP_WINDOW[1]) & before_next, tau
 
 
-def _panel_grid(n: int, height: float = 1.9) -> tuple[plt.Figure, list[plt.Axes]]:
+def _panel_grid(n: int, height: float = 1.9) -> tuple[Figure, list[Axes]]:
     """A grid of n panels, STEP_COLUMNS wide, spare panels removed."""
     cols = min(n, STEP_COLUMNS)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.8), squeeze=False, sharex=True,
-                             layout="constrained")
+    fig, axes = subplots(rows, cols, figsize=(2.6 * cols, height * rows + 0.8), squeeze=False,
+                         sharex=True, layout="constrained")
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.remove()
@@ -190,7 +198,7 @@ def _panel_grid(n: int, height: float = 1.9) -> tuple[plt.Figure, list[plt.Axes]
 # --- one run --------------------------------------------------------------------------------------------------------
 
 
-def end_effector_figure(log: RunLog, label: RunLabel) -> plt.Figure:
+def end_effector_figure(log: RunLog, label: RunLabel) -> Figure:
     """x_ee, y_ee vs reference over the run, and ‖e‖(t) on a log scale with the RMSE."""
     fig, axes = _figure(3, 6.6, height_ratios=(1, 1, 1.1))
     for k, ax in enumerate(axes[:2]):
@@ -204,7 +212,7 @@ def end_effector_figure(log: RunLog, label: RunLabel) -> plt.Figure:
     return fig
 
 
-def steps_figure(log: RunLog, label: RunLabel) -> plt.Figure | None:
+def steps_figure(log: RunLog, label: RunLabel) -> Figure | None:
     """One panel per step: p_ee − p^d_k (x, y) from 0.25 s before to 2 s after the change; None for contours."""
     bounds = _steps(log)
     if not bounds:
@@ -232,9 +240,9 @@ def steps_figure(log: RunLog, label: RunLabel) -> plt.Figure | None:
     return fig
 
 
-def path_figure(log: RunLog, label: RunLabel) -> plt.Figure:
+def path_figure(log: RunLog, label: RunLabel) -> Figure:
     """The x–y plane: measured path over the setpoints of a step run or the reference path of a contour."""
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    fig, ax = subplots(figsize=(5.5, 5.5))
     ax.plot(log.chiee[:, 0] * MM, log.chiee[:, 1] * MM, color="C0", lw=0.8, label="measured", gid="run:0")
     _draw_reference_path(ax, log)
     _path_axes(ax)
@@ -242,7 +250,7 @@ def path_figure(log: RunLog, label: RunLabel) -> plt.Figure:
     return fig
 
 
-def _draw_reference_path(ax: plt.Axes, log: RunLog, color: str = "k", whose: str = "") -> None:
+def _draw_reference_path(ax: Axes, log: RunLog, color: str = "k", whose: str = "") -> None:
     """Setpoints as numbered crosses (step run) or the reference path dashed (contour), on top."""
     bounds = _steps(log)
     if bounds:
@@ -256,7 +264,7 @@ def _draw_reference_path(ax: plt.Axes, log: RunLog, color: str = "k", whose: str
                 **{**REFERENCE, "color": color})
 
 
-def _path_axes(ax: plt.Axes) -> None:
+def _path_axes(ax: Axes) -> None:
     """Labels, equal scale, y downwards (the robot hangs), legend."""
     ax.set_xlabel(f"{AXES_XY[0]} [mm]")
     ax.set_ylabel(f"{AXES_XY[1]} [mm]")
@@ -265,7 +273,8 @@ def _path_axes(ax: plt.Axes) -> None:
     ax.legend(loc="best")
 
 
-def actuation_figure(log: RunLog, label: RunLabel, phi_max: float | Sequence[float] | None = None) -> plt.Figure:
+def actuation_figure(log: RunLog, label: RunLabel,
+                     phi_max: float | Sequence[float] | None = None) -> Figure:
     """φ₁, φ₂: command (saturated), measured, φ^ss (laws that have it) and the limits [0, φ_max]."""
     limits = _phi_max(log, phi_max)
     fig, axes = _figure(2, 5.2)
@@ -283,14 +292,14 @@ def actuation_figure(log: RunLog, label: RunLabel, phi_max: float | Sequence[flo
     return fig
 
 
-def _draw_limits(ax: plt.Axes, phi_max: float) -> None:
+def _draw_limits(ax: Axes, phi_max: float) -> None:
     """The admissible band [0, φ_max] as two dash-dotted lines, with some room beyond."""
     ax.axhline(0.0, label=r"limits $[0, \phi_\mathrm{max}]$", gid="limit", **LIMIT)
     ax.axhline(phi_max, gid="limit", **LIMIT)
     ax.set_ylim(-0.08 * phi_max, 1.08 * phi_max)
 
 
-def configuration_figure(log: RunLog, label: RunLabel) -> plt.Figure:
+def configuration_figure(log: RunLog, label: RunLabel) -> Figure:
     """Configuration q vs q^d over time."""
     names = (r"\kappa_\mathrm{be}", r"\sigma_\mathrm{sh}", r"\sigma_\mathrm{ax}")
     units = ("rad/m", "–", "–")
@@ -303,7 +312,7 @@ def configuration_figure(log: RunLog, label: RunLabel) -> plt.Figure:
     return fig
 
 
-def collocated_figure(log: RunLog, label: RunLabel) -> plt.Figure:
+def collocated_figure(log: RunLog, label: RunLabel) -> Figure:
     """Collocated actuation coordinates ϑ₁, ϑ₂ vs ϑ^d over time."""
     fig, axes = _figure(2, 4.8)
     for k, ax in enumerate(axes):
@@ -322,7 +331,7 @@ def all_figures(log: RunLog, out_dir: Path, prefix: str = "", phi_max: float | S
     the log) goes into the titles; ``contour`` draws no step figure even for few setpoints.
     """
     label = RunLabel.of(log, rmse)
-    with plt.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE):
         figures = {
             "end_effector": end_effector_figure(log, label),
             "steps": None if contour else steps_figure(log, label),
@@ -359,7 +368,7 @@ def _references(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> list[tupl
     return [(i, f"C{i}", f" of {labels[i].law}, {labels[i].material}") for i in owners]
 
 
-def overlay_end_effector_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure:
+def overlay_end_effector_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> Figure:
     """x_ee, y_ee of every run over the reference (each distinct one, in its run's colour), every run's ‖e‖(t)."""
     fig, axes = _figure(3, 7.0, height_ratios=(1, 1, 1.1))
     for i, (log, label) in enumerate(zip(logs, labels)):
@@ -377,7 +386,7 @@ def overlay_end_effector_figure(logs: Sequence[RunLog], labels: Sequence[RunLabe
     return fig
 
 
-def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure | None:
+def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> Figure | None:
     """Per step, every run's distance to its step's target ‖p_ee − p^d_k‖ (first 2 s), with the references."""
     bounds = [_steps(log) for log in logs]
     n = min(len(b) for b in bounds)
@@ -410,12 +419,12 @@ def overlay_steps_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> 
     return fig
 
 
-def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> plt.Figure:
+def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> Figure:
     """Every run's path in the x–y plane over the setpoints or reference paths (each distinct one)."""
     points = np.concatenate([np.concatenate([log.chiee[:, :2], log.chiee_des[:, :2]]) for log in logs])
     width, height = np.ptp(points, axis=0) + 1e-3  # m; the plane's height for the width, legend below
-    fig, ax = plt.subplots(figsize=(6.5, float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)),
-                           layout="constrained")
+    fig_height = float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)
+    fig, ax = subplots(figsize=(6.5, fig_height), layout="constrained")
     for i, (log, label) in enumerate(zip(logs, labels)):
         ax.plot(log.chiee[:, 0] * MM, log.chiee[:, 1] * MM, color=f"C{i}", lw=0.8, label=label.short, gid=f"run:{i}")
     for i, color, whose in _references(logs, labels):
@@ -428,7 +437,7 @@ def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> p
 
 
 def overlay_actuation_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel],
-                             phi_max: float | Sequence[float] | None = None) -> plt.Figure:
+                             phi_max: float | Sequence[float] | None = None) -> Figure:
     """Every run's commanded φ₁, φ₂ with the limits [0, φ_max]: each distinct φ_max in its run's colour."""
     limits = [_phi_max(log, phi_max) for log in logs]
     owners = [i for i, lim in enumerate(limits)
@@ -459,7 +468,7 @@ def overlay_figures(logs: Sequence[RunLog], out_dir: Path, rmses: Sequence[float
     if len(logs) < 2:
         raise ValueError(f"an overlay needs at least 2 runs, got {len(logs)}")
     labels = [RunLabel.of(log, r) for log, r in zip(logs, rmses or [None] * len(logs))]
-    with plt.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE):
         figures = {
             "end_effector": overlay_end_effector_figure(logs, labels),
             "steps": overlay_steps_figure(logs, labels),

@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
+import matplotlib
 import numpy as np
 
 from hsa_core import batch_metrics, cli, closed_loop, plotting
@@ -44,7 +45,6 @@ from hsa_core.experiment import ExperimentConfig
 from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.metrics import STEADY_STATE_WINDOW
 from hsa_core.params import HsaParams, load_params
-from hsa_core.plotting import plt
 from hsa_core.trajectories import TimedReference, step_reference
 
 LAWS = ("psatid", "psatid_gc", "pid", "psatid+eei")
@@ -192,8 +192,8 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
     """Box plots of RMSE per law and each law's worst run."""
     laws = list(worst)
     names = [BOUND_NAME if law == BOUND else plotting.law_name(*_law(law)) for law in laws]
-    with plt.rc_context(plotting.STYLE):
-        fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(laws), 3.2))
+    with matplotlib.rc_context(plotting.STYLE):
+        fig, ax = plotting.subplots(figsize=(1.6 + 1.3 * len(laws), 3.2))
         data = [[r["rmse_mm"] for r in records if r["law"] == law and np.isfinite(r["rmse_mm"])] for law in laws]
         ax.boxplot(data, showfliers=True)
         ax.set_xticks(range(1, len(laws) + 1), names)
@@ -201,12 +201,11 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
         n = sum(1 for r in records if r["law"] == laws[0])
         ax.set_title(f"{material.upper()} steps, {n} perturbed plants (sim)")
         paths = plotting.save_all_formats(fig, out / "rmse_by_law")
-        plt.close(fig)
         for law, name in zip(laws, names):
             w = worst[law]
             ran = np.asarray(w.log.ran)
             t = (np.arange(ran.size) - int(np.argmax(ran))) * w.period
-            fig, axes = plt.subplots(2, 1, sharex=True, figsize=(7.0, 4.2))
+            fig, axes = plotting.subplots(2, 1, sharex=True, figsize=(7.0, 4.2))
             for k, axis_name in enumerate(plotting.AXES_XY):
                 axes[k].plot(t[ran], np.asarray(w.log.chiee)[ran, k] * plotting.MM, lw=0.8, label="measured")
                 axes[k].plot(t[ran], np.asarray(w.log.chiee_des)[ran, k] * plotting.MM, **plotting.SETPOINT,
@@ -219,7 +218,6 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
                          f"$C_\\varepsilon$ ×{r['elongation']:.3f}, $\\sigma_{{a,eq}}$ ×{r['rest_strain']:.3f})",
                          fontsize="medium")
             paths += plotting.save_all_formats(fig, out / f"worst_{law.replace('+', '_')}")
-            plt.close(fig)
     return paths
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 
 from hsa_core.lockstep import Barrier
-from hsa_core.playback import Step
+from hsa_core.playback import Action, Step
 
 START, ADVANCE, SETTLE, LEAD, FINISH = "start", "advance", "settle", "lead", "finish"
 SYNC_NS = 50_000_000
@@ -63,9 +63,9 @@ class SimLockstep:
             self._since = now
         if self.barrier.left:
             if self._halted:
-                return Step("done", self.instant)
+                return Step(Action.DONE, self.instant)
             self._halted = True
-            return Step("stop", self.instant, f"{self.barrier.left[0]} left")
+            return Step(Action.STOP, self.instant, f"{self.barrier.left[0]} left")
         if self.phase == START:
             self.barrier.own_matched = dict(matched())
             problem = self.barrier.start_problem()
@@ -73,7 +73,7 @@ class SimLockstep:
                 return self._wait(problem, now, send_clock=True)
             self.barrier.start()
             self.phase = ADVANCE
-            return Step("start", self.instant)
+            return Step(Action.START, self.instant)
         if self.phase == SETTLE:
             problem = self.barrier.settle_problem()
             if problem is not None:
@@ -82,7 +82,7 @@ class SimLockstep:
             if world_ns == self.instant and self.instant == self.barrier.next_due_ns():
                 if self.barrier.needs_lead():
                     self.phase = LEAD
-                    return Step("lead", self.instant)
+                    return Step(Action.LEAD, self.instant)
                 return self._move_clock(now)
             self.phase = ADVANCE
         if self.phase == LEAD:
@@ -98,14 +98,14 @@ class SimLockstep:
             if problem is not None:
                 return self._wait(problem, now, send_clock=True)
             self.phase = ADVANCE
-            return Step("finish", self.instant)
+            return Step(Action.FINISH, self.instant)
         return self._advance(now, next_sample_ns)
 
     def _move_clock(self, now: float) -> Step:
         """/clock moves to the instant, which must then finish."""
         self.phase = FINISH
         self._clock_sent = now
-        return Step("clock", self.instant)
+        return Step(Action.CLOCK, self.instant)
 
     def _advance(self, now: float, next_sample_ns: int) -> Step:
         """The next event: a sample becoming available (``run``), or an instant the graph must settle at."""
@@ -116,8 +116,8 @@ class SimLockstep:
             self.instant = event
             self.phase = SETTLE
             self._since = now
-            return Step("instant", event)
-        return Step("run", event)
+            return Step(Action.INSTANT, event)
+        return Step(Action.RUN, event)
 
     def _wait(self, problem: str, now: float, send_clock: bool = False) -> Step:
         """Resend /clock if it may have been lost (a ``clock`` step with a reason); else wait, or fail once the
@@ -125,10 +125,11 @@ class SimLockstep:
         assert self._since is not None
         if send_clock and now - self._clock_sent > self.resend:
             self._clock_sent = now
-            return Step("clock", self.instant, problem)
+            return Step(Action.CLOCK, self.instant, problem)
         waited = now - self._since
         limit = self.timeout if self.phase != START else max(self.start_timeout, self.timeout)
         if waited > limit:
-            return Step("fail", self.instant, f"lockstep barrier at t = {self.instant * 1e-9:.3f} s not finished "
-                                              f"after {waited:.1f} s of wall time: {problem}")
-        return Step("wait", self.instant, problem)
+            return Step(Action.FAIL, self.instant,
+                        f"lockstep barrier at t = {self.instant * 1e-9:.3f} s not finished "
+                        f"after {waited:.1f} s of wall time: {problem}")
+        return Step(Action.WAIT, self.instant, problem)

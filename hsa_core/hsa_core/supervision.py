@@ -25,6 +25,8 @@ from __future__ import annotations
 import dataclasses
 import enum
 
+from hsa_core.refusal import Refusal, StateRejection
+
 STALE_TIMEOUT, HOLD_TIMEOUT, DRIVER_TIMEOUT = 0.1, 0.25, 0.25
 """Default bounds [s] of controller_node's `stale_timeout`, `hold_timeout` and `driver_timeout` (docs/nodes)."""
 
@@ -104,12 +106,12 @@ class Supervisor:
         """A valid setpoint is active."""
         self.has_setpoint = True
 
-    def state(self, stamp_ns: int, now_ns: int) -> str | None:
+    def state(self, stamp_ns: int, now_ns: int) -> Refusal | None:
         """A plausible state arrived: accept it as the newest, or return why it is refused (ordering, future)."""
         if self._stamp is not None and stamp_ns <= self._stamp:
-            return "older than the newest state"
+            return Refusal.of(StateRejection.OLDER)
         if self.config.stamp_clock and stamp_ns - now_ns > self._stale:
-            return "stamped in the future"
+            return Refusal.of(StateRejection.FUTURE)
         self._stamp, self._arrival = stamp_ns, now_ns
         return None
 

@@ -34,6 +34,7 @@ A radius outside (0, R_MAX_SAFE] raises ``ValueError``; raise ``max_radius`` exp
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,17 +145,31 @@ def _period(rate: float) -> float:
     return 1.0 / rate
 
 
+class Direction(enum.StrEnum):
+    """Order of a contour's points: as traced, counter-clockwise or clockwise in x-y of {0}."""
+
+    TRACED = "traced"
+    CCW = "ccw"
+    CW = "cw"
+
+
+TURNING = (Direction.CCW, Direction.CW)
+"""The directions of a generated shape (circle, star)."""
+
+
 def _signed_area(points: np.ndarray) -> float:
     """Shoelace signed area of a closed polygon (positive = counter-clockwise in x-y)."""
     x, y = points[:, 0], points[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
-def _orient(points: np.ndarray, direction: str) -> np.ndarray:
+def _orient(points: np.ndarray, direction: Direction | str) -> np.ndarray:
     """Points in the requested order; a reversal keeps the first point."""
-    if direction not in ("traced", "ccw", "cw"):
+    if direction not in tuple(Direction):
         raise ValueError(f"direction must be 'traced', 'ccw' or 'cw', got {direction!r}")
-    if direction == "traced" or points.shape[0] < 3 or (_signed_area(points) > 0.0) == (direction == "ccw"):
+    direction = Direction(direction)
+    ccw = _signed_area(points) > 0.0
+    if direction is Direction.TRACED or points.shape[0] < 3 or ccw == (direction is Direction.CCW):
         return points
     return np.concatenate([points[:1], points[:0:-1]])
 
@@ -181,7 +196,7 @@ def contour_reference(
     invert: bool = True,
     crop_square: bool = False,
     flip: bool = False,
-    direction: str = "traced",
+    direction: Direction | str = Direction.TRACED,
     max_radius: float = R_MAX_SAFE,
     name: str | None = None,
 ) -> TimedReference:
@@ -230,14 +245,14 @@ def circle_reference(
     n_points: int = 200,
     rate: float = CONTOUR_RATE,
     start_angle: float = 0.0,
-    direction: str = "ccw",
+    direction: Direction | str = Direction.CCW,
     max_radius: float = R_MAX_SAFE,
 ) -> TimedReference:
     """Circle of the given radius [m] around the centroid, n_points equally spaced, ccw or cw in {0}."""
     _check_radius(radius, max_radius)
-    if direction not in ("ccw", "cw") or n_points < 3:
+    if direction not in TURNING or n_points < 3:
         raise ValueError("need direction 'ccw' or 'cw' and n_points >= 3")
-    sense = 1.0 if direction == "ccw" else -1.0
+    sense = 1.0 if Direction(direction) is Direction.CCW else -1.0
     angle = start_angle + sense * 2.0 * math.pi * np.arange(n_points) / n_points
     p_des = np.asarray(centroid, dtype=np.float64) + radius * np.column_stack([np.cos(angle), np.sin(angle)])
     return _timed(p_des, _period(rate), "circle")
@@ -250,14 +265,14 @@ def star_reference(
     rate: float = CONTOUR_RATE,
     inner_ratio: float = PENTAGRAM_RATIO,
     start_angle: float = math.pi / 2,
-    direction: str = "ccw",
+    direction: Direction | str = Direction.CCW,
     max_radius: float = R_MAX_SAFE,
 ) -> TimedReference:
     """Outline of a 5-pointed star (outer tip radius [m], tip at start_angle), n_points equally spaced by arc length."""
     _check_radius(radius, max_radius)
-    if direction not in ("ccw", "cw") or n_points < 10 or not 0.0 < inner_ratio < 1.0:
+    if direction not in TURNING or n_points < 10 or not 0.0 < inner_ratio < 1.0:
         raise ValueError("need direction 'ccw' or 'cw', n_points >= 10 and 0 < inner_ratio < 1")
-    sense = 1.0 if direction == "ccw" else -1.0
+    sense = 1.0 if Direction(direction) is Direction.CCW else -1.0
     angle = start_angle + sense * np.pi / 5.0 * np.arange(11)
     r = radius * np.where(np.arange(11) % 2 == 0, 1.0, inner_ratio)
     vertices = np.column_stack([r * np.cos(angle), r * np.sin(angle)])

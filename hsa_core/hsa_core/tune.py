@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
+import matplotlib
 import numpy as np
 import yaml
 
@@ -41,7 +42,6 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
 from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.params import load_params
-from hsa_core.plotting import plt
 from hsa_core.trajectories import TimedReference, step_reference
 
 WEIGHTS = {"rmse_mm": 1.0, "t_r_s": 0.5, "overshoot_mm": 0.1, "effort_rad": 100.0, "bad": 5.0}
@@ -198,14 +198,13 @@ def main(argv: list[str] | None = None) -> int:
         "nominal": {"paper_rmse_mm": float(nominal[0].rmse_mm[0]), "tuned_rmse_mm": float(nominal[1].rmse_mm[0])},
     }
     (args.out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-    with plt.rc_context(plotting.STYLE):
-        fig, ax = plt.subplots(figsize=(3.6, 3.2))
+    with matplotlib.rc_context(plotting.STYLE):
+        fig, ax = plotting.subplots(figsize=(3.6, 3.2))
         ax.boxplot([before.rmse_mm[np.isfinite(before.rmse_mm)], after.rmse_mm[np.isfinite(after.rmse_mm)]])
         ax.set_xticks([1, 2], ["paper gains", "tuned"])
         ax.set_ylabel("RMSE [mm]")
         ax.set_title(f"{plotting.law_name(kind.value)}, {args.material.upper()}, {args.plants} plants (sim)")
         plotting.save_all_formats(fig, args.out / "before_after")
-        plt.close(fig)
     print(f"{'':<14} {'J':>8} {'median RMSE [mm]':>17} {'t_r [s]':>8} {'bad':>5} {'nominal RMSE':>13}")
     for name, e, nom in (("paper gains", before, nominal[0]), ("tuned", after, nominal[1])):
         print(f"{name:<14} {e.objective:8.3f} {np.nanmedian(e.rmse_mm):17.3f} {e.terms['t_r_s']:8.3f} "

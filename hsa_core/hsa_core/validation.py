@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 
@@ -25,6 +26,7 @@ from jax.typing import ArrayLike
 from hsa_core import dynamics, kinematics
 from hsa_core.params import HsaParams
 from hsa_core.planning import MAX_OPTIMALITY_ERROR, Setpoint
+from hsa_core.refusal import Refusal, StateRejection
 
 MAX_BEND = 0.5 * math.pi
 """Plausible |kappa_be| l [rad]: a bend of at most pi/2 over the rods (the paper's workspace needs < 0.4 rad)."""
@@ -42,12 +44,36 @@ POSE_TOLERANCE = 1e-4
 """Default tolerance on ||chiee^d - FK(q^d)|| [m, rad]: 0.1 mm, far above rounding, far below the paper's errors."""
 
 
-def _out_of(name: str, values: np.ndarray, low: np.ndarray, high: np.ndarray) -> str | None:
-    """Reason if values are non-finite or outside [low, high], else None."""
+class SetpointRejection(enum.StrEnum):
+    """Why a setpoint is refused (the controller's /diagnostics counters)."""
+
+    MALFORMED = "malformed"
+    UNDECODABLE = "undecodable"
+    OPTIMALITY = f"optimality error outside [0, {MAX_OPTIMALITY_ERROR:g}]"
+    NON_FINITE_Q = "non-finite q"
+    IMPLAUSIBLE_Q = "implausible q"
+    NON_FINITE_CHIEE_DES = "non-finite chiee_des"
+    IMPLAUSIBLE_CHIEE_DES = "implausible chiee_des"
+    NON_FINITE_PHI_SS = "non-finite phi_ss"
+    IMPLAUSIBLE_PHI_SS = "implausible phi_ss"
+    NOT_EQUILIBRIUM = "phi_ss not an equilibrium at q_des"
+    POSE_MISMATCH = "chiee_des differs from FK(q_des)"
+    LAW = "refused by the control law"  # hsa_core.control.Controller.set_setpoint raised
+
+
+_POSE = (StateRejection.NON_FINITE_POSE, StateRejection.IMPLAUSIBLE_POSE)
+_RATES = (StateRejection.NON_FINITE_RATES, StateRejection.IMPLAUSIBLE_RATES)
+
+
+def _out_of(name: str, values: np.ndarray, low: np.ndarray, high: np.ndarray,
+            reasons: tuple[enum.Enum, enum.Enum]) -> Refusal | None:
+    """Refusal (``reasons``: non-finite, implausible) if values are outside [low, high], or None."""
+    non_finite, implausible = reasons
     if not np.all(np.isfinite(values)):
-        return f"non-finite {name}: {values.tolist()}"
+        return Refusal(non_finite, f"non-finite {name}: {values.tolist()}")
     if np.any(values < low) or np.any(values > high):
-        return f"implausible {name}: {values.tolist()} (bounds {low.tolist()}..{high.tolist()})"
+        bounds = f"(bounds {low.tolist()}..{high.tolist()})"
+        return Refusal(implausible, f"implausible {name}: {values.tolist()} {bounds}")
     return None
 
 
@@ -57,24 +83,28 @@ def q_bounds(params: HsaParams) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([[-kappa_max], SIGMA_LOW]), np.concatenate([[kappa_max], SIGMA_HIGH])
 
 
-def configuration_problem(q: ArrayLike, bounds: tuple[np.ndarray, np.ndarray]) -> str | None:
+def configuration_problem(q: ArrayLike, bounds: tuple[np.ndarray, np.ndarray]) -> Refusal | None:
     """Why q is not a plausible configuration (non-finite or outside `q_bounds`), or None."""
-    return _out_of("q", np.asarray(q, dtype=np.float64), *bounds)
+    return _out_of("q", np.asarray(q, dtype=np.float64), *bounds,
+                   (SetpointRejection.NON_FINITE_Q, SetpointRejection.IMPLAUSIBLE_Q))
 
 
 def state_problem(bounds: tuple[np.ndarray, np.ndarray], q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
-                  chiee_dot: ArrayLike, velocity_valid: bool) -> str | None:
-    """Why a measured state must not reach the control law, or None: "<non-finite|implausible> <pose or
-    configuration|rates>: <detail>". The rates are checked only when velocity_valid (they are NaN by contract else)."""
-    pose = configuration_problem(q, bounds) or _out_of("chiee", np.asarray(chiee, dtype=np.float64), -CHIEE_MAX,
-                                                       CHIEE_MAX)
+                  chiee_dot: ArrayLike, velocity_valid: bool) -> Refusal | None:
+    """Why a measured state must not reach the control law, or None: "<non-finite|implausible> <pose
+    or configuration|rates>: <detail>" (:class:`StateRejection`). The rates are checked only when
+    velocity_valid (they are NaN by contract else)."""
+    pose = (_out_of("q", np.asarray(q, dtype=np.float64), *bounds, _POSE)
+            or _out_of("chiee", np.asarray(chiee, dtype=np.float64), -CHIEE_MAX, CHIEE_MAX, _POSE))
     if pose is not None:
-        return f"{pose.split()[0]} pose or configuration: {pose}"
+        return Refusal.of(pose.reason, pose)
     if velocity_valid:
-        rates = (_out_of("q_dot", np.asarray(q_dot, dtype=np.float64), -Q_DOT_MAX, Q_DOT_MAX)
-                 or _out_of("chiee_dot", np.asarray(chiee_dot, dtype=np.float64), -CHIEE_DOT_MAX, CHIEE_DOT_MAX))
+        rates = (_out_of("q_dot", np.asarray(q_dot, dtype=np.float64), -Q_DOT_MAX, Q_DOT_MAX,
+                         _RATES)
+                 or _out_of("chiee_dot", np.asarray(chiee_dot, dtype=np.float64), -CHIEE_DOT_MAX,
+                            CHIEE_DOT_MAX, _RATES))
         if rates is not None:
-            return f"{rates.split()[0]} rates: {rates}"
+            return Refusal.of(rates.reason, rates)
     return None
 
 
@@ -105,31 +135,36 @@ class SetpointValidator:
         residual, chiee = _consistency(self.params, q_des, phi_ss)
         return float(residual), np.asarray(chiee)
 
-    def problem(self, setpoint: Setpoint) -> str | None:
-        """Why the setpoint must be refused ("<reason>: <detail>"), or None; cheap gates first, the model only for
-        plausible values."""
+    def problem(self, setpoint: Setpoint) -> Refusal | None:
+        """Why the setpoint must be refused ("<reason>: <detail>", :class:`SetpointRejection`), or
+        None; cheap gates first, the model only for plausible values."""
+        r = SetpointRejection
         try:
             chiee_des, q_des, phi_ss = (np.asarray(v, dtype=np.float64)
                                         for v in (setpoint.chiee_des, setpoint.q_des, setpoint.phi_ss))
             error = float(setpoint.optimality_error)
         except (TypeError, ValueError):
-            return "malformed: fields are not numbers"
+            return Refusal.of(r.MALFORMED, "fields are not numbers")
         if chiee_des.shape != (3,) or q_des.shape != (3,) or phi_ss.shape != (2,):
-            return "malformed: needs chiee_des (3,), q_des (3,) and phi_ss (2,)"
+            return Refusal.of(r.MALFORMED, "needs chiee_des (3,), q_des (3,) and phi_ss (2,)")
         if not (0.0 <= error <= MAX_OPTIMALITY_ERROR):
-            return f"optimality error outside [0, {MAX_OPTIMALITY_ERROR:g}]: {error!r}"
-        problem = (configuration_problem(q_des, self.q_bounds) or _out_of("chiee_des", chiee_des, -CHIEE_MAX, CHIEE_MAX)
-                   or _out_of("phi_ss", phi_ss, self.phi_lo, self.phi_hi))
+            return Refusal.of(r.OPTIMALITY, repr(error))
+        problem = (configuration_problem(q_des, self.q_bounds)
+                   or _out_of("chiee_des", chiee_des, -CHIEE_MAX, CHIEE_MAX,
+                              (r.NON_FINITE_CHIEE_DES, r.IMPLAUSIBLE_CHIEE_DES))
+                   or _out_of("phi_ss", phi_ss, self.phi_lo, self.phi_hi,
+                              (r.NON_FINITE_PHI_SS, r.IMPLAUSIBLE_PHI_SS)))
         if problem is not None:
             return problem
         residual, chiee = self._check(q_des, phi_ss)
         if not residual <= self.residual_tol:
-            return (f"phi_ss not an equilibrium at q_des: static residual {residual:.3g} > {self.residual_tol:g} "
-                    f"(phi_ss {phi_ss.tolist()}, q_des {q_des.tolist()})")
+            return Refusal.of(r.NOT_EQUILIBRIUM, f"static residual {residual:.3g} > "
+                              f"{self.residual_tol:g} (phi_ss {phi_ss.tolist()}, "
+                              f"q_des {q_des.tolist()})")
         mismatch = float(np.max(np.abs(chiee - chiee_des)))
         if not mismatch <= self.pose_tol:
-            return (f"chiee_des differs from FK(q_des): by {mismatch:.3g} > {self.pose_tol:g} (chiee_des "
-                    f"{chiee_des.tolist()}, FK {chiee.tolist()})")
+            return Refusal.of(r.POSE_MISMATCH, f"by {mismatch:.3g} > {self.pose_tol:g} (chiee_des "
+                              f"{chiee_des.tolist()}, FK {chiee.tolist()})")
         return None
 
 

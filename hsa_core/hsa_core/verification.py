@@ -177,13 +177,13 @@ def format_table(results: dict[str, Verification]) -> str:
 def plot(result: Verification, path: Path, window: tuple[float, float] | None = (0.0, 4.0), title: str = "") -> Path:
     """The paper's verification figure: strains (kappa left, sigma_sh and sigma_ax right) and EE pose (x, y in mm
     left, theta right), measured solid, simulated dashed, over `window` s (None: the whole record)."""
-    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
+    from hsa_core.plotting import save, subplots  # matplotlib only where a figure is drawn
 
     t = result.t
     if window is None:
         window = (float(t[0]), float(t[-1]))
     sel = (t >= window[0]) & (t <= window[1])
-    fig, (ax_q, ax_p) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    fig, (ax_q, ax_p) = subplots(2, 1, figsize=(8, 7), sharex=True)
     panels = ((ax_q, (3,), (4, 5), "kappa_be [1/m]", "sigma [-]", 1.0),
               (ax_p, (0, 1), (2,), "EE position [mm]", "theta_ee [rad]", 1e3))
     for ax, left, right, ylabel_l, ylabel_r, scale in panels:

@@ -94,9 +94,11 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
 
     The samples are the grid nodes nearest to SAMPLE_PHI_FRACTIONS (exact for an odd grid size n).
     """
-    from hsa_core.plotting import plt, save  # matplotlib is imported only when a figure is drawn
+    from matplotlib import colormaps
 
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    from hsa_core.plotting import save, subplots  # matplotlib only where a figure is drawn
+
+    fig, ax = subplots(figsize=(6.5, 6.5))
     pts = wmap.chiee.reshape(-1, 3)
     sc = ax.scatter(pts[:, 0] * 1e3, pts[:, 1] * 1e3, c=wmap.mean_actuation.reshape(-1), s=8, cmap="viridis")
     fig.colorbar(sc, ax=ax, label="mean actuation magnitude (|phi1| + |phi2|) / 2 [rad]")
@@ -104,7 +106,7 @@ def plot_workspace(params: HsaParams, wmap: WorkspaceMap, path: Path) -> Path:
     nodes = [tuple(round(f * (n - 1)) for f in fractions) for fractions in SAMPLE_PHI_FRACTIONS]
     samples = [(wmap.phi[i, j], wmap.q[i, j], wmap.chiee[i, j]) for i, j in nodes]
     for k, (phi, qk, pose) in enumerate(samples):
-        color = plt.cm.tab10(k + 1)
+        color = colormaps["tab10"](k + 1)
         shapes = _outline(params, qk)
         for name, xy in shapes.items():
             style = {"lw": 2.5} if name == "backbone" else {"lw": 1.0}

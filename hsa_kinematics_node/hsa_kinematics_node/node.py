@@ -26,7 +26,7 @@ from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_lev
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
-from hsa_core.estimation import MODE_REJECTED, SavitzkyGolayDifferentiator, configuration_from_pose
+from hsa_core.estimation import EstimateMode, SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.mocap import REST_POSE
 from hsa_core.rate_meter import RateMeter
 from hsa_core.validation import DelayGate
@@ -112,8 +112,8 @@ class KinematicsNode(Node):
         q = configuration_from_pose(self._params, chiee)
         estimate = self._estimator.update((stamp_ns - self._origin_ns) * 1e-9, np.concatenate([q, chiee]))
         self._mode = estimate.mode
-        if estimate.mode == MODE_REJECTED:
-            self._rejected[estimate.reason.split(" (")[0]] += 1
+        if estimate.mode is EstimateMode.REJECTED:
+            self._rejected[estimate.rejection] += 1
             self.get_logger().warning(f"dropped ee_pose sample: {estimate.reason}", throttle_duration_sec=5.0)
             return
         if estimate.reason:  # a stamp gap restarted the window

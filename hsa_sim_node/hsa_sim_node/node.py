@@ -38,7 +38,7 @@ from hsa_common.runner import run
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
-from hsa_core.playback import Step
+from hsa_core.playback import Action, Step
 from hsa_core.rate_meter import RateMeter
 from hsa_core.run_conditions import plant_params
 from hsa_core.sim_lockstep import SimLockstep
@@ -216,32 +216,32 @@ class SimNode(Node):
         for _ in range(MAX_INSTANTS_PER_PUMP):
             step = self._coordinator.step(time.monotonic(), self._world.t_ns, self._world.next_sample_ns(),
                                           self._emulator.idle, lambda: lockstep.matched_of(self))
-            if step.action == "clock":
+            if step.action is Action.CLOCK:
                 self._send_clock(step.t_ns)
                 if step.reason:  # resent while the barrier waits
                     self._stats["resends"] += 1
                     return self._waiting(step)
-            elif step.action == "lead":
+            elif step.action is Action.LEAD:
                 self._lead_pub.publish(convert.clock_msg(step.t_ns))
-            elif step.action == "start":
+            elif step.action is Action.START:
                 self.get_logger().info(f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)")
-            elif step.action == "finish":
+            elif step.action is Action.FINISH:
                 self._collect_bus(step.t_ns)
                 self._stats["instants"] += 1
                 self._publish_samples(step.t_ns)
-            elif step.action in ("run", "instant"):
+            elif step.action in (Action.RUN, Action.INSTANT):
                 self._world.advance_to(step.t_ns)
                 self._sync_shafts()
-                if step.action == "run":
+                if step.action is Action.RUN:
                     self._publish_samples(step.t_ns)  # no /clock: data callbacks keep the clock of the last instant
             else:
                 return self._waiting(step)
 
     def _waiting(self, step: Step) -> None:
         """Log why simulated time does not move (not started, stopped), or fail loudly (``fail``: exit code 1)."""
-        if step.action == "stop":
+        if step.action is Action.STOP:
             self.get_logger().info(f"lockstep: {step.reason}; simulated time stops at {step.t_ns * 1e-9:.3f} s")
-        elif step.action == "fail":
+        elif step.action is Action.FAIL:
             self._failure = step.reason
             self.get_logger().error(self._failure)
             self.exit_code = 1

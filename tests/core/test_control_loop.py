@@ -13,7 +13,9 @@ from hsa_core.control import ControllerState
 from hsa_core.control_loop import SETPOINT_CHECKS, SETPOINT_INTAKE, Activation, ControlLoop
 from hsa_core.params import load_params
 from hsa_core.planning import Setpoint
+from hsa_core.refusal import Refusal, StateRejection
 from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
+from hsa_core.validation import SetpointRejection
 
 MS = 1_000_000  # ns
 Q, CHIEE, ZERO = np.zeros(3), np.array([0.0, 0.12, 0.0]), np.zeros(3)
@@ -83,7 +85,8 @@ def test_a_setpoint_is_active_from_the_first_tick_after_its_stamp() -> None:
 
 
 def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
-    law, loop = _loop(check=lambda sp: "phi_ss not an equilibrium at q_des: 0.02" if sp is SP_B else None)
+    refusal = Refusal.of(SetpointRejection.NOT_EQUILIBRIUM, "0.02")
+    law, loop = _loop(check=lambda sp: refusal if sp is SP_B else None)
     loop.receive_setpoint(0, SP_A, "a")
     loop.receive_setpoint(0, SP_B, "b")
     loop.receive_setpoint(0, Setpoint(CHIEE, Q, np.full(2, math.nan), 0.0), "nan")
@@ -91,9 +94,10 @@ def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
     assert [(a.tag, a.problem is None) for a in activated] == [("a", True), ("b", False), ("nan", False)]
     assert loop.active_tag == "a" and law.active == [SP_A]
     assert loop.counters.rejected_setpoints == 2 and loop.counters.setpoints == 1
-    assert dict(loop.rejections.setpoints) == {"phi_ss not an equilibrium at q_des": 1,
-                                               "setpoint contains non-finite values": 1}
-    assert loop.rejections.last_setpoint == "setpoint contains non-finite values"
+    rejected = loop.rejections.setpoints
+    assert dict(rejected) == {SetpointRejection.NOT_EQUILIBRIUM: 1, SetpointRejection.LAW: 1}
+    assert all(type(reason) is SetpointRejection for reason in rejected)  # typed, not parsed
+    assert loop.rejections.last_setpoint == "setpoint contains non-finite values"  # the law's words
 
 
 def test_a_setpoint_flood_costs_the_tick_a_bounded_number_of_checks_and_the_newest_wins() -> None:
@@ -206,6 +210,7 @@ def test_states_are_checked_before_they_can_be_used() -> None:
     assert dict(loop.rejections.states) == {"non-finite pose or configuration": 1,
                                             "implausible pose or configuration": 1, "older than the newest state": 1}
     assert loop.rejections.last_state == "older than the newest state"
+    assert all(type(reason) is StateRejection for reason in loop.rejections.states)  # not parsed
     assert loop.tick(50 * MS).sent is Action.STEP
 
 

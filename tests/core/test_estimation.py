@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from hsa_core.estimation import SavitzkyGolayDifferentiator, derivative_coefficients
+from hsa_core.estimation import (EstimateMode, SampleRejection, SavitzkyGolayDifferentiator,
+                                 derivative_coefficients)
 
 T = 0.005  # 200 Hz mocap period
 
@@ -177,6 +178,22 @@ def test_rejections_leave_the_buffer_unchanged():
     last = feed(est, stamps[20:], x[20:])[-1]
     fresh = feed(SavitzkyGolayDifferentiator(), stamps, x)[-1]
     np.testing.assert_array_equal(last.derivative, fresh.derivative)
+
+
+def test_rejections_carry_a_typed_reason():
+    """The kinematics node counts rejections by this member (never by parsing the text)."""
+    stamps = T * np.arange(20)
+    x, _ = cubic(stamps)
+    est = SavitzkyGolayDifferentiator()
+    assert feed(est, stamps, x)[-1].mode is EstimateMode.REGULAR
+    for t, xi, rejection in ((stamps[19], x[19], SampleRejection.DUPLICATE),
+                             (stamps[10], x[10], SampleRejection.OUT_OF_ORDER),
+                             (math.nan, x[0], SampleRejection.NON_FINITE)):
+        e = est.update(t, xi)
+        assert e.mode is EstimateMode.REJECTED and e.rejection is rejection
+        assert e.reason.startswith(str(rejection))
+    older = est.update(stamps[10], x[10]).reason
+    assert older == "out-of-order stamp (0.045 s older than the newest)"  # 9 periods of 5 ms
 
 
 def test_value_is_a_private_copy_of_the_sample():

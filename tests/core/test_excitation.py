@@ -92,3 +92,17 @@ def test_make_dispatches_by_kind():
     assert excitation.make("gbn", 1.0, duration=5.0, seed=3, mode="combined").seed == 3
     assert excitation.make("staircase", 1.0, n_levels=3, hold=1.0).duration == pytest.approx(4.0)
     assert excitation.make("step", 2.0, duration=2.0, level=1.5).phi[-1].tolist() == [1.5, 1.5]
+
+
+def test_kind_and_mode_are_enum_members_whichever_way_they_were_named() -> None:
+    """Callers may name the kind and mode (node parameters); the sequence carries the members."""
+    exc = excitation.make("gbn", PHI_MAX, duration=1.0, mode="combined")
+    assert exc.kind is excitation.ExcitationKind.GBN and exc.mode is excitation.RodMode.COMBINED
+    kind, mode = excitation.ExcitationKind.STEP, excitation.RodMode.ROD1
+    exc = excitation.make(kind, PHI_MAX, duration=2.0, mode=mode)
+    assert exc.kind is excitation.ExcitationKind.STEP and exc.mode is excitation.RodMode.ROD1
+    np.testing.assert_array_equal(exc.phi[-1], [PHI_MAX, 0.0])
+    refusal = r"^kind must be one of \['step', 'staircase', 'gbn'\], got 'sine'$"
+    with pytest.raises(ValueError, match=refusal):
+        excitation.make("sine", PHI_MAX)
+

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from hsa_core.mocap import MocapConfig, WorkspaceBox, planar_to_world
-from hsa_core.mocap_gate import BaseMode, GateConfig, Health, MocapGate, Sample
+from hsa_core.mocap_gate import (REASONS, BaseMode, GateConfig, Health, MocapGate, Rejection,
+                                 Sample)
 
 T0 = 1_700_000_000_000_000_000  # [ns] a realistic epoch stamp
 PERIOD = 5_000_000  # [ns] 200 Hz
@@ -230,3 +231,15 @@ def test_rejected_samples_leave_the_references_unchanged(gate):
         assert gate.check(bad, T0 + PERIOD).reason is not None
     assert gate.last_stamp_ns == T0
     np.testing.assert_allclose(gate.last_chiee, [0.0, 0.110, 0.0], atol=1e-12)
+
+
+def test_rejections_are_typed_reasons_in_check_order() -> None:
+    """A verdict's reason is a Rejection member (the bridge counts it as is); REASONS lists them in
+    check order under the names the bridge publishes (docs/nodes/hsa_mocap_bridge.md)."""
+    gate = MocapGate(GateConfig())
+    assert gate.check(sample(T0), T0).reason is None
+    verdict = gate.check(sample(T0), T0 + PERIOD)
+    assert type(verdict.reason) is Rejection and verdict.reason is Rejection.DUPLICATE
+    assert [str(r) for r in REASONS] == ["frame", "non_finite", "quaternion", "stale", "future",
+                                         "duplicate", "out_of_order", "no_base", "base_stale",
+                                         "workspace", "jump"]

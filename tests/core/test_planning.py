@@ -9,7 +9,7 @@ import pytest
 
 from hsa_core import dynamics, kinematics, planning
 from hsa_core.params import load_params
-from hsa_core.planning import Planner, PlanStatus
+from hsa_core.planning import Planner, PlannerKind, PlanStatus
 from hsa_core.trajectories import STEP_LISTS
 
 FPU_STEPS, EPU_STEPS = STEP_LISTS["fpu"], STEP_LISTS["epu"]  # experiments.md §2 (2023-09-25 and 2023-10-19)
@@ -130,6 +130,7 @@ def test_epu_rollout_planner_inverse_worked_example(epu_rollout):
     """§2.3 inverse, exact model, target = first EPU step point."""
     result = epu_rollout.plan(EPU_STEPS[0], warm_start=False)
     assert result.status is PlanStatus.OK and result.planner == "rollout"
+    assert result.planner is PlannerKind.ROLLOUT and epu_rollout.kind is PlannerKind.ROLLOUT
     assert result.optimality_error <= 1e-9  # [m]
     np.testing.assert_allclose(result.setpoint.phi_ss, [3.9751574, 2.5136546], rtol=SPEC_RTOL)
     np.testing.assert_allclose(result.setpoint.q_des, [-3.8671868, 0.0016940858, 0.44729129], rtol=SPEC_RTOL)

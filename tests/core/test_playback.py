@@ -4,7 +4,7 @@ clock moves, finish before the next message, /clock resend, wall-clock timeouts.
 from __future__ import annotations
 
 from hsa_core.lockstep import Barrier, Report
-from hsa_core.playback import LockstepPlayback
+from hsa_core.playback import Action, LockstepPlayback
 
 MS = 1_000_000
 T0 = 1_760_000_000 * 10**9  # a real bag's log times: ns since the epoch
@@ -147,3 +147,22 @@ def test_each_instant_has_its_own_timeout_and_the_start_ten_times_as_long() -> N
         assert playback.step(T0 + k * MS, {"/ee": 1}, now=0.9 * k).action == "clock"
     assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"  # instant 4 waits 0.9 s: a resend
     assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.7).action == "fail"  # its timer never runs
+
+
+def test_every_step_carries_an_action_member() -> None:
+    """The player dispatches on Action members, not strings: wait, clock, publish, done and fail."""
+    barrier = Barrier(["/kin"])
+    playback = LockstepPlayback(barrier, timeout=1.0)
+    steps = [playback.step(T0, {"/ee": 1}, now=0.0)]  # the participant has not reported
+    barrier.own = {"/ee": 0}
+    barrier.report(kinematics())
+    steps.append(playback.step(T0, {"/ee": 1}, now=0.1))
+    barrier.report(kinematics(T0))
+    steps.append(playback.step(T0, {"/ee": 1}, now=0.2))
+    steps.append(playback.step(None, {"/ee": 1}, now=0.3))
+    stuck = LockstepPlayback(Barrier(["/kin"]), timeout=1.0)
+    stuck.step(T0, {}, now=0.0)
+    steps.append(stuck.step(T0, {}, now=10.1))  # start-up may take 10 timeouts
+    assert [type(step.action) for step in steps] == [Action] * 5
+    assert [step.action for step in steps] == [Action.WAIT, Action.CLOCK, Action.PUBLISH,
+                                               Action.DONE, Action.FAIL]

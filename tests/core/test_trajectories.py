@@ -8,6 +8,7 @@ import pytest
 
 from hsa_core.trajectories import (
     R_MAX_SAFE,
+    Direction,
     TimedReference,
     circle_reference,
     contour_reference,
@@ -137,6 +138,9 @@ def test_direction_option(l_shape_png):
     assert shoelace(cw.p_des) < 0 and shoelace(ccw.p_des) > 0
     np.testing.assert_array_equal(cw.p_des[0], traced.p_des[0])  # same start point
     np.testing.assert_array_equal(cw.p_des[1:], traced.p_des[:0:-1])
+    members = contour_reference(l_shape_png, direction=Direction.CW, **kwargs)
+    np.testing.assert_array_equal(members.p_des, cw.p_des)  # the enum member and its name agree
+    assert shoelace(circle_reference(direction=Direction.CW).p_des) < 0
 
 
 def test_crop_to_centred_square(tmp_path):

@@ -12,7 +12,9 @@ from hsa_core import control
 from hsa_core.control import Controller, ControllerKind
 from hsa_core.params import load_params
 from hsa_core.planning import Planner, Setpoint
-from hsa_core.validation import DelayGate, SetpointValidator, q_bounds, state_problem
+from hsa_core.refusal import StateRejection
+from hsa_core.validation import (DelayGate, SetpointRejection, SetpointValidator, q_bounds,
+                                 state_problem)
 
 # FPU worked example of planning_and_control.md §2.2 (the spec's numbers, rounded to 8 digits)
 GOOD = Setpoint(np.array([0.00479247, 0.12781018, -0.066980133]), np.array([-1.1352565, 0.0080816386, 0.30410104]),
@@ -140,3 +142,16 @@ def test_controller_refuses_negative_optimality_error_and_absurd_q(params) -> No
         with pytest.raises(ValueError):
             c.set_setpoint(POISON[label][0])
     assert c.setpoint is None
+
+
+def test_refusals_carry_their_reason(params) -> None:
+    """State and setpoint refusals carry a typed reason (counted as is) with the text shown."""
+    bounds = q_bounds(params)
+    q, chiee, chiee_dot = [-1.1, 0.008, 0.3], [0.005, 0.128, -0.07], [0.01, 0.0, 0.1]
+    refusal = state_problem(bounds, q, [1e6, 0.0, 0.0], chiee, chiee_dot, True)
+    assert refusal.reason is StateRejection.IMPLAUSIBLE_RATES
+    assert refusal.startswith("implausible rates: ")
+    setpoint = Setpoint(np.zeros(3), np.zeros(3), np.zeros(2), -1.0)
+    refusal = SetpointValidator(params).problem(setpoint)
+    assert refusal.reason is SetpointRejection.OPTIMALITY
+    assert refusal == "optimality error outside [0, 0.001]: -1.0"

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -20,6 +20,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
 from hsa_common import rosenv
+from hsa_common.launcher import find_executable
 
 PEERS = Path(__file__).parent / "peers"
 LAUNCHER = (sys.executable, "-m", "hsa_common.launcher")
@@ -38,6 +39,18 @@ def start_process(args: list[str], **popen: object) -> subprocess.Popen:
     )
 
 
+def start_node(package: str, executable: str, params: Sequence[str],
+               remaps: Sequence[str] = ("__ns:=/hsa",)) -> subprocess.Popen:
+    """A node process (start_process) with ``-r`` remaps (default: namespace /hsa) and
+    ``-p name:=value`` parameters."""
+    args = ["--ros-args"]
+    for remap in remaps:
+        args += ["-r", remap]
+    for param in params:
+        args += ["-p", param]
+    return start_process([find_executable(package, executable), *args])
+
+
 def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int:
     """SIGINT the process group, escalating to SIGTERM and SIGKILL after timeouts; return the exit code."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
@@ -52,6 +65,18 @@ def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int:
         except subprocess.TimeoutExpired:
             continue
     return proc.wait()
+
+
+def assert_refused_at_start(procs: dict[str, subprocess.Popen], timeout: float = 120.0) -> None:
+    """Each process (keyed by a parameter's name) exits 2 saying "refusing to start", naming it."""
+    for name, proc in procs.items():
+        try:
+            out, _ = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            stop_process(proc)
+            out, _ = proc.communicate()
+        assert proc.returncode == 2, out
+        assert "refusing to start" in out and f"'{name}'" in out, out
 
 
 def wait_for_line(proc: subprocess.Popen, text: str, timeout: float = 60.0) -> list[str]:

@@ -23,7 +23,8 @@ from hsa_core import mocap
 from hsa_msgs.msg import ControllerInfo, PlanarPoseStamped, PlanarState, Setpoint
 from hsa_msgs.srv import PlanSetpoint
 from tests.ros.faults import (BEST_EFFORT, OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault,
-                              sec, setpoint, start_all, wait_until)
+                              sec, setpoint, wait_until)
+from tests.ros.graphs import estimation_graph
 from tests.ros.test_mocap_bridge import pose_msg
 
 pytestmark = pytest.mark.ros
@@ -38,17 +39,10 @@ STATUS = {getattr(PlanSetpoint.Response, n): n for n in dir(PlanSetpoint.Respons
 
 @pytest.fixture(scope="module")
 def graph() -> Iterator[dict[str, NodeProcess]]:
-    """mocap_bridge, kinematics_node, controller_node (FPU, P-satI-D) and planner_node (static) in /bad."""
-    common = ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2"]
-    procs = start_all({
-        "bridge": ("mocap_bridge", [*common, "-p", f"platform_topic:={TOPIC}"]),
-        "kinematics": ("kinematics_node", common),
-        # no driver in this graph; every rejection logged (the test counts the lines)
-        "controller": ("controller_node", [*common, "-p", "driver_timeout:=0.0", "-p", "rejection_log_period:=0.0"]),
-        "planner": ("planner_node", ["-r", f"__ns:={NS}"]),
-    })
-    yield procs
-    assert {key: proc.stop() for key, proc in procs.items()} == dict.fromkeys(procs, 0)
+    """mocap_bridge, kinematics_node, controller_node (FPU, P-satI-D, every rejection logged: the
+    test counts the lines) and planner_node (static) in /bad."""
+    yield from estimation_graph(NS, ["-p", "rejection_log_period:=0.0"],
+                                planner=("planner_node", ["-r", f"__ns:={NS}"]))
 
 
 def _track(ros_node, infos: Recorder) -> tuple[MocapStream, object]:  # noqa: ANN001 - rclpy node

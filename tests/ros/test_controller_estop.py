@@ -17,7 +17,8 @@ from std_msgs.msg import Bool
 
 from hsa_common import qos
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, Setpoint
-from tests.ros.faults import DiagnosticsLog, NodeProcess, Recorder, fault, sec, setpoint, start_all, wait_until
+from tests.ros.faults import DiagnosticsLog, NodeProcess, Recorder, fault, sec, setpoint, wait_until
+from tests.ros.graphs import controller_alone
 from tests.ros.test_controller_node import Feeder
 
 pytestmark = pytest.mark.ros
@@ -30,10 +31,7 @@ CONTROL = "controller_node: control loop"
 @pytest.fixture(scope="module")
 def controller() -> Iterator[NodeProcess]:
     """controller_node (FPU, P-satI-D, 40 Hz) in /es, diagnostics at 5 Hz."""
-    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2",
-                                                          "-p", "driver_timeout:=0.0"])})
-    yield procs["controller"]
-    assert procs["controller"].stop() == 0
+    yield from controller_alone(NS)
 
 
 def _now(node) -> float:  # noqa: ANN001 - rclpy node

@@ -29,8 +29,9 @@ from lifecycle_msgs.srv import ChangeState
 from hsa_common import qos
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 from tests.ros.driver_harness import DriverProcess, make_emulator, torque, torque_on_time
-from tests.ros.faults import (OFFSET_CHIEE, DiagnosticsLog, NodeProcess, Recorder, fault, sec, setpoint, start_all,
-                              wait_until)
+from tests.ros.faults import (OFFSET_CHIEE, DiagnosticsLog, NodeProcess, Recorder, fault, sec,
+                              setpoint, wait_until)
+from tests.ros.graphs import controller_alone
 
 pytestmark = pytest.mark.ros
 
@@ -77,10 +78,7 @@ class StateFeeder:
 @pytest.fixture(scope="module")
 def controller() -> Iterator[NodeProcess]:
     """controller_node (FPU, P-satI-D, 40 Hz) in /cs without a driver, diagnostics at 5 Hz, default log throttle."""
-    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2",
-                                                          "-p", "driver_timeout:=0.0"])})
-    yield procs["controller"]
-    assert procs["controller"].stop() == 0
+    yield from controller_alone(NS)
 
 
 def _finite(values) -> bool:  # noqa: ANN001 - float sequence

@@ -17,13 +17,13 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from hsa_core.kinematics import end_effector_jacobian, end_effector_pose
 from hsa_core.params import HsaParams, load_params
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
-from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
+from tests.ros.conftest import (ParameterClient, assert_refused_at_start, start_node, stop_process,
+                                wait_for_line)
 from tests.ros.test_mocap_bridge import delta, pose_msg, prime, start_bridge, stamp_ns, status, stream, wait_until
 
 pytestmark = pytest.mark.ros
@@ -38,12 +38,7 @@ Q0, RATE = np.array([-2.0, 0.02, 0.05]), np.array([8.0, -0.1, 0.2])  # q ramp [1
 
 def _start(params: Sequence[str], remaps: Sequence[str] = ("__ns:=/hsa",)) -> subprocess.Popen:
     """A kinematics_node process (default: in namespace /hsa) with ``name:=value`` parameters."""
-    args = ["--ros-args"]
-    for r in remaps:
-        args += ["-r", r]
-    for p in params:
-        args += ["-p", p]
-    return start_process([find_executable("hsa_kinematics_node", "kinematics_node"), *args])
+    return start_node("hsa_kinematics_node", "kinematics_node", params, remaps)
 
 
 @pytest.fixture(scope="module")
@@ -108,15 +103,22 @@ def _q_dot(state: PlanarState) -> list[float]:
     return [state.q_dot.kappa_be, state.q_dot.sigma_sh, state.q_dot.sigma_ax]
 
 
-def test_q_from_fk_poses_and_rates_of_a_ramp(nodes, ros_node) -> None:
-    states, diagnostics = _setup(ros_node)
-    pub = _pose_input(ros_node)
-    q, chiee, chiee_dot_known = _ramp(60)
-    baseline = prime(ros_node, pub, diagnostics, lambda t: _planar_msg(t, chiee[0]), echo=states, name=STATUS)
+def _primed(node: Node, chiee: np.ndarray) -> tuple[list[PlanarState], list[DiagnosticArray],
+                                                     object, dict[str, str], list[int]]:
+    """A test's state echo, diagnostics and ee_pose publisher, the node primed with chiee[0] (the
+    diagnostics baseline after it), and one stamp per pose of chiee, a period apart from now."""
+    states, diagnostics = _setup(node)
+    pub = _pose_input(node)
+    baseline = prime(node, pub, diagnostics, lambda t: _planar_msg(t, chiee[0]), echo=states,
+                     name=STATUS)
     states.clear()
+    t0 = node.get_clock().now().nanoseconds
+    return states, diagnostics, pub, baseline, [t0 + k * PERIOD_NS for k in range(len(chiee))]
 
-    t0 = ros_node.get_clock().now().nanoseconds
-    stamps = [t0 + k * PERIOD_NS for k in range(60)]
+
+def test_q_from_fk_poses_and_rates_of_a_ramp(nodes, ros_node) -> None:
+    q, chiee, chiee_dot_known = _ramp(60)
+    states, diagnostics, pub, baseline, stamps = _primed(ros_node, chiee)
     stream(pub, [_planar_msg(t, c) for t, c in zip(stamps, chiee)])
 
     assert wait_until(lambda: len(states) == 60, 10.0), f"{len(states)} of 60 states arrived"
@@ -140,14 +142,8 @@ def test_q_from_fk_poses_and_rates_of_a_ramp(nodes, ros_node) -> None:
 
 
 def test_rejected_samples_produce_no_state(nodes, ros_node) -> None:
-    states, diagnostics = _setup(ros_node)
-    pub = _pose_input(ros_node)
     q, chiee, _ = _ramp(40)
-    baseline = prime(ros_node, pub, diagnostics, lambda t: _planar_msg(t, chiee[0]), echo=states, name=STATUS)
-    states.clear()
-
-    t0 = ros_node.get_clock().now().nanoseconds
-    slot = [t0 + k * PERIOD_NS for k in range(40)]
+    states, diagnostics, pub, baseline, slot = _primed(ros_node, chiee)
     good = [_planar_msg(t, c) for t, c in zip(slot, chiee)]
     bad = [_planar_msg(slot[25], [math.nan, 0.11, 0.0]),  # non-finite (its stamp is reused by the next good sample)
            _planar_msg(slot[24], chiee[24] + 0.001),  # duplicate stamp
@@ -202,12 +198,4 @@ def test_chain_from_mocap_to_state(nodes, ros_node) -> None:
 def test_bad_start_parameters_exit_2_naming_the_parameter() -> None:
     bad = {"sigma_a_eq": "sigma_a_eq:=[1.0]",  # one value for two rods (validator)
            "window": "window:=4"}  # too short for a cubic (order 3 needs window >= 5)
-    procs = {name: _start([param]) for name, param in bad.items()}
-    for name, proc in procs.items():
-        try:
-            out, _ = proc.communicate(timeout=120.0)
-        except subprocess.TimeoutExpired:
-            stop_process(proc)
-            out, _ = proc.communicate()
-        assert proc.returncode == 2, out
-        assert "refusing to start" in out and f"'{name}'" in out, out
+    assert_refused_at_start({name: _start([param]) for name, param in bad.items()})

@@ -17,11 +17,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_common.launcher import find_executable
 from hsa_core import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
-from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line, wait_until
+from tests.ros.conftest import (ParameterClient, assert_refused_at_start, start_node, stop_process,
+                                wait_for_line, wait_until)
 
 pytestmark = pytest.mark.ros
 
@@ -43,12 +43,7 @@ Values = dict[str, str]
 
 def start_bridge(params: Sequence[str], remaps: Sequence[str] = ("__ns:=/hsa",)) -> subprocess.Popen:
     """A mocap_bridge process (default: in namespace /hsa) with ``name:=value`` parameters."""
-    args = ["--ros-args"]
-    for r in remaps:
-        args += ["-r", r]
-    for p in params:
-        args += ["-p", p]
-    return start_process([find_executable("hsa_mocap_bridge", "mocap_bridge"), *args])
+    return start_node("hsa_mocap_bridge", "mocap_bridge", params, remaps)
 
 
 @pytest.fixture(scope="module")
@@ -364,12 +359,4 @@ def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node
 def test_bad_start_parameters_exit_2_naming_the_parameter() -> None:
     bad = {"max_jump": "max_jump:=-1.0",  # outside the declared range (rclpy refuses)
            "base_quaternion": "base_quaternion:=[0.0, 0.0, 0.0, 0.5]"}  # not a unit quaternion (validator)
-    procs = {name: start_bridge([param]) for name, param in bad.items()}
-    for name, proc in procs.items():
-        try:
-            out, _ = proc.communicate(timeout=120.0)
-        except subprocess.TimeoutExpired:
-            stop_process(proc)
-            out, _ = proc.communicate()
-        assert proc.returncode == 2, out
-        assert "refusing to start" in out and f"'{name}'" in out, out
+    assert_refused_at_start({name: start_bridge([param]) for name, param in bad.items()})

@@ -17,7 +17,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from hsa_common import qos
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, Setpoint
 from tests.ros.faults import (OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault, sec, setpoint,
-                              start_all, wait_until)
+                              wait_until)
+from tests.ros.graphs import estimation_graph
 
 pytestmark = pytest.mark.ros
 
@@ -32,14 +33,7 @@ CONTROL = "controller_node: control loop"
 @pytest.fixture(scope="module")
 def graph() -> Iterator[dict[str, NodeProcess]]:
     """mocap_bridge, kinematics_node and controller_node (FPU, P-satI-D, 40 Hz) in /stale, diagnostics at 5 Hz."""
-    common = ["-r", f"__ns:={NS}", "-p", "diagnostics_period:=0.2"]
-    procs = start_all({
-        "bridge": ("mocap_bridge", [*common, "-p", f"platform_topic:={TOPIC}"]),
-        "kinematics": ("kinematics_node", common),
-        "controller": ("controller_node", [*common, "-p", "driver_timeout:=0.0"]),  # no driver in this graph
-    })
-    yield procs
-    assert {key: proc.stop() for key, proc in procs.items()} == dict.fromkeys(procs, 0)
+    yield from estimation_graph(NS)
 
 
 @pytest.mark.parametrize("outage", [0.2, 2.0])

@@ -111,6 +111,7 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__("sim_node")
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL)  # the process's: composed with other nodes too
         self._p: dict[str, Any] = declare(self, SPECS)
         wiring = load_wiring_param(self._p["wiring_file"])  # the driver's: IDs, rods, rod signs
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
@@ -287,6 +288,5 @@ class SimNode(Node):
 
 def main() -> None:
     """Console entry point ``sim_node``."""
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
     configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(SimNode, "sim_node"))

@@ -48,7 +48,8 @@ import yaml
 from hsa_common import fastdds_shm, parent_death, rosenv
 from hsa_core import cli
 
-_SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
+# innermost first: $(var a_$(var b)) nests
+_SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s$]+)*)\s*\)")
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
@@ -247,7 +248,8 @@ class LaunchFile:
         exe = find_executable(sub(spec["pkg"]), sub(spec["exec"]))
         cmd = [exe, *shlex.split(sub(str(spec.get("args", "")))), "--ros-args"]
         name = sub(spec.get("name", spec["exec"]))
-        cmd += ["-r", f"__node:={name}"]
+        if "name" in spec:  # as launch_ros: without one, each node keeps its own (hsa_compose)
+            cmd += ["-r", f"__node:={name}"]
         if "namespace" in spec:
             cmd += ["-r", f"__ns:=/{sub(spec['namespace']).lstrip('/')}"]  # launch_ros makes it absolute too
         for param in spec.get("param", []):

@@ -15,7 +15,8 @@ clock is at t.
 from __future__ import annotations
 
 from collections import Counter
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -76,6 +77,13 @@ class LeadClock:
     def now_ns(self) -> int:
         """[ns] the later of the node clock and the latest lead instant."""
         return max(self.node.get_clock().now().nanoseconds, self.lead_ns)
+
+
+class Reporter(Protocol):
+    """What the runner's lockstep spin needs: a report whenever the process has run out of work."""
+
+    def idle(self, leaving: bool = False) -> None:
+        """The process found nothing to run (``leaving``: it stops): report if anything changed."""
 
 
 class Participant:
@@ -186,6 +194,19 @@ class Participant:
             return  # only the clock moved, and the simulator does not wait for this node's clock
         self._last = key
         self._ack_pub.publish(to_msg(r))
+
+
+class Group:
+    """The participants of one process (several nodes composed: :mod:`hsa_common.compose`); each
+    reports when the process runs out of work."""
+
+    def __init__(self, participants: Sequence[Participant]) -> None:
+        self.participants = tuple(participants)
+
+    def idle(self, leaving: bool = False) -> None:
+        """Every participant reports (see :meth:`Participant.idle`)."""
+        for participant in self.participants:
+            participant.idle(leaving)
 
 
 def heard(node: Node) -> dict[str, int]:

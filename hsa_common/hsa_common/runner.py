@@ -3,7 +3,8 @@
 ``run(MyNode)`` returns the process exit code: 0 after a stop signal or when the node shuts its context down, 2 when
 the parameters are refused at start (the error names the parameter, or the parameter file rcl cannot parse), 1 after
 an uncaught exception or when the launcher that started it has already ended. In every case the node's
-``on_shutdown()`` hook runs before the process exits — the driver turns torque off there.
+``on_shutdown()`` hook runs before the process exits — the driver turns torque off there. ``run_nodes`` does the
+same for several nodes in one process (:mod:`hsa_common.compose`).
 
 Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) all stop the
 node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A stop signal that arrives while the node is still
@@ -38,7 +39,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
@@ -83,6 +84,15 @@ _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
     """Create the node with ``node_factory``, spin it until shutdown and end the process with its exit code (see the
     module docstring); returns only when the node could not be created."""
+    return run_nodes([node_factory], name, args)
+
+
+def run_nodes(
+    node_factories: Sequence[Callable[[], Node]], name: str, args: list[str] | None = None
+) -> int:
+    """:func:`run` for several nodes in one process (:mod:`hsa_common.compose`): one context (one
+    DDS participant), one executor; the nodes are created in order and their ``on_shutdown`` hooks
+    run in that order; the exit code is the first non-zero ``exit_code`` of the nodes."""
     rosenv.ensure_for_node()
     tie = parent_death.tie_to_parent(signal.SIGTERM)  # before the SIGHUP handler: an ignored SIGHUP means nohup
     stop: list[int] = []
@@ -100,6 +110,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
     if tie is parent_death.Tie.ORPHANED:
         logger.fatal(f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already ended")
         return 1
+    nodes: list[Node] = []
     try:
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -107,7 +118,8 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
             logger.fatal(f"refusing to start: {exc}")
             return 2
         try:
-            node = node_factory()
+            for factory in node_factories:
+                nodes.append(factory())
         except ParameterValidationError as exc:
             logger.fatal(f"refusing to start: {exc}")
             rclpy.try_shutdown()
@@ -118,16 +130,18 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         rclpy.try_shutdown()
         sys.stderr.flush()
         os._exit(0)  # skip the interpreter's teardown (JAX/XLA), as after a normal stop
-    in_lockstep = lockstep.enabled(node)
-    participant = None
-    if in_lockstep and not getattr(node, "lockstep_coordinator", False):
-        participant = lockstep.Participant(node)
+    in_lockstep = any(lockstep.enabled(node) for node in nodes)
+    participant = lockstep.Group([
+        lockstep.Participant(node) for node in nodes
+        if lockstep.enabled(node) and not getattr(node, "lockstep_coordinator", False)])
     executor = SingleThreadedExecutor() if in_lockstep else make_executor()
-    executor.add_node(node)
-    errors = MiddlewareErrors(node)  # a malformed incoming message: one throttled line, not rcutils' stderr block
+    for node in nodes:
+        executor.add_node(node)
+    errors = MiddlewareErrors(nodes[0])  # a malformed message: one throttled line per process
     failed = True  # until the spin ends in an orderly stop
     try:
-        node.get_logger().info("ready")  # start-up (parameter checks, JAX compilation) is complete; tests wait for it
+        for node in nodes:  # start-up (parameter checks, JAX compilation) is complete
+            node.get_logger().info("ready")
         if in_lockstep:
             spin_lockstep(executor, participant, stop, errors)
         while not stop and rclpy.ok():
@@ -135,7 +149,7 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
             errors.check()
         failed = False
     except ExternalShutdownException:
-        failed = False  # the node shut its context down (e.g. the sequencer's exit_on_finish)
+        failed = False  # a node shut its context down (e.g. the sequencer's exit_on_finish)
     except (RCLError, RuntimeError):
         if rclpy.ok():
             raise
@@ -143,31 +157,39 @@ def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = No
         # the context was shut down while a callback was publishing or a message was being taken (rclpy raises
         # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
-        if participant is not None and rclpy.ok():
+        if rclpy.ok():
             participant.idle(leaving=True)
-        hook = getattr(node, "on_shutdown", None)
-        if hook is not None:
+        hooks = [h for h in (getattr(node, "on_shutdown", None) for node in nodes) if h is not None]
+        for hook in hooks:
             hook()
-        else:
+        if not hooks:
             os.nice(TEARDOWN_NICE)  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
         executor.shutdown(timeout_sec=1.0)
-        # the node's work is done; the middleware's teardown may hang holding the GIL (exit_deadline): bound it
+        # the work is done; the middleware's teardown may hang holding the GIL (exit_deadline)
         with _DUMP_LOCK:
             _TEARDOWN.set()  # from now on the stop watch leaves this dump alone
             faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
-        exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else int(getattr(node, "exit_code", 0)))
-        node.destroy_node()
-        if isinstance(node, LifecycleNode):
-            node._state_machine.destroy_when_not_in_use()  # holds the node handle; rclpy's destroy_node leaves it
+        exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else exit_code(nodes))
+        for node in nodes:
+            node.destroy_node()
+            if isinstance(node, LifecycleNode):
+                # the state machine holds the node handle; rclpy's destroy_node leaves it
+                node._state_machine.destroy_when_not_in_use()
         rclpy.try_shutdown()
         faulthandler.cancel_dump_traceback_later()
-    code = int(getattr(node, "exit_code", 0))
+    code = exit_code(nodes)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except OSError:
             pass  # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
-    os._exit(code)  # the hook has persisted what matters: skip the interpreter's teardown (JAX/XLA), seconds when busy
+    os._exit(code)  # the hooks persisted what matters: skip the interpreter's teardown (JAX/XLA)
+
+
+def exit_code(nodes: Sequence[Node]) -> int:
+    """The first non-zero ``exit_code`` a node set (0 if none did)."""
+    codes = (int(getattr(node, "exit_code", 0)) for node in nodes)
+    return next((code for code in codes if code), 0)
 
 
 class StopBeforeReady(BaseException):
@@ -177,12 +199,13 @@ class StopBeforeReady(BaseException):
 
 def spin_lockstep(
     executor: Executor,
-    participant: lockstep.Participant | None,
+    participant: lockstep.Reporter | None,
     stop: list[int],
     errors: MiddlewareErrors | None = None,
 ) -> None:
-    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a participant).
-    ``errors`` (if given) is checked after each callback."""
+    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a
+    participant: one node's or a composed process's). ``errors`` (if given) is checked after each
+    callback."""
     idle = False
     while not stop and rclpy.ok():
         try:

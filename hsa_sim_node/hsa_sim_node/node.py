@@ -17,9 +17,11 @@ See docs/nodes/hsa_sim_node.md.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -113,6 +115,7 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__("sim_node")
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL)  # the process's: composed with other nodes too
         self._p: dict[str, Any] = declare(self, SPECS)
         wiring = load_wiring_param(self._p["wiring_file"])  # the driver's: IDs, rods, rod signs
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
@@ -141,6 +144,8 @@ class SimNode(Node):
         self._pub_base = (self.create_publisher(PoseStamped, self._p["base_topic"], qos.SENSOR,
                                                 qos_overriding_options=options) if self._p["base_topic"] else None)
         self._stats = {"samples": 0, "instants": 0, "resends": 0, "sim_time_ns": 0}
+        self._traffic = {"acks": 0, "clocks": 0, "leads": 0, "runs": 0, "pumps": 0}  # lockstep: barrier
+        self._acks_by: Counter[str] = Counter()
         self._world_rates, self._emulator_rates = RateMeter(time.monotonic_ns()), RateMeter(time.monotonic_ns())
         self._lockstep = lockstep.enabled(self)
         self._failure = ""
@@ -206,6 +211,8 @@ class SimNode(Node):
     # ---------------------------------------------------------------- lockstep
     def _on_ack(self, msg: LockstepAck) -> None:
         """A participant's report: maybe the instant is finished."""
+        self._traffic["acks"] += 1
+        self._acks_by[msg.node] += 1
         self._barrier.report(lockstep.from_msg(msg))
         self._pump()
 
@@ -213,6 +220,7 @@ class SimNode(Node):
         """Move simulated time as far as the barrier allows (decisions: :class:`hsa_core.sim_lockstep.SimLockstep`)."""
         if self._failure:
             return
+        self._traffic["pumps"] += 1
         for _ in range(MAX_INSTANTS_PER_PUMP):
             step = self._coordinator.step(time.monotonic(), self._world.t_ns, self._world.next_sample_ns(),
                                           self._emulator.idle, lambda: lockstep.matched_of(self))
@@ -222,6 +230,7 @@ class SimNode(Node):
                     self._stats["resends"] += 1
                     return self._waiting(step)
             elif step.action is Action.LEAD:
+                self._traffic["leads"] += 1
                 self._lead_pub.publish(convert.clock_msg(step.t_ns))
             elif step.action is Action.START:
                 self.get_logger().info(f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)")
@@ -233,6 +242,7 @@ class SimNode(Node):
                 self._world.advance_to(step.t_ns)
                 self._sync_shafts()
                 if step.action is Action.RUN:
+                    self._traffic["runs"] += 1
                     self._publish_samples(step.t_ns)  # no /clock: data callbacks keep the clock of the last instant
             else:
                 return self._waiting(step)
@@ -252,6 +262,7 @@ class SimNode(Node):
 
     def _send_clock(self, t_ns: int) -> None:
         """Publish /clock at instant ``t_ns``."""
+        self._traffic["clocks"] += 1
         self._clock_pub.publish(convert.clock_msg(t_ns))
 
     # ---------------------------------------------------------------- diagnostics
@@ -270,6 +281,10 @@ class SimNode(Node):
     def on_shutdown(self) -> None:
         """Runner exit hook: keep the servos powered for a moment, so a driver stopping with us can turn torque off,
         then report whether it did and remove the bus."""
+        if self._lockstep:  # what the barrier cost (benchmarks/bench_lockstep_breakdown.py)
+            traffic = {"sim_time_ns": self._world.t_ns, "instants": self._stats["instants"], **self._traffic,
+                       "acks_by": dict(self._acks_by)}
+            self.get_logger().info(f"lockstep: barrier traffic {json.dumps(traffic)}")
         time.sleep(SHUTDOWN_GRACE)
         on = [i for i in self._map.ids if self._emulator.torque_enabled(i)]
         self.get_logger().info(torque_at_exit(self._map.ids, on, self._emulator.writes(ADDR_TORQUE_ENABLE)))
@@ -278,6 +293,5 @@ class SimNode(Node):
 
 def main() -> None:
     """Console entry point ``sim_node``."""
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
     configure_jax()  # the node loads the model: float64 before anything is computed
     raise SystemExit(run(SimNode, "sim_node"))

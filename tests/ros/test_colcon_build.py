@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from hsa_common import rosenv
-from hsa_common.launcher import LaunchFile
+from hsa_common.compose import parse_entries
+from hsa_common.launcher import LaunchFile, Process
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, stop_process, wait_until
 from tests.ros.test_launch_files import GRAPHS, OPTIONAL_ON, REQUIRED
 
@@ -65,6 +66,13 @@ def test_every_node_of_every_graph_resolves_to_the_install_space(install: Path, 
                 assert exe.parent.name == exe.parent.parent.parent.name, exe  # install/<pkg>/lib/<pkg>/<exe>
 
 
+def node_names(proc: Process) -> list[str]:
+    """The nodes a launch process runs (several under hsa_compose)."""
+    if Path(proc.cmd[0]).name != "hsa_compose":
+        return [proc.name]
+    return [e.name for e in parse_entries(proc.cmd[1:proc.cmd.index("--ros-args")])[0]]
+
+
 def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_text: dict[str, str],
               linger: float = 0.0) -> float:
     """Start a graph from the install space; wait until each process logged its ready text; Ctrl-C; seconds to ready.
@@ -73,7 +81,8 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
     otherwise it is stopped with Ctrl-C then. Either way it must end with 0.
     """
     path = REPO / "launch_scripts" / graph
-    names = [p.name for p in LaunchFile(path, args).processes()]
+    procs = LaunchFile(path, args).processes()
+    names = [n for p in procs for n in node_names(p)]
     launcher = subprocess.Popen([*LAUNCHER, str(path), *GRAPH_STOP,
                                  *(f"{k}:={v}" for k, v in args.items())], env=install_environment(install), cwd=cwd,
                                 start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -92,7 +101,7 @@ def run_graph(install: Path, graph: str, args: dict[str, str], cwd: Path, ready_
         assert ready() == set(names), f"not ready: {sorted(set(names) - ready())}\n" + "".join(lines)[-6000:]
         took = time.monotonic() - started
         starts = [line for line in lines if line.startswith("[launch] starting ")]
-        assert len(starts) == len(names) and all(f" {install}/" in line for line in starts), starts
+        assert len(starts) == len(procs) and all(f" {install}/" in line for line in starts), starts
         wait_until(lambda: launcher.poll() is not None, timeout=linger)  # a graph that ends by itself may do so
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGINT)
@@ -115,7 +124,8 @@ def sim_bag(install: Path, tmp_path_factory) -> Path:
 
 
 def test_sim_graph_from_the_install_space_brings_every_node_to_ready(sim_bag: Path) -> None:
-    """Default sim graph: all 8 nodes from install/<pkg>/lib/<pkg>/<exe> ready, stopped with 0, bag written."""
+    """Default sim graph: all 8 nodes (5 processes) from install/<pkg>/lib/<pkg>/<exe> ready,
+    stopped with 0, bag written."""
     assert (sim_bag / "metadata.yaml").is_file()
 
 

@@ -13,12 +13,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from hsa_common.compose import parse_entries, split_parameters
 from hsa_common.launcher import LaunchError, LaunchFile, Process, main
 from hsa_common.parameters import RUNNER_PARAMS
 
 GRAPHS = sorted((Path(__file__).parents[2] / "launch_scripts").glob("*.launch.yaml"))
 REQUIRED = {"replay.launch.yaml": {"bag": "/tmp/some_bag"}}
-OPTIONAL_ON = {"sim.launch.yaml": [{"markers": "true", "live": "true"}], "real.launch.yaml": [{"live": "true"}],
+OPTIONAL_ON = {"sim.launch.yaml": [{"markers": "true", "live": "true"}, {"compose": "true"}], "real.launch.yaml": [{"live": "true"}],
                "replay.launch.yaml": [{"record": "true"}], "identify.launch.yaml": [{"sim": "true"}, {"sim": "false"}]}
 """Launch arguments that switch every optional node of a graph on (or each branch of it)."""
 PACKAGES = ("hsa_core", "hsa_common", "hsa_mocap_bridge", "hsa_kinematics_node", "hsa_planner_node",
@@ -37,12 +38,29 @@ def test_graph_resolves(graph: Path) -> None:
             assert f"__ns:=/hsa" in proc.cmd, f"{proc.name} is not in the /hsa namespace"
 
 
+def _composed(proc: Process) -> list[str]:
+    """The names of the nodes a process runs (several under hsa_compose)."""
+    if Path(proc.cmd[0]).name != "hsa_compose":
+        return [proc.name]
+    return [e.name for e in parse_entries(proc.cmd[1:proc.cmd.index("--ros-args")])[0]]
+
+
 def test_names_of_the_sim_graph() -> None:
-    names = [p.name for p in LaunchFile(GRAPHS[0].with_name("sim.launch.yaml"), {}).processes()]
-    assert names == ["sim_node", "dynamixel_driver", "mocap_bridge", "kinematics_node", "planner_node",
-                     "controller_node", "setpoint_sequencer", "bag_recorder"]
-    no_bag = [p.name for p in LaunchFile(GRAPHS[0].with_name("sim.launch.yaml"), {"record": "false"}).processes()]
-    assert "bag_recorder" not in no_bag
+    """One process per node; lockstep with compose:=true: simulator + bridge and kinematics +
+    controller + recorder composed (compose:=true on the wall clock changes nothing)."""
+    sim = GRAPHS[0].with_name("sim.launch.yaml")
+    layout = [_composed(p) for p in LaunchFile(sim, {"compose": "true"}).processes()]
+    assert layout == [["sim_node", "mocap_bridge"],
+                      ["kinematics_node", "controller_node", "bag_recorder"],
+                      ["dynamixel_driver"], ["planner_node"], ["setpoint_sequencer"]]
+    for args in ({}, {"clock": "wall", "compose": "true"}):
+        names = [p.name for p in LaunchFile(sim, args).processes()]
+        assert names == ["sim_node", "dynamixel_driver", "mocap_bridge", "kinematics_node",
+                         "planner_node", "controller_node", "setpoint_sequencer",
+                         "bag_recorder"], args
+    for args in ({"record": "false", "compose": "true"}, {"record": "false"}):
+        nodes = [n for p in LaunchFile(sim, args).processes() for n in _composed(p)]
+        assert "bag_recorder" not in nodes and len(nodes) == 7, args
 
 
 def test_bad_invocations_are_refused(tmp_path, capsys) -> None:
@@ -74,6 +92,26 @@ def _given_parameters(proc: Process) -> set[str]:
     return names - {"use_sim_time"} - RUNNER_PARAMS
 
 
+def _composed_parameters(proc: Process) -> dict[str, set[str]]:
+    """Per node of an hsa_compose process, the names of the parameters it is given (as
+    :func:`_given_parameters`; the ``/**`` parameters every node of the process gets: ``*``)."""
+    entries, files, left_out = parse_entries(proc.cmd[1:proc.cmd.index("--ros-args")])
+    names = [e.name for e in entries]
+    ros_args = proc.cmd[proc.cmd.index("--ros-args") + 1:]
+    rest, per_node = split_parameters(ros_args, names + left_out, files)
+    given = {name: set(per_node.get(name, {})) for name in names}
+    given["*"] = _given_parameters(Process("*", ["hsa_compose", *rest], False))
+    for flag, value in zip(rest, rest[1:]):
+        if flag == "--params-file":
+            for key, section in (yaml.safe_load(Path(value).read_text()) or {}).items():
+                if key.rsplit("/", 1)[-1] in given and key != "/**":
+                    params = (section or {}).get("ros__parameters", {}) or {}
+                    given[key.rsplit("/", 1)[-1]].update(params)
+            if Path(value).name.startswith("hsa_compose_"):
+                os.unlink(value)
+    return {name: names - {"use_sim_time"} - RUNNER_PARAMS for name, names in given.items()}
+
+
 def _node_specs(executable: str) -> set[str] | None:
     """The parameter names the console script lib/<pkg>/<exe> declares (its module's SPECS), None if it has none."""
     exe = Path(executable)
@@ -89,6 +127,17 @@ def test_every_parameter_a_graph_gives_is_one_of_the_nodes(graph: Path) -> None:
     checked = 0
     for extra in OPTIONAL_ON[graph.name]:
         for proc in LaunchFile(graph, {**REQUIRED.get(graph.name, {}), **extra}).processes():
+            if Path(proc.cmd[0]).name == "hsa_compose":
+                given = _composed_parameters(proc)
+                common = given.pop("*")
+                assert not common, f"{graph.name}: every composed node is given {common}"
+                entries = parse_entries(proc.cmd[1:proc.cmd.index("--ros-args")])[0]
+                for entry in entries:
+                    declared = {s.name for s in importlib.import_module(entry.module).SPECS}
+                    unknown = given[entry.name] - declared
+                    assert not unknown, f"{graph.name}: {entry.name} is given {sorted(unknown)}"
+                    checked += 1
+                continue
             declared = _node_specs(proc.cmd[0])
             if declared is None:
                 continue  # bag_player: a CLI with argparse options, no node parameters

@@ -27,5 +27,6 @@ setup(
     license="Apache-2.0",
     entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main",
                                       "hsa_robustness = hsa_core.robustness:main",
-                                      "hsa_tune = hsa_core.tune:main"]},
+                                      "hsa_tune = hsa_core.tune:main",
+                                      "hsa_calibrate = hsa_core.calibrate:main"]},
 )

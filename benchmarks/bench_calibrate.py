@@ -1,6 +1,8 @@
-"""The world's calibration against the paper's four real step runs, end to end (hsa_calibrate), with its wall time.
+"""The world's calibration against the paper's four real step runs, end to end (hsa_calibrate),
+with its wall time.
 
-Runs ``hsa_core.calibrate.main`` (the ``hsa_calibrate`` CLI: cross-entropy search through the batched JAX loop, one
+Runs ``hsa_core.calibrate.main`` (the ``hsa_calibrate`` CLI: cross-entropy search through the
+batched JAX loop, one
 scan per parameter, leave-one-run-out) and writes its report with the machine and the wall time to
 benchmarks/results/calibration.json; the figures and the world YAML go to out/calibrate/.
 
@@ -28,11 +30,18 @@ def main(argv: list[str]) -> int:
     code = calibrate.main(argv + ["--out", str(out)])
     wall = time.perf_counter() - started
     report = json.loads((out / "report.json").read_text())
-    doc = {"what": "hsa_calibrate against the four reference runs (hsa_core.calibrate); arguments: "
-                   + (" ".join(argv) or "defaults"),
-           "report": report, "wall_s": round(wall, 1),
-           "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_1min_start": load,
-                       "load_1min_end": os.getloadavg()[0]}}
+    doc = {
+        "what": "hsa_calibrate against the four reference runs (hsa_core.calibrate); arguments: "
+        + (" ".join(argv) or "defaults"),
+        "report": report,
+        "wall_s": round(wall, 1),
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "load_1min_start": load,
+            "load_1min_end": os.getloadavg()[0],
+        },
+    }
     path = ROOT / "benchmarks" / "results" / "calibration.json"
     path.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {path} ({wall:.0f} s)")

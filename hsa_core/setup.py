@@ -11,7 +11,8 @@ setup(
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
     package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml", "config/gains/*.yaml",
-                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md"]},
+                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md",
+                            "config/world/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

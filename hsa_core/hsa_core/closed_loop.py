@@ -14,10 +14,14 @@ before the loop (:func:`prepare`); a tick uses the newest one planned strictly b
 Of controller_node's supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
 path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays below stale_timeout).
 
-What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters (with its payload),
-the gains, the noise sequence, the servo speed and time constant, the actuation latency. What shapes the loop is
-static (:class:`LoopSpec`): law, rate, mocap latency, length, velocity estimator (the September 2023 stand-in of
-:mod:`hsa_core.profiles` takes the newest state into its 16-sample fit at every tick, on the true stamps, as
+What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters
+(with its payload),
+the gains, the noise sequence, the servo speed and time constant, the actuation latency. What
+shapes the loop is
+static (:class:`LoopSpec`): law, rate, mocap latency, length, velocity estimator (the September
+2023 stand-in of
+:mod:`hsa_core.profiles` takes the newest state into its 16-sample fit at every tick, on the true
+stamps, as
 ``run_experiment`` does).
 For the same :class:`~hsa_core.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s (test:
 tests/core/test_closed_loop.py).
@@ -56,7 +60,8 @@ MOCAP_MS = MOCAP_PERIOD_NS // GRID_NS
 
 @dataclasses.dataclass(frozen=True)
 class LoopSpec:
-    """What shapes the loop (static under jit): law, rate, mocap latency [ms], number of ticks, metrics window,
+    """What shapes the loop (static under jit): law, rate, mocap latency [ms], number of ticks,
+    metrics window,
     velocity estimator."""
 
     kind: ControllerKind
@@ -70,7 +75,7 @@ class LoopSpec:
     motor_map: MotorMap  # the robot's wiring; its phi_max is the command clip, the driver's [0, phi_max]
     dt: float  # [s] the integrators' step: the config's integrator_dt, else 1/rate
     velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
-    goal_slots: int = 2  # goals in flight at once: an actuation latency up to (goal_slots - 1) periods (goal_slots_for)
+    goal_slots: int = 2  # goals in flight: an actuation latency up to goal_slots - 1 periods
 
 
 class LoopInputs(NamedTuple):
@@ -80,8 +85,8 @@ class LoopInputs(NamedTuple):
     gains: CollocatedGains | PidGains
     noise: Array  # (n_samples, 3) mocap noise [m, m, rad], sample k stamped at 5k ms
     servo_speed: Array  # [ticks per 1 ms interval]
-    servo_lag: Array | None = None  # [s] the servos' time constant (WorldParams.servo_lag); None only in axes
-    actuation_latency_ms: Array | None = None  # [ms] tick → goal in force (LoopSpec.goal_slots); None only in axes
+    servo_lag: Array | None = None  # [s] WorldParams.servo_lag; None only in axes
+    actuation_latency_ms: Array | None = None  # [ms] tick → goal in force; None only in axes
 
 
 class LoopConstants(NamedTuple):
@@ -115,7 +120,7 @@ class _Carry(NamedTuple):
     count: Array  # samples taken by the estimator
     ctrl: Array  # [e_int, z_ee]
     samples: Array  # (Q, 3) recent noisy poses, by sample index mod Q
-    newest: Array  # (6,) the newest delivered [q, chiee] (the September estimator's input at a tick)
+    newest: Array  # (6,) the newest delivered [q, chiee] (the September estimator's input)
     newest_stamp: Array  # [s] its stamp (-1: none yet)
 
 
@@ -146,7 +151,7 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     if not planned:
         raise RuntimeError(f"{config.name}: no setpoint could be planned")
     at_ticks = config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
-    if at_ticks:  # the 16th tick after the first sample was delivered (strictly before the tick) has a state
+    if at_ticks:  # the 16th tick after the first sample's delivery (strictly before) has a state
         ready_ns = (lat_m // period_ns + SPLINE_WINDOW) * period_ns - 1
     else:  # the instant the SG window's 20th sample is delivered
         ready_ns = (ESTIMATOR_WINDOW - 1) * MOCAP_PERIOD_NS + lat_m
@@ -160,18 +165,22 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     kind = ControllerKind(config.controller)
     gains = config.gains or control.default_gains(kind, config.material)
     ee = control.EeIntegralGains() if config.ee_integral else None
-    spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model),
+    spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
+                    n_ticks, first, n_eval, load_wiring().motor_map(model),
                     1.0 / config.rate if config.integrator_dt is None else config.integrator_dt,
-                    config.velocity_estimator, goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS))
+                    config.velocity_estimator,
+                    goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS))
     plant_model = model.replace(m_pl=config.payload) if config.payload else model
     inputs = LoopInputs(dist.plant_params(plant_model), gains, jnp.asarray(noise(dist, spec)),
-                        jnp.asarray(servo_speed(dist.servo_max_speed)), jnp.asarray(dist.servo_time_constant),
+                        jnp.asarray(servo_speed(dist.servo_max_speed)),
+                        jnp.asarray(dist.servo_time_constant),
                         jnp.asarray(lat_a // GRID_NS))
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
 
 
 def goal_slots_for(latency_ms: int, period_ms: int) -> int:
-    """The goals in flight at once with an actuation latency of ``latency_ms`` at a ``period_ms`` period."""
+    """The goals in flight at once with an actuation latency of ``latency_ms`` at a ``period_ms``
+    period."""
     return latency_ms // period_ms + 2
 
 
@@ -214,14 +223,15 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         samples = jax.lax.cond(t % MOCAP_MS == 0, sample, lambda s, *_: s, c.samples, c.x, t // MOCAP_MS)
         ts = t - lat_m
         available = (ts >= 0) & (ts % MOCAP_MS == 0)
-        if at_ticks:  # the sample is only kept as the newest; the estimator takes it at the next tick
-            newest, newest_stamp = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s), c.newest[None],
+        if at_ticks:  # the sample is kept as the newest; the estimator takes it at the next tick
+            newest, newest_stamp = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s),
+                                                c.newest[None],
                                                 c.newest_stamp[None], samples, ts)
             window, stamps, count = c.window, c.stamps, c.count
             newest, newest_stamp = newest[0], newest_stamp[0]
         else:
-            window, stamps = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s), c.window, c.stamps, samples,
-                                          ts)
+            window, stamps = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s), c.window,
+                                          c.stamps, samples, ts)
             count, newest, newest_stamp = c.count + available, c.newest, c.newest_stamp
         effective = (c.pending_at >= 0) & (c.pending_at <= t)  # the newest of them is in force
         newest_goal = jnp.argmax(jnp.where(effective, c.pending_at, -1))
@@ -234,10 +244,12 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
     def tick(c: _Carry, j: Array) -> tuple[_Carry, TickLog]:
         """Control tick j at t = j·period, then the instants up to the next tick."""
         t = j * period
-        if at_ticks:  # the September stand-in: the newest state enters the 16-sample fit at every tick
+        if at_ticks:  # the September stand-in: the newest state enters its fit at every tick
             take = c.newest_stamp > c.stamps[-1]
-            c = c._replace(window=jnp.where(take, jnp.concatenate([c.window[1:], c.newest[None]]), c.window),
-                           stamps=jnp.where(take, jnp.concatenate([c.stamps[1:], c.newest_stamp[None]]), c.stamps),
+            window = jnp.concatenate([c.window[1:], c.newest[None]])
+            stamps = jnp.concatenate([c.stamps[1:], c.newest_stamp[None]])
+            c = c._replace(window=jnp.where(take, window, c.window),
+                           stamps=jnp.where(take, stamps, c.stamps),
                            count=c.count + take)
         ref_i = constants.ref_index[j]
         run = (ref_i >= 0) & (c.count >= n_window)
@@ -246,8 +258,8 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         if at_ticks:  # a window not yet full is not fitted (its derivative is never used)
             full = c.count >= n_window
             mean_dt = jnp.where(full, mean_dt, 1.0)
-            derivative = _true_stamp_coefficients(jnp.where(full, c.stamps, jnp.arange(n_window) * 1.0),
-                                                  mean_dt) @ c.window / mean_dt
+            stamps = jnp.where(full, c.stamps, jnp.arange(n_window) * 1.0)
+            derivative = _true_stamp_coefficients(stamps, mean_dt) @ c.window / mean_dt
         else:
             derivative = coeffs @ c.window / mean_dt
         meas = control.Measurement(c.window[-1, :3], derivative[:3], c.window[-1, 3:], derivative[3:])
@@ -267,7 +279,8 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         slot = c.writes % spec.goal_slots
         c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl),
                        pending=c.pending.at[slot].set(jnp.where(run, goal, c.pending[slot])),
-                       pending_at=c.pending_at.at[slot].set(jnp.where(run, t + lat_a, c.pending_at[slot])),
+                       pending_at=c.pending_at.at[slot].set(
+                           jnp.where(run, t + lat_a, c.pending_at[slot])),
                        writes=c.writes + run)
         c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
         return c, log
@@ -282,7 +295,8 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
 
 
 def _true_stamp_coefficients(stamps: Array, mean_dt: Array) -> Array:
-    """End-point derivative weights of the cubic least-squares fit on the true stamps, in units of ``mean_dt``
+    """End-point derivative weights of the cubic least-squares fit on the true stamps, in units of
+    ``mean_dt``
     (:meth:`hsa_core.estimation.SavitzkyGolayDifferentiator._fit_true_stamps`, traced)."""
     tau = (stamps - stamps[-1]) / mean_dt
     scale = jnp.maximum(jnp.max(jnp.abs(tau)), 1.0)

@@ -19,9 +19,12 @@ to make a figure pass. Defaults (``DisturbanceModel()``):
   (:mod:`hsa_core.world` gives the evidence). This is a physical limit of the hardware, not a tuning knob: without
   it the simulated plant follows a 25 ms command jump at once, which no servo does.
 
-* **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews at the cap
-  straight onto the goal) and ``damping_scale`` (default 1: the parameter set's hand-tuned damping constants) are
-  the world's parameters that no identification fixed; :mod:`hsa_core.calibrate` fits them to the real runs.
+* **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews
+at the cap
+  straight onto the goal) and ``damping_scale`` (default 1: the parameter set's hand-tuned damping
+  constants) are
+  the world's parameters that no identification fixed; :mod:`hsa_core.calibrate` fits them to the
+  real runs.
 
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous sensing, ideal servos;
 goals are still whole ticks, as on the bus).
@@ -45,7 +48,8 @@ from hsa_core.params import HsaParams
 
 @dataclass(frozen=True)
 class DisturbanceModel:
-    """Noise [m, m, rad], latencies [s], servo speed [rad/s] and time constant [s], plant/model mismatch factors and
+    """Noise [m, m, rad], latencies [s], servo speed [rad/s] and time constant [s], plant/model
+    mismatch factors and
     the plant's damping factor (see module doc)."""
 
     pose_noise_std: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)

@@ -11,7 +11,8 @@ setup(
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
     package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml", "config/gains/*.yaml",
-                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md"]},
+                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md",
+                            "config/world/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -27,5 +28,6 @@ setup(
     license="Apache-2.0",
     entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main",
                                       "hsa_robustness = hsa_core.robustness:main",
-                                      "hsa_tune = hsa_core.tune:main"]},
+                                      "hsa_tune = hsa_core.tune:main",
+                                      "hsa_calibrate = hsa_core.calibrate:main"]},
 )

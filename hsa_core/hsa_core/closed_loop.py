@@ -14,8 +14,15 @@ before the loop (:func:`prepare`); a tick uses the newest one planned strictly b
 Of controller_node's supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
 path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays below stale_timeout).
 
-What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters, the gains, the
-noise sequence, the servo speed. What shapes the loop is static (:class:`LoopSpec`): law, rate, latencies, length.
+What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters
+(with its payload),
+the gains, the noise sequence, the servo speed and time constant, the actuation latency. What
+shapes the loop is
+static (:class:`LoopSpec`): law, rate, mocap latency, length, velocity estimator (the September
+2023 stand-in of
+:mod:`hsa_core.profiles` takes the newest state into its 16-sample fit at every tick, on the true
+stamps, as
+``run_experiment`` does).
 For the same :class:`~hsa_core.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s (test:
 tests/core/test_closed_loop.py).
 """
@@ -37,7 +44,7 @@ from hsa_core import control, kinematics, metrics
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
 from hsa_core.estimation import derivative_coefficients
-from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
+from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, SPLINE_WINDOW, ExperimentConfig
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
@@ -53,19 +60,22 @@ MOCAP_MS = MOCAP_PERIOD_NS // GRID_NS
 
 @dataclasses.dataclass(frozen=True)
 class LoopSpec:
-    """What shapes the loop (static under jit): law, rate, latencies [ms], number of ticks, metrics window."""
+    """What shapes the loop (static under jit): law, rate, mocap latency [ms], number of ticks,
+    metrics window,
+    velocity estimator."""
 
     kind: ControllerKind
     gravity_cancellation: bool
     ee_integral: EeIntegralGains | None
     period_ms: int
     measurement_latency_ms: int
-    actuation_latency_ms: int
     n_ticks: int
     first_tick: int  # index of the first tick that sends a command (t = 0 of the metrics)
     n_eval: int  # ticks in the metrics window (reference.duration)
     motor_map: MotorMap  # the robot's wiring; its phi_max is the command clip, the driver's [0, phi_max]
     dt: float  # [s] the integrators' step: the config's integrator_dt, else 1/rate
+    velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
+    goal_slots: int = 2  # goals in flight: an actuation latency up to goal_slots - 1 periods
 
 
 class LoopInputs(NamedTuple):
@@ -75,6 +85,8 @@ class LoopInputs(NamedTuple):
     gains: CollocatedGains | PidGains
     noise: Array  # (n_samples, 3) mocap noise [m, m, rad], sample k stamped at 5k ms
     servo_speed: Array  # [ticks per 1 ms interval]
+    servo_lag: Array | None = None  # [s] WorldParams.servo_lag; None only in axes
+    actuation_latency_ms: Array | None = None  # [ms] tick → goal in force; None only in axes
 
 
 class LoopConstants(NamedTuple):
@@ -100,13 +112,16 @@ class _Carry(NamedTuple):
     x: Array  # plant state [q, q_dot]
     position: Array  # shaft positions [ticks]
     goal: Array  # goal in force [ticks]
-    pending: Array  # goal written, not yet in force [ticks]
-    pending_at: Array  # [ms] when it takes effect (-1: none)
+    pending: Array  # (goal_slots, motors) goals written, by write count mod goal_slots [ticks]
+    pending_at: Array  # (goal_slots,) [ms] when each takes effect (-1: none)
+    writes: Array  # goals written so far
     window: Array  # (N, 6) estimator window [q, chiee], oldest first
     stamps: Array  # (N,) their stamps [s]
     count: Array  # samples taken by the estimator
     ctrl: Array  # [e_int, z_ee]
     samples: Array  # (Q, 3) recent noisy poses, by sample index mod Q
+    newest: Array  # (6,) the newest delivered [q, chiee] (the September estimator's input)
+    newest_stamp: Array  # [s] its stamp (-1: none yet)
 
 
 def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[LoopSpec, LoopInputs, LoopConstants]:
@@ -115,10 +130,6 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     ``model`` is the controller's model, which plans the setpoints (default: ``config.model()``)."""
     if config.mocap_outages:
         raise ValueError("the batched loop models fault-free runs only: mocap_outages needs run_experiment")
-    if config.velocity_estimator is not VelocityEstimator.SAVITZKY_GOLAY_20 or config.payload:
-        raise ValueError(f"the batched loop models the savitzky_golay_20 estimator and no payload only: profile "
-                         f"{config.profile} ({config.velocity_estimator.value}, {config.payload} kg) needs "
-                         "run_experiment")
     model = config.model() if model is None else model
     reference = config.reference or step_reference(config.material)
     period_ns = seconds_to_ns(1.0 / config.rate)
@@ -126,8 +137,8 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     dist = config.disturbance
     lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
-    if lat_m % GRID_NS or lat_a % GRID_NS or lat_a >= period_ns:
-        raise ValueError("latencies must be whole milliseconds, the actuation latency below the control period")
+    if lat_m % GRID_NS or lat_a % GRID_NS:
+        raise ValueError("latencies must be whole milliseconds")
     planner = Planner(model, config.planner)
     s0 = first_point_ns(config.start_delay)
     warm = len(reference) > 20
@@ -139,7 +150,11 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
             planned.append((s0 + seconds_to_ns(float(t)), ref))
     if not planned:
         raise RuntimeError(f"{config.name}: no setpoint could be planned")
-    ready_ns = (ESTIMATOR_WINDOW - 1) * MOCAP_PERIOD_NS + lat_m  # the estimator's first full window
+    at_ticks = config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
+    if at_ticks:  # the 16th tick after the first sample's delivery (strictly before) has a state
+        ready_ns = (lat_m // period_ns + SPLINE_WINDOW) * period_ns - 1
+    else:  # the instant the SG window's 20th sample is delivered
+        ready_ns = (ESTIMATOR_WINDOW - 1) * MOCAP_PERIOD_NS + lat_m
     first = next(j for j in range(1, 10**7) if j * period_ns > max(ready_ns, planned[0][0]))
     n_eval = int(np.ceil(seconds_to_ns(reference.duration) / period_ns))
     n_ticks = first + n_eval
@@ -151,11 +166,22 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     gains = config.gains or control.default_gains(kind, config.material)
     ee = control.EeIntegralGains() if config.ee_integral else None
     spec = LoopSpec(kind, kind is ControllerKind.PSATID_GC, ee, period_ns // GRID_NS, lat_m // GRID_NS,
-                    lat_a // GRID_NS, n_ticks, first, n_eval, load_wiring().motor_map(model),
-                    1.0 / config.rate if config.integrator_dt is None else config.integrator_dt)
-    inputs = LoopInputs(dist.plant_params(model), gains, jnp.asarray(noise(dist, spec)),
-                        jnp.asarray(servo_speed(dist.servo_max_speed)))
+                    n_ticks, first, n_eval, load_wiring().motor_map(model),
+                    1.0 / config.rate if config.integrator_dt is None else config.integrator_dt,
+                    config.velocity_estimator,
+                    goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS))
+    plant_model = model.replace(m_pl=config.payload) if config.payload else model
+    inputs = LoopInputs(dist.plant_params(plant_model), gains, jnp.asarray(noise(dist, spec)),
+                        jnp.asarray(servo_speed(dist.servo_max_speed)),
+                        jnp.asarray(dist.servo_time_constant),
+                        jnp.asarray(lat_a // GRID_NS))
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
+
+
+def goal_slots_for(latency_ms: int, period_ms: int) -> int:
+    """The goals in flight at once with an actuation latency of ``latency_ms`` at a ``period_ms``
+    period."""
+    return latency_ms // period_ms + 2
 
 
 def noise(disturbance, spec: LoopSpec, seed: int | None = None) -> np.ndarray:
@@ -171,13 +197,15 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
     static (:func:`compiled`)."""
     plant, model = inputs.plant, constants.model
     motor_map = spec.motor_map
-    world = world_params(plant, motor_map, inputs.servo_speed)
+    world = world_params(plant, motor_map, inputs.servo_speed, inputs.servo_lag)
     interval = interval_fn(world)
     neutral = world.neutral
+    at_ticks = spec.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
+    n_window = SPLINE_WINDOW if at_ticks else ESTIMATOR_WINDOW
     coeffs = jnp.asarray(derivative_coefficients(np.arange(ESTIMATOR_WINDOW) - (ESTIMATOR_WINDOW - 1.0),
                                                  ESTIMATOR_ORDER))
     queue = max(2, -(-spec.measurement_latency_ms // MOCAP_MS) + 2)
-    lat_m, lat_a, period = spec.measurement_latency_ms, spec.actuation_latency_ms, spec.period_ms
+    lat_m, lat_a, period = spec.measurement_latency_ms, inputs.actuation_latency_ms, spec.period_ms
 
     def sample(samples: Array, x: Array, k: Array) -> Array:
         """Take mocap sample k (the pose at its stamp plus its noise) into the queue."""
@@ -195,23 +223,45 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         samples = jax.lax.cond(t % MOCAP_MS == 0, sample, lambda s, *_: s, c.samples, c.x, t // MOCAP_MS)
         ts = t - lat_m
         available = (ts >= 0) & (ts % MOCAP_MS == 0)
-        window, stamps = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s), c.window, c.stamps, samples, ts)
-        count = c.count + available
-        effective = (c.pending_at >= 0) & (c.pending_at <= t)
-        goal = jnp.where(effective, c.pending, c.goal)
+        if at_ticks:  # the sample is kept as the newest; the estimator takes it at the next tick
+            newest, newest_stamp = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s),
+                                                c.newest[None],
+                                                c.newest_stamp[None], samples, ts)
+            window, stamps, count = c.window, c.stamps, c.count
+            newest, newest_stamp = newest[0], newest_stamp[0]
+        else:
+            window, stamps = jax.lax.cond(available, deliver, lambda w, s, *_: (w, s), c.window,
+                                          c.stamps, samples, ts)
+            count, newest, newest_stamp = c.count + available, c.newest, c.newest_stamp
+        effective = (c.pending_at >= 0) & (c.pending_at <= t)  # the newest of them is in force
+        newest_goal = jnp.argmax(jnp.where(effective, c.pending_at, -1))
+        goal = jnp.where(jnp.any(effective), c.pending[newest_goal], c.goal)
         pending_at = jnp.where(effective, -1, c.pending_at)
         x, moved = interval(c.x, c.position, goal, True)
         return c._replace(x=x, position=moved, goal=goal, pending_at=pending_at, window=window, stamps=stamps,
-                          count=count, samples=samples)
+                          count=count, samples=samples, newest=newest, newest_stamp=newest_stamp)
 
     def tick(c: _Carry, j: Array) -> tuple[_Carry, TickLog]:
         """Control tick j at t = j·period, then the instants up to the next tick."""
         t = j * period
+        if at_ticks:  # the September stand-in: the newest state enters its fit at every tick
+            take = c.newest_stamp > c.stamps[-1]
+            window = jnp.concatenate([c.window[1:], c.newest[None]])
+            stamps = jnp.concatenate([c.stamps[1:], c.newest_stamp[None]])
+            c = c._replace(window=jnp.where(take, window, c.window),
+                           stamps=jnp.where(take, stamps, c.stamps),
+                           count=c.count + take)
         ref_i = constants.ref_index[j]
-        run = (ref_i >= 0) & (c.count >= ESTIMATOR_WINDOW)
+        run = (ref_i >= 0) & (c.count >= n_window)
         ref = jax.tree_util.tree_map(lambda a: a[jnp.maximum(ref_i, 0)], constants.refs)
-        mean_dt = (c.stamps[-1] - c.stamps[0]) / (ESTIMATOR_WINDOW - 1)
-        derivative = coeffs @ c.window / mean_dt
+        mean_dt = (c.stamps[-1] - c.stamps[0]) / (n_window - 1)
+        if at_ticks:  # a window not yet full is not fitted (its derivative is never used)
+            full = c.count >= n_window
+            mean_dt = jnp.where(full, mean_dt, 1.0)
+            stamps = jnp.where(full, c.stamps, jnp.arange(n_window) * 1.0)
+            derivative = _true_stamp_coefficients(stamps, mean_dt) @ c.window / mean_dt
+        else:
+            derivative = coeffs @ c.window / mean_dt
         meas = control.Measurement(c.window[-1, :3], derivative[:3], c.window[-1, 3:], derivative[3:])
         state = control.ControllerState(c.ctrl[:2], c.ctrl[2:])
         tick_dt = spec.dt
@@ -226,17 +276,32 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         goal = neutral + motor_map.goal_offsets(phi, jnp)
         true_chiee = kinematics.end_effector_pose(plant, c.x[:3])
         log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, true_chiee)
-        c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl), pending=jnp.where(run, goal, c.pending),
-                       pending_at=jnp.where(run, t + lat_a, c.pending_at))
+        slot = c.writes % spec.goal_slots
+        c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl),
+                       pending=c.pending.at[slot].set(jnp.where(run, goal, c.pending[slot])),
+                       pending_at=c.pending_at.at[slot].set(
+                           jnp.where(run, t + lat_a, c.pending_at[slot])),
+                       writes=c.writes + run)
         c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
         return c, log
 
-    c = _Carry(hanging_at_rest(plant), neutral, neutral, neutral, jnp.asarray(-1),
-               jnp.zeros((ESTIMATOR_WINDOW, 6)), jnp.zeros(ESTIMATOR_WINDOW), jnp.asarray(0), jnp.zeros(4),
-               jnp.zeros((queue, 3)))
+    c = _Carry(hanging_at_rest(plant), neutral, neutral, jnp.tile(neutral, (spec.goal_slots, 1)),
+               jnp.full(spec.goal_slots, -1), jnp.asarray(0),
+               jnp.zeros((n_window, 6)), jnp.full(n_window, -1.0), jnp.asarray(0), jnp.zeros(4),
+               jnp.zeros((queue, 3)), jnp.zeros(6), jnp.asarray(-1.0))
     c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)  # the instants before the first tick
     _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
     return log
+
+
+def _true_stamp_coefficients(stamps: Array, mean_dt: Array) -> Array:
+    """End-point derivative weights of the cubic least-squares fit on the true stamps, in units of
+    ``mean_dt``
+    (:meth:`hsa_core.estimation.SavitzkyGolayDifferentiator._fit_true_stamps`, traced)."""
+    tau = (stamps - stamps[-1]) / mean_dt
+    scale = jnp.maximum(jnp.max(jnp.abs(tau)), 1.0)
+    vander = (tau / scale)[:, None] ** jnp.arange(ESTIMATOR_ORDER + 1)
+    return jnp.linalg.solve(vander.T @ vander, vander.T)[1] / scale
 
 
 XLA_OPTIONS = {"xla_cpu_enable_fast_math": True, "xla_cpu_fast_math_honor_nans": True,

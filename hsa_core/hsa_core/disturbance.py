@@ -19,6 +19,13 @@ to make a figure pass. Defaults (``DisturbanceModel()``):
   (:mod:`hsa_core.world` gives the evidence). This is a physical limit of the hardware, not a tuning knob: without
   it the simulated plant follows a 25 ms command jump at once, which no servo does.
 
+* **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews
+at the cap
+  straight onto the goal) and ``damping_scale`` (default 1: the parameter set's hand-tuned damping
+  constants) are
+  the world's parameters that no identification fixed; :mod:`hsa_core.calibrate` fits them to the
+  real runs.
+
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous sensing, ideal servos;
 goals are still whole ticks, as on the bus).
 
@@ -41,7 +48,9 @@ from hsa_core.params import HsaParams
 
 @dataclass(frozen=True)
 class DisturbanceModel:
-    """Noise [m, m, rad], latencies [s], servo speed and plant/model mismatch factors (see module doc)."""
+    """Noise [m, m, rad], latencies [s], servo speed [rad/s] and time constant [s], plant/model
+    mismatch factors and
+    the plant's damping factor (see module doc)."""
 
     pose_noise_std: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
     measurement_latency: float = 0.006
@@ -52,6 +61,8 @@ class DisturbanceModel:
     servo_max_speed: float = 55.0 * 2.0 * math.pi / 60.0
     shear_scale: float = 1.0
     seed: int = 0
+    servo_time_constant: float = 0.0
+    damping_scale: float = 1.0
 
     def __post_init__(self) -> None:
         """Reject negative noise or latency and non-positive scale factors."""
@@ -63,6 +74,10 @@ class DisturbanceModel:
             raise ValueError("stiffness_scale and elongation_scale must be > 0")
         if self.shear_scale <= 0.0:
             raise ValueError("shear_scale must be > 0")
+        if not (math.isfinite(self.servo_time_constant) and self.servo_time_constant >= 0.0):
+            raise ValueError(f"servo_time_constant must be >= 0 s, got {self.servo_time_constant}")
+        if not (math.isfinite(self.damping_scale) and self.damping_scale > 0.0):
+            raise ValueError(f"damping_scale must be > 0, got {self.damping_scale}")
         if not self.servo_max_speed > 0.0:
             raise ValueError("servo_max_speed must be > 0 (use math.inf for an ideal servo)")
 
@@ -86,6 +101,9 @@ class DisturbanceModel:
             S_b_sh=np.asarray(model.S_b_sh) * k,
             C_eps=np.asarray(model.C_eps) * self.elongation_scale,
             sigma_a_eq=np.asarray(model.sigma_a_eq) + self.rest_strain_offset,
+            zeta_b=np.asarray(model.zeta_b) * self.damping_scale,
+            zeta_sh=np.asarray(model.zeta_sh) * self.damping_scale,
+            zeta_a=np.asarray(model.zeta_a) * self.damping_scale,
         )
 
     def rng(self) -> np.random.Generator:

@@ -19,6 +19,7 @@ run's ``end``. The measures (positions in m, times in s):
   hsa_core.metrics), NaN for a zero-size step;
 * **D per step** (:func:`step_deviations`): D of each step alone;
 * :func:`step_table` puts every per-step measure of a run and a reference side by side (``hsa_analyze --against``);
+* **onset time** (:func:`onset_times`): per step, the aligned time the progress first reaches 10 %;
 * :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max over steps), end
   error (median over steps), the median relative rise- and response-time differences and each run's RMSE.
 """
@@ -134,6 +135,20 @@ def rise_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HO
         progress = (p - p[0]) @ span / (span @ span)
         t10, t90 = (np.nonzero(progress >= f)[0] for f in (0.1, 0.9))
         out.append((t90[0] - t10[0]) * grid if len(t90) else np.nan)
+    return np.array(out)
+
+
+def onset_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
+                grid: float = GRID) -> np.ndarray:
+    """(steps,) [s]: per step, the aligned time the progress along the step (:func:`rise_times`)
+    first reaches 10 %
+    (NaN: never): how long after its step instant the run starts to move."""
+    responses = aligned_responses(run, steps, horizon, grid)
+    out = []
+    for (start, _), p in zip(run.step_bounds(steps), responses):
+        span = run.setpoint_at(start) - p[0]
+        t10 = np.nonzero((p - p[0]) @ span / (span @ span) >= 0.1)[0]
+        out.append(t10[0] * grid if len(t10) else np.nan)
     return np.array(out)
 
 

@@ -95,13 +95,18 @@ class WorldParams(NamedTuple):
     servo_speed: ArrayLike  # [ticks per grid interval] the servos' speed cap
     neutral: ArrayLike  # (motors,) [ticks] the motors' neutral positions
     to_rods: ArrayLike  # (rods, motors) [rad per tick] shaft ticks → virtual-rod twists
+    servo_lag: ArrayLike = 0.0  # [s] the servos' position loop's time constant (0: none)
 
 
-def world_params(plant: HsaParams, motor_map: MotorMap, speed: ArrayLike) -> WorldParams:
-    """The world's parameters from the plant, the robot's wiring and the servos' speed cap [ticks per grid interval,
-    :func:`servo_speed`]."""
+def world_params(plant: HsaParams, motor_map: MotorMap, speed: ArrayLike,
+                 lag: ArrayLike = 0.0) -> WorldParams:
+    """The world's parameters from the plant, the robot's wiring, the servos' speed cap [ticks per
+    grid interval,
+    :func:`servo_speed`] and their position loop's time constant [s] (0: the shaft slews at the cap
+    to the goal)."""
     return WorldParams(plant, speed, jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64),
-                       jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK)
+                       jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK,
+                       lag)
 
 
 def servo_speed(max_speed: ArrayLike) -> ArrayLike:
@@ -114,14 +119,19 @@ def interval_fn(params: WorldParams) -> Callable[[Array, Array, Array, ArrayLike
 
     The returned ``interval(x, position, goal, torque) → (x, position)`` takes the plant state [q, q_dot], the shaft
     positions and the goal in force [ticks] and whether each motor has torque: the shafts with torque move towards
-    the goal by at most the speed cap, then the plant is integrated over the interval with ``PLANT_SUBSTEPS`` RK4
+    the goal by the first-order step of the position loop (the whole way when ``servo_lag`` is 0)
+    but at most the
+    speed cap, then the plant is integrated over the interval with ``PLANT_SUBSTEPS`` RK4
     steps, the twists those shafts realise held."""
     q_ddot = simulation.forward_dynamics_fn(params.plant)
     dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
     speed = params.servo_speed
+    lag = jnp.asarray(params.servo_lag, dtype=jnp.float64)
+    gain = 1.0 - jnp.exp(-GRID_NS * 1e-9 / lag)  # exactly 1 for lag 0
 
     def interval(x: Array, position: Array, goal: Array, torque: ArrayLike) -> tuple[Array, Array]:
-        moved = jnp.where(torque, position + jnp.clip(goal - position, -speed, speed), position)
+        step = jnp.clip((goal - position) * gain, -speed, speed)
+        moved = jnp.where(torque, position + step, position)
         phi = params.to_rods @ (moved - params.neutral)
         x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4(q_ddot, xk, phi, dt), x,
                               unroll=True)  # no loop per interval: ~5 % of the batched loop's instant
@@ -162,7 +172,8 @@ class World:
         self.plant = disturbance.plant_params(model)
         self.motor_map = motor_map
         self._neutral = np.asarray(motor_map.neutral_ticks, dtype=np.float64)
-        self.params = world_params(self.plant, motor_map, servo_speed(disturbance.servo_max_speed))
+        self.params = world_params(self.plant, motor_map, servo_speed(disturbance.servo_max_speed),
+                                   disturbance.servo_time_constant)
         self._segment = _segment_fn(self.params)
         self._observe = jax.jit(functools.partial(mocap_sample, self.plant))
         self._rng = disturbance.rng()

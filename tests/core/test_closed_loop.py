@@ -13,9 +13,10 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import closed_loop
+from hsa_core import closed_loop, reference
 from hsa_core.control import CollocatedGains, default_gains
-from hsa_core.experiment import ExperimentConfig, run_experiment
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.experiment import ExperimentConfig, replay_config, run_experiment
 from hsa_core.trajectories import TimedReference, step_reference
 
 RTOL = 1e-6
@@ -48,6 +49,57 @@ def test_the_jax_loop_reproduces_the_offline_experiment(law: str, ee_integral: b
     np.testing.assert_allclose(chiee, offline.log.chiee, rtol=0, atol=1e-9)  # tick by tick
     assert np.all(np.isfinite(metric_values(offline.metrics)))
     np.testing.assert_allclose(metric_values(got), metric_values(offline.metrics), rtol=RTOL)
+
+
+def assert_equal_to_the_offline_experiment(config: ExperimentConfig) -> closed_loop.TickLog:
+    """The batched loop of ``config`` equals run_experiment tick by tick (1e-9 m) and in its
+    metrics; its log."""
+    offline = run_experiment(config)
+    spec, inputs, constants = closed_loop.prepare(config)
+    log = closed_loop.compiled(spec, inputs, constants)
+    first = int(np.argmax(np.asarray(log.ran)))
+    chiee = np.asarray(log.chiee)[first:first + spec.n_eval]
+    assert chiee.shape == offline.log.chiee.shape
+    np.testing.assert_allclose(chiee, offline.log.chiee, rtol=0, atol=1e-9)
+    true_chiee = np.asarray(log.true_chiee)[first:first + spec.n_eval]
+    np.testing.assert_allclose(true_chiee, offline.true_chiee, rtol=0,
+                               atol=1e-9)
+    got = closed_loop.evaluate(spec, log)
+    np.testing.assert_allclose(metric_values(got), metric_values(offline.metrics),
+                               rtol=RTOL)
+    return log
+
+
+def test_a_september_replay_with_a_payload_equals_the_offline_experiment() -> None:
+    """The September 2023 run's own conditions (36 ms period, 25 ms integrator step, the spline
+    stand-in estimator,
+    its σ_a,eq, its real step instants) plus a payload: the batched loop runs them as
+    run_experiment does."""
+    run = reference.load_run("20230925_093236")
+    config = replay_config(run, payload=0.1)
+    ref = config.reference
+    keep = ref.t < 15.0  # the start and the first real step (at 9.87 s)
+    cut = TimedReference(ref.t[keep], ref.p_des[keep], ref.name, 15.0)
+    config = dataclasses.replace(config, reference=cut)
+    assert config.profile == "sep2023" and config.payload == 0.1 and len(config.reference) == 2
+    spec, _, _ = closed_loop.prepare(config)
+    assert spec.velocity_estimator.value == "smoothing_spline_16" and spec.period_ms == 36
+    assert_equal_to_the_offline_experiment(config)
+
+
+def test_a_world_parameter_reaches_both_paths() -> None:
+    """The servos' time constant and the damping factor are the world's (WorldParams /
+    interval_fn), the actuation
+    latency the world's goal queue: set in the DisturbanceModel, they change the offline experiment
+    and the batched
+    loop alike (a latency of more than two 25 ms periods: three goals in flight)."""
+    config = ExperimentConfig("fpu", "psatid", reference=short(seconds=3.0))
+    world = DisturbanceModel(servo_time_constant=0.04, damping_scale=2.0, actuation_latency=0.061)
+    changed = dataclasses.replace(config, disturbance=world)
+    assert closed_loop.prepare(changed)[0].goal_slots == 4
+    before = np.asarray(closed_loop.compiled(*closed_loop.prepare(config)).true_chiee)
+    after = np.asarray(assert_equal_to_the_offline_experiment(changed).true_chiee)
+    assert np.max(np.abs(after - before)) > 1e-4  # it did change the world
 
 
 def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:

@@ -129,14 +129,18 @@ def test_a_payload_is_the_plant_s_from_rest() -> None:
     assert abs(sag) > 1e-4, sag  # 0.29 mm for 0.2 kg on the default FPU plant
 
 
-def test_the_batched_loop_takes_the_integrator_step_and_refuses_what_it_does_not_model() -> None:
+def test_the_batched_loop_takes_the_profile_s_conditions() -> None:
+    """Period, integrator step, estimator and payload reach the batched loop (its equality with
+    run_experiment on a
+    September replay: tests/core/test_closed_loop.py)."""
     from hsa_core import closed_loop
 
     october = dataclasses.replace(replay_config(reference.load_run("20231019_143126")), reference=_one_step("epu"))
     spec, _, _ = closed_loop.prepare(october)
     assert (spec.period_ms, spec.dt) == (25, 0.025)
-    september = replay_config(reference.load_run("20230925_093236"))
-    with pytest.raises(ValueError, match=r"savitzky_golay_20 estimator and no payload only: profile sep2023"):
-        closed_loop.prepare(september)
-    with pytest.raises(ValueError, match=r"no payload only: profile lab \(savitzky_golay_20, 0.2 kg\)"):
-        closed_loop.prepare(ExperimentConfig(payload=0.2))
+    assert spec.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
+    september = replay_config(reference.load_run("20230925_093236"), payload=0.2)
+    spec, inputs, _ = closed_loop.prepare(september)
+    assert (spec.period_ms, spec.dt) == (36, 0.025)
+    assert spec.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
+    assert float(inputs.plant.m_pl) == 0.2

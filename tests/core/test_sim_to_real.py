@@ -80,6 +80,13 @@ def test_rise_time_is_ten_to_ninety_percent_of_the_way() -> None:
     assert sim_to_real.compare(slow, fast).rise_time_difference == pytest.approx(0.22 / 0.44)
 
 
+def test_onset_time_is_the_first_sample_at_ten_percent_of_the_way() -> None:
+    # progress 1 − exp(−t/τ) reaches 10 % at τ ln(10/9): 0.0211 s → the 0.03 s sample (τ 0.2),
+    # 0.0316 → 0.04 (τ 0.3)
+    np.testing.assert_allclose(sim_to_real.onset_times(step_run(tau=0.2)), 0.03, atol=1e-9)
+    np.testing.assert_allclose(sim_to_real.onset_times(step_run(tau=0.3)), 0.04, atol=1e-9)
+
+
 def test_rmse_of_a_constant_error() -> None:
     run = StepRun(np.arange(4.0), np.zeros((4, 2)), np.tile([3e-3, 4e-3], (4, 1)), end=3.0)
     assert sim_to_real.rmse(run) == pytest.approx(5e-3)

@@ -1,0 +1,114 @@
+"""The world's calibration (hsa_core.calibrate): the fitter recovers a known world; the CLI's
+outputs and refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from hsa_core import calibrate, closed_loop, sim_to_real
+from hsa_core.disturbance import DisturbanceModel
+from hsa_core.experiment import ExperimentConfig
+from hsa_core.trajectories import TimedReference, step_reference
+
+
+def synthetic_run(truth: DisturbanceModel) -> calibrate.PreparedRun:
+    """A 3 s FPU P-satI-D run with one step at 0.5 s whose 'robot' is the simulation in the world
+    ``truth``."""
+    ref = step_reference("fpu")
+    reference = TimedReference(np.array([0.0, 0.5]), ref.p_des[1:3], "two_points", 3.0)
+    config = ExperimentConfig("fpu", "psatid", reference=reference)
+    spec, inputs, constants = closed_loop.prepare(config)
+    run = calibrate.PreparedRun("synthetic", config, spec, inputs, constants, None, "", (1,), 2.0)
+    robot = calibrate.simulate(run, [truth])[0]
+    run.robot = sim_to_real.StepRun(robot.t, robot.p, robot.p_des, robot.end)
+    return run
+
+
+def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_reported() -> None:
+    truth = DisturbanceModel(
+        actuation_latency=0.047
+    )  # longer than the 25 ms period: two goals in flight
+    run = synthetic_run(truth)
+    fit = calibrate.search(
+        [run], ("actuation_latency",), DisturbanceModel(), population=8, generations=4
+    )
+    assert fit.best["actuation_latency"] == pytest.approx(0.047, abs=1.5e-3)
+    assert fit.objective < 1e-4 and fit.evaluations == 32
+    values, d = calibrate.scan(
+        [run], "actuation_latency", DisturbanceModel(actuation_latency=0.047), points=8
+    )
+    assert (
+        len(values) == 8 and 0.047 in values
+    )  # the population's batch size: no second compilation
+    found = calibrate.identification(values, d, fit.best["actuation_latency"])
+    assert found["identified"] and found["interval"][0] <= 0.047 <= found["interval"][1]
+    assert d[np.argmin(np.abs(values - 0.047))] == pytest.approx(
+        0.0, abs=1e-12
+    )  # the truth reproduces the robot
+    flat = calibrate.identification(
+        np.array([1.0, 2.0, 3.0]), np.array([1e-3, 1e-3 + 1e-6, 1e-3]), 2.0
+    )
+    assert not flat["identified"]
+
+
+def test_parameters_map_to_their_grid_and_bounds() -> None:
+    lat = calibrate.PARAMETERS["actuation_latency"]
+    np.testing.assert_allclose(lat.value(np.array([-1.0, 0.5, 2.0])), [0.0, 0.125, 0.25])
+    damping = calibrate.PARAMETERS["damping_scale"]
+    assert damping.value(np.array([0.5]))[0] == pytest.approx(2.0)
+    assert damping.unit(2.0) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="whole ms up to 250 ms"):
+        calibrate.candidate_inputs(
+            synthetic_run(DisturbanceModel()), [DisturbanceModel(actuation_latency=0.0305)]
+        )
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--fit", "friction"], "unknown or repeated parameter(s)"),
+        (["--runs", "nope"], "unknown reference run(s)"),
+        (["--population", "1"], "--population: must be >= 2"),
+        (["--duration", "5"], "hold no whole step"),
+    ],
+)
+def test_bad_arguments_are_one_line_refusals(argv: list[str], message: str, capsys) -> None:
+    with pytest.raises(SystemExit) as done:
+        calibrate.main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert done.value.code == 2 and len(err) == 1 and message in err[0], err
+
+
+def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> None:
+    out = tmp_path / "cal"
+    code = calibrate.main(
+        [
+            "--runs",
+            "20231019_143126",
+            "--duration",
+            "20",
+            "--population",
+            "2",
+            "--generations",
+            "1",
+            "--scan-points",
+            "2",
+            "--fit",
+            "servo_time_constant",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    row = report["per_run"]["20231019_143126"]
+    assert len(row["calibrated"]["D_per_step_mm"]) == 1 and math.isfinite(row["calibrated"]["D_mm"])
+    assert set(report["identification"]) == {"servo_time_constant"}
+    world = yaml.safe_load((out / "world.yaml").read_text())
+    assert set(world["parameters"]["servo_time_constant"]) >= {"value", "identified", "interval"}
+    assert (out / "20231019_143126.png").stat().st_size > 10_000

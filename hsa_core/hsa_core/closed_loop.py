@@ -44,11 +44,12 @@ from hsa_core import control, kinematics, metrics
 from hsa_core.actuation import MotorMap
 from hsa_core.control import CollocatedGains, ControllerKind, EeIntegralGains, PidGains
 from hsa_core.estimation import derivative_coefficients
-from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, SPLINE_WINDOW, ExperimentConfig
+from hsa_core.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
 from hsa_core.profiles import VelocityEstimator
+from hsa_core.run_conditions import SPLINE_WINDOW
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
 from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, hanging_at_rest, interval_fn, mocap_sample, seconds_to_ns,

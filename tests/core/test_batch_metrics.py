@@ -83,7 +83,7 @@ N_EVAL = 480  # 12 s at 40 Hz
 
 
 def synthetic_spec() -> closed_loop.LoopSpec:
-    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, 2, N_EVAL + 5, 5, N_EVAL,
+    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, N_EVAL + 5, 5, N_EVAL,
                                 MotorMap(phi_max=1.0), 0.025)
 
 

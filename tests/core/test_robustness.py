@@ -21,7 +21,7 @@ N = 800  # 20 s at 40 Hz: two steps of 10 s
 
 
 def spec() -> closed_loop.LoopSpec:
-    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, 2, N + 5, 5, N, MotorMap(phi_max=1.0), 0.025)
+    return closed_loop.LoopSpec(ControllerKind.PSATID, False, None, PERIOD_MS, 6, N + 5, 5, N, MotorMap(phi_max=1.0), 0.025)
 
 
 def log_of(true_xy: np.ndarray) -> closed_loop.TickLog:
@@ -137,7 +137,7 @@ def test_the_bound_settles_each_reachable_plant_on_its_setpoints(tmp_path) -> No
 
 def test_the_batched_noise_is_each_seeds_noise() -> None:
     config = ExperimentConfig("fpu", "psatid")
-    spec = closed_loop.LoopSpec(ControllerKind.PSATID, False, None, 25, 6, 2, 400, 5, 395, MotorMap(phi_max=1.0), 0.025)
+    spec = closed_loop.LoopSpec(ControllerKind.PSATID, False, None, 25, 6, 400, 5, 395, MotorMap(phi_max=1.0), 0.025)
     seeds = np.array([0, 7, 2**31 - 2])
     batch = closed_loop.noise_batch(config.disturbance, spec, seeds)
     for i, seed in enumerate(seeds):

@@ -322,6 +322,14 @@ def world_document(report: dict) -> dict:
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
+        "conditions": {
+            bag: {
+                "profile": row["profile"],
+                "command_latency_ms": row["command_latency_ms"],
+                "note": "each run's command latency adds to actuation_latency (run_disturbance)",
+            }
+            for bag, row in report["per_run"].items()
+        },
         "objective": f"{report['objective']}: {report['objective_mm']} mm",
         "parameters": {
             n: {
@@ -496,7 +504,12 @@ def main(argv: list[str] | None = None) -> int:
                 ],
                 "rmse_mm": [round(v * 1e3, 3) for v in c.rmse],
             }
-        per_run[r.bag] = {"note": r.note, **rows}
+        per_run[r.bag] = {
+            "note": r.note,
+            "profile": r.config.profile,
+            "command_latency_ms": round(r.config.command_latency * 1e3),
+            **rows,
+        }
         _figure(r, {"default world": before, "calibrated world": after}, args.out / f"{r.bag}.png")
     wall = time.perf_counter() - started
     report = {

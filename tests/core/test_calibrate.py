@@ -126,4 +126,6 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
     assert set(report["identification"]) == {"servo_time_constant"}
     world = yaml.safe_load((out / "world.yaml").read_text())
     assert set(world["parameters"]["servo_time_constant"]) >= {"value", "identified", "interval"}
+    assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
+    assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
     assert (out / "20231019_143126.png").stat().st_size > 10_000

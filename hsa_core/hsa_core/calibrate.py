@@ -61,6 +61,7 @@ from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig, replay_config
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.planning import Planner
+from hsa_core.run_conditions import run_disturbance
 from hsa_core.world import GRID_NS, servo_speed
 
 TOLERANCE = 5e-5
@@ -164,13 +165,14 @@ def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed
     shared)."""
     model = run.config.model()
     plant_model = model.replace(m_pl=run.config.payload) if run.config.payload else model
+    worlds = [run_disturbance(w, run.config.command_latency) for w in worlds]
     lat = [round(w.actuation_latency * 1e3) for w in worlds]
     if (
         any(abs(w.actuation_latency * 1e3 - v) > 1e-9 for w, v in zip(worlds, lat))
-        or max(lat) > _max_latency_ms()
+        or max(lat) > _max_latency_ms(run)
     ):
         raise ValueError(
-            f"actuation latencies must be whole ms up to {_max_latency_ms()} ms, got {lat}"
+            f"actuation latencies must be whole ms up to {_max_latency_ms(run)} ms, got {lat}"
         )
     plants = [w.plant_params(plant_model) for w in worlds]
     return run.inputs._replace(
@@ -181,10 +183,10 @@ def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed
     )
 
 
-def _max_latency_ms() -> int:
-    """The longest actuation latency a candidate may have [ms] (one loop compilation covers them
-    all)."""
-    return round(PARAMETERS["actuation_latency"].upper * 1e3)
+def _max_latency_ms(run: PreparedRun) -> int:
+    """The longest actuation latency a candidate of ``run`` may have [ms], the run's command latency
+    included (one loop compilation covers them all)."""
+    return round((PARAMETERS["actuation_latency"].upper + run.config.command_latency) * 1e3)
 
 
 def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_real.StepRun]:
@@ -192,7 +194,7 @@ def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_re
     the metrics)."""
     axes = closed_loop.LoopInputs(0, None, None, 0, 0, 0)
     spec = dataclasses.replace(
-        run.spec, goal_slots=closed_loop.goal_slots_for(_max_latency_ms(), run.spec.period_ms)
+        run.spec, goal_slots=closed_loop.goal_slots_for(_max_latency_ms(run), run.spec.period_ms)
     )
     logs = closed_loop.batch_rollout(spec, candidate_inputs(run, worlds), run.constants, axes)
     ran = np.asarray(logs.ran)
@@ -320,6 +322,14 @@ def world_document(report: dict) -> dict:
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
+        "conditions": {
+            bag: {
+                "profile": row["profile"],
+                "command_latency_ms": row["command_latency_ms"],
+                "note": "each run's command latency adds to actuation_latency (run_disturbance)",
+            }
+            for bag, row in report["per_run"].items()
+        },
         "objective": f"{report['objective']}: {report['objective_mm']} mm",
         "parameters": {
             n: {
@@ -494,7 +504,12 @@ def main(argv: list[str] | None = None) -> int:
                 ],
                 "rmse_mm": [round(v * 1e3, 3) for v in c.rmse],
             }
-        per_run[r.bag] = {"note": r.note, **rows}
+        per_run[r.bag] = {
+            "note": r.note,
+            "profile": r.config.profile,
+            "command_latency_ms": round(r.config.command_latency * 1e3),
+            **rows,
+        }
         _figure(r, {"default world": before, "calibrated world": after}, args.out / f"{r.bag}.png")
     wall = time.perf_counter() - started
     report = {

@@ -49,7 +49,7 @@ from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
 from hsa_core.profiles import VelocityEstimator
-from hsa_core.run_conditions import SPLINE_WINDOW
+from hsa_core.run_conditions import SPLINE_WINDOW, run_disturbance
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
 from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, hanging_at_rest, interval_fn, mocap_sample, seconds_to_ns,
@@ -136,7 +136,7 @@ def prepare(config: ExperimentConfig, model: HsaParams | None = None) -> tuple[L
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
-    dist = config.disturbance
+    dist = run_disturbance(config.disturbance, config.command_latency)
     lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
     if lat_m % GRID_NS or lat_a % GRID_NS:
         raise ValueError("latencies must be whole milliseconds")

@@ -52,7 +52,7 @@ from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner, PlanResult
 from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile, profile_names
 from hsa_core.reference import ReferenceRun, load_run, run_names
-from hsa_core.run_conditions import TickEstimator, plant_params
+from hsa_core.run_conditions import TickEstimator, plant_params, run_disturbance
 from hsa_core.runlog import RunLog
 from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.supervision import HOLD_TIMEOUT, STALE_TIMEOUT, Action, Mode, Supervisor, SupervisorConfig
@@ -89,6 +89,7 @@ class ExperimentConfig:
     velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
     integrator_dt: float | None = None  # [s] the integrators' step (None: the control period 1/rate)
     payload: float = 0.0  # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
+    command_latency: float = 0.0  # [s] tick → goal on the bus (controller side; run_disturbance)
 
     def __post_init__(self) -> None:
         """Reject a negative payload, a non-positive integrator step and a σ_a,eq that is not two values > 0."""
@@ -96,6 +97,8 @@ class ExperimentConfig:
             raise ValueError(f"payload must be a finite mass >= 0 kg, got {self.payload}")
         if self.integrator_dt is not None and not (math.isfinite(self.integrator_dt) and self.integrator_dt > 0.0):
             raise ValueError(f"integrator_dt must be > 0 s, got {self.integrator_dt}")
+        if not (math.isfinite(self.command_latency) and self.command_latency >= 0.0):
+            raise ValueError(f"command_latency must be >= 0 s, got {self.command_latency}")
         if self.sigma_a_eq is not None and (len(self.sigma_a_eq) != 2
                                             or not all(math.isfinite(v) and v > 0.0 for v in self.sigma_a_eq)):
             raise ValueError(f"sigma_a_eq must be two values > 0, got {self.sigma_a_eq}")
@@ -115,11 +118,12 @@ def profile_config(profile: RunProfile, material: str = "fpu", controller: str =
                    sigma_a_eq: tuple[float, float] | None = None, payload: float | None = None,
                    **options: object) -> ExperimentConfig:
     """The experiment of ``material`` and ``controller`` under ``profile``: its rate, integrator step, estimator,
-    σ_a,eq and payload (``sigma_a_eq`` / ``payload`` override the profile's); ``options``: other ExperimentConfig
-    fields (reference, gains, disturbance, ...)."""
+    command latency, σ_a,eq and payload (``sigma_a_eq`` / ``payload`` override the profile's);
+    ``options``: other ExperimentConfig fields (reference, gains, disturbance, ...)."""
     return ExperimentConfig(
         material, controller, rate=profile.rate, profile=profile.name, velocity_estimator=profile.velocity_estimator,
-        integrator_dt=profile.integrator_dt, sigma_a_eq=sigma_a_eq if sigma_a_eq is not None else profile.sigma_a_eq,
+        integrator_dt=profile.integrator_dt, command_latency=profile.command_latency_ms * 1e-3,
+        sigma_a_eq=sigma_a_eq if sigma_a_eq is not None else profile.sigma_a_eq,
         payload=payload if payload is not None else profile.payload, **options)
 
 
@@ -177,7 +181,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     motor_map = load_wiring().motor_map(model)  # the robot's wiring at its nominal neutral, as sim_node's servos
     phi_max = motor_map.phi_max
-    world = World(plant_params(model, config.payload), config.disturbance, motor_map)
+    world = World(plant_params(model, config.payload),
+                  run_disturbance(config.disturbance, config.command_latency), motor_map)
     planner = Planner(model, config.planner)
     controller = Controller(
         ControllerKind(config.controller), model, config.gains,

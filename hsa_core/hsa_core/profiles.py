@@ -18,7 +18,10 @@ Velocity estimators (:class:`VelocityEstimator`):
   the data.
 
 The control period is a whole number of milliseconds (the world's 1 ms grid); jitter of the period is not modelled.
-``bus_baud`` is recorded as a condition; the world's actuation latency does not depend on it yet.
+``bus_baud`` is recorded as a condition. ``command_latency_ms`` is the delay that the period's
+controller side adds between a tick and the goal in force on the bus (its way of writing goals); it
+adds to the world's actuation latency (:func:`hsa_core.run_conditions.run_disturbance`, the one
+place every path takes it from).
 """
 
 from __future__ import annotations
@@ -47,7 +50,8 @@ class VelocityEstimator(str, enum.Enum):
 @dataclass(frozen=True)
 class RunProfile:
     """A named set-up: control period [ms], integrator step [s] (None: the period), estimator, bus [bit/s], σ_a,eq
-    per rod (None: the material's nominal), payload [kg] and a one-line description."""
+    per rod (None: the material's nominal), payload [kg], command latency [ms] and a one-line
+    description."""
 
     name: str
     description: str
@@ -57,6 +61,7 @@ class RunProfile:
     bus_baud: int
     sigma_a_eq: tuple[float, float] | None
     payload: float
+    command_latency_ms: int = 0
 
     def __post_init__(self) -> None:
         """Reject a period that is not a whole positive number of ms, a non-positive step or a negative payload."""
@@ -70,6 +75,10 @@ class RunProfile:
             raise ValueError(f"profile {self.name}: payload must be >= 0 kg, got {self.payload!r}")
         if self.sigma_a_eq is not None and not all(math.isfinite(s) and s > 0.0 for s in self.sigma_a_eq):
             raise ValueError(f"profile {self.name}: sigma_a_eq must be two values > 0, got {self.sigma_a_eq!r}")
+        latency = self.command_latency_ms
+        if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
+            raise ValueError(f"profile {self.name}: command_latency_ms must be a whole number of "
+                             f"ms >= 0, got {latency!r}")
 
     @property
     def rate(self) -> float:
@@ -105,5 +114,6 @@ def _table() -> dict[str, RunProfile]:
             str(name), str(entry["description"]), entry["control_period_ms"],
             None if entry["integrator_dt"] is None else float(entry["integrator_dt"]),
             VelocityEstimator(entry["velocity_estimator"]), int(entry["bus_baud"]),
-            None if sigma is None else (float(sigma[0]), float(sigma[1])), float(entry["payload"]))
+            None if sigma is None else (float(sigma[0]), float(sigma[1])), float(entry["payload"]),
+            entry["command_latency_ms"])
     return table

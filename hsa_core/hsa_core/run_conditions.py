@@ -8,15 +8,19 @@
   model keeps the material's. The offline experiment and sim_node (parameter ``payload``) both build their world
   from it.
 * :func:`graph_arguments`: the launch arguments of ``launch_scripts/sim.launch.yaml`` that set a profile's or a real
-  run's conditions (control rate, integrators' step, estimator, σ_a,eq, payload; a real run's law and material too),
+  run's conditions (control rate, integrators' step, estimator, command latency, σ_a,eq,
+  payload; a real run's law and material too),
   and :func:`run_schedule`: a real run's setpoints at its real step instants, as the sequencer's ``points``,
   ``times`` and ``rate``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from hsa_core.disturbance import DisturbanceModel
 from hsa_core.estimation import SavitzkyGolayDifferentiator
 from hsa_core.params import HsaParams
 from hsa_core.profiles import RunProfile
@@ -48,6 +52,17 @@ def plant_params(model: HsaParams, payload: float) -> HsaParams:
     return model.replace(m_pl=payload) if payload else model
 
 
+def run_disturbance(disturbance: DisturbanceModel, command_latency: float) -> DisturbanceModel:
+    """The world of a run: ``disturbance`` with the controller side's ``command_latency`` [s]
+    (tick → goal written on the bus) added to its actuation latency."""
+    if not (command_latency >= 0.0):
+        raise ValueError(f"command_latency must be >= 0 s, got {command_latency}")
+    if not command_latency:
+        return disturbance
+    return dataclasses.replace(disturbance,
+                               actuation_latency=disturbance.actuation_latency + command_latency)
+
+
 def graph_arguments(profile: RunProfile, *, sigma_a_eq: tuple[float, float] | None = None,
                     payload: float | None = None, run: ReferenceRun | None = None) -> dict[str, str]:
     """Launch arguments of sim.launch.yaml for ``profile`` (a real ``run``: its profile, material, law, σ_a,eq and
@@ -64,6 +79,7 @@ def graph_arguments(profile: RunProfile, *, sigma_a_eq: tuple[float, float] | No
         "integrator_dt": repr(profile.integrator_dt or 0.0),
         "velocity_estimator": profile.velocity_estimator.value,
         "payload": repr(float(payload if payload is not None else profile.payload)),
+        "command_latency": repr(profile.command_latency_ms * 1e-3),
         "sigma_a_eq": "[]" if sigma is None else f"[{float(sigma[0])!r}, {float(sigma[1])!r}]",
     }
     if run is not None:

@@ -42,7 +42,7 @@ from hsa_core.lockstep import Barrier
 from hsa_core.mocap import planar_to_world
 from hsa_core.playback import Action, Step
 from hsa_core.rate_meter import RateMeter
-from hsa_core.run_conditions import plant_params
+from hsa_core.run_conditions import plant_params, run_disturbance
 from hsa_core.sim_lockstep import SimLockstep
 from hsa_core.world import MOCAP_PERIOD_NS, World, payload_schedule
 from hsa_core.jaxsetup import configure_jax
@@ -102,6 +102,9 @@ SPECS = (
               low=0.1, high=3600.0, read_only=True),
     ParamSpec("payload", 0.0, "[kg] the plant's point payload from t = 0, at rest with it (a run's condition; "
               "hsa_core.run_conditions.plant_params)", low=0.0, high=10.0, read_only=True),
+    ParamSpec("command_latency", 0.0, "[s] a run's controller-side delay from a tick to its goal "
+              "on the bus, added to the world's actuation latency "
+              "(hsa_core.run_conditions.run_disturbance)", low=0.0, high=1.0, read_only=True),
     ParamSpec("payload_schedule", Parameter.Type.DOUBLE_ARRAY, "[s, kg] flat pairs [t0, m0, t1, m1, ...]: from "
               "simulated time t_k the payload (at the params' CoG_pl) is m_k; unset or empty = none", read_only=True,
               validator=_payload_problem),
@@ -120,8 +123,9 @@ class SimNode(Node):
         wiring = load_wiring_param(self._p["wiring_file"])  # the driver's: IDs, rods, rod signs
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
         model = load_model(self._p)
-        disturbance = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
+        declared = DisturbanceModel(seed=self._p["seed"]) if self._p["disturbance"] == "default" \
             else DisturbanceModel.none()
+        disturbance = run_disturbance(declared, self._p["command_latency"])
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"

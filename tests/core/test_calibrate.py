@@ -68,6 +68,21 @@ def test_parameters_map_to_their_grid_and_bounds() -> None:
         )
 
 
+def test_a_run_s_command_latency_adds_to_every_candidate_s_latency() -> None:
+    """A run whose controller side adds a command latency (a profile's): each candidate world's
+    actuation latency is the world's plus the run's, as in the offline experiment."""
+    ref = step_reference("fpu")
+    reference = TimedReference(np.array([0.0]), ref.p_des[1:2], "one_point", 1.0)
+    config = ExperimentConfig("fpu", "psatid", reference=reference, command_latency=0.011)
+    spec, inputs, constants = closed_loop.prepare(config)
+    run = calibrate.PreparedRun("x", config, spec, inputs, constants, None, "", (1,), 1.0)
+    assert int(inputs.actuation_latency_ms) == 13
+    worlds = [DisturbanceModel(actuation_latency=a) for a in (0.0, 0.002, 0.25)]
+    np.testing.assert_array_equal(
+        calibrate.candidate_inputs(run, worlds).actuation_latency_ms, [11, 13, 261]
+    )
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -111,4 +126,6 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
     assert set(report["identification"]) == {"servo_time_constant"}
     world = yaml.safe_load((out / "world.yaml").read_text())
     assert set(world["parameters"]["servo_time_constant"]) >= {"value", "identified", "interval"}
+    assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
+    assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
     assert (out / "20231019_143126.png").stat().st_size > 10_000

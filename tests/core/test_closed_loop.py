@@ -13,10 +13,10 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import closed_loop, reference
+from hsa_core import closed_loop, profiles, reference
 from hsa_core.control import CollocatedGains, default_gains
 from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig, replay_config, run_experiment
+from hsa_core.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
 from hsa_core.trajectories import TimedReference, step_reference
 
 RTOL = 1e-6
@@ -100,6 +100,22 @@ def test_a_world_parameter_reaches_both_paths() -> None:
     before = np.asarray(closed_loop.compiled(*closed_loop.prepare(config)).true_chiee)
     after = np.asarray(assert_equal_to_the_offline_experiment(changed).true_chiee)
     assert np.max(np.abs(after - before)) > 1e-4  # it did change the world
+
+
+def test_the_profile_s_command_latency_reaches_both_paths() -> None:
+    """The September profile's command latency (tick → goal on the bus) adds to the world's
+    actuation latency in the offline experiment and the batched loop alike (equal logs), and
+    changes the run."""
+    september = profiles.load_profile("sep2023")
+    config = profile_config(september, "fpu", "psatid", reference=short(seconds=2.0))
+    assert september.command_latency_ms > 0
+    assert config.command_latency == pytest.approx(september.command_latency_ms * 1e-3)
+    spec, inputs, constants = closed_loop.prepare(config)
+    assert int(inputs.actuation_latency_ms) == 2 + september.command_latency_ms
+    after = np.asarray(assert_equal_to_the_offline_experiment(config).true_chiee)
+    without = inputs._replace(actuation_latency_ms=jax.numpy.asarray(2))  # the world's own only
+    before = np.asarray(closed_loop.compiled(spec, without, constants).true_chiee)
+    assert np.max(np.abs(after - before)) > 1e-5  # it did change the world
 
 
 def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:

@@ -33,6 +33,8 @@ def test_the_profiles_hold_the_spec_s_conditions() -> None:
     assert oct_.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
     assert (lab.control_period_ms, lab.integrator_dt, lab.rate) == (25, None, 40.0)
     assert all(p.sigma_a_eq is None and p.payload == 0.0 for p in (sep, oct_, lab))
+    # reference_ros_graph.md §3, §5, §6 item 2; ecosystem.md §3.1 (derivation in profiles.yaml)
+    assert (sep.command_latency_ms, oct_.command_latency_ms, lab.command_latency_ms) == (11, 6, 0)
     with pytest.raises(ValueError, match=r"^unknown run profile 'sep2024'; known: lab, sep2023, oct2023$"):
         profiles.load_profile("sep2024")
 
@@ -100,6 +102,7 @@ def test_the_september_profile_reaches_the_run() -> None:
     ({"payload": -0.1}, "payload must be a finite mass >= 0 kg"),
     ({"integrator_dt": 0.0}, "integrator_dt must be > 0 s"),
     ({"sigma_a_eq": (1.0, -1.0)}, "sigma_a_eq must be two values > 0"),
+    ({"command_latency": -0.001}, "command_latency must be >= 0 s"),
 ])
 def test_invalid_conditions_are_refused(kw: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):

@@ -7,20 +7,38 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hsa_core.disturbance import DisturbanceModel
 from hsa_core.params import load_params
 from hsa_core.profiles import load_profile
 from hsa_core.reference import load_run
-from hsa_core.run_conditions import TickEstimator, graph_arguments, plant_params, run_schedule
+from hsa_core.run_conditions import (
+    TickEstimator,
+    graph_arguments,
+    plant_params,
+    run_disturbance,
+    run_schedule,
+)
 
 
 def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
     assert graph_arguments(load_profile("lab")) == {
         "rate": "40.0", "integrator_dt": "0.0", "velocity_estimator": "savitzky_golay_20", "payload": "0.0",
-        "sigma_a_eq": "[]"}
+        "sigma_a_eq": "[]", "command_latency": "0.0"}
     sep = graph_arguments(load_profile("sep2023"), sigma_a_eq=(0.98, 1.01), payload=0.2)
     assert 1000.0 / float(sep["rate"]) == pytest.approx(36.0, abs=1e-12)  # the period in whole ms
     assert sep | {"rate": ""} == {"rate": "", "integrator_dt": "0.025", "velocity_estimator": "smoothing_spline_16",
-                                  "payload": "0.2", "sigma_a_eq": "[0.98, 1.01]"}
+                                  "payload": "0.2", "sigma_a_eq": "[0.98, 1.01]",
+                                  "command_latency": "0.011"}
+
+
+def test_a_command_latency_adds_to_the_world_s_actuation_latency_only() -> None:
+    world = DisturbanceModel(actuation_latency=0.002, servo_time_constant=0.01)
+    run = run_disturbance(world, 0.011)
+    assert run.actuation_latency == pytest.approx(0.013)
+    assert run == DisturbanceModel(actuation_latency=run.actuation_latency, servo_time_constant=0.01)
+    assert run_disturbance(world, 0.0) is world
+    with pytest.raises(ValueError, match="command_latency must be >= 0 s"):
+        run_disturbance(world, -0.001)
 
 
 def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:
@@ -28,6 +46,7 @@ def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:
     args = graph_arguments(load_profile("lab"), run=run)
     assert args["material"] == "epu" and args["controller"] == "psatid"
     assert args["velocity_estimator"] == "savitzky_golay_20" and args["integrator_dt"] == "0.025"  # oct2023
+    assert args["command_latency"] == "0.006"
     sigma = run.conditions.sigma_a_eq
     assert args["sigma_a_eq"] == f"[{sigma[0]!r}, {sigma[1]!r}]"
     schedule = run_schedule(run)

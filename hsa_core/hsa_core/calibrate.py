@@ -1,43 +1,33 @@
 """Closed-loop calibration of the world against the real robot's step runs (no ROS).
 
-The world's parameters that no identification fixed
-(:class:`~hsa_core.disturbance.DisturbanceModel` fields: the
-actuation latency, the servos' speed cap and time constant, the plant's damping and shear-stiffness
-factors) are
-fitted to the paper's reference runs (:mod:`hsa_core.reference`), each replayed with its own
-conditions
-(:func:`hsa_core.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants). The
-measure is D of :mod:`hsa_core.sim_to_real`
-(each step aligned at its own instant, steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as
-sqrt(mean D²): one set of world parameters for every run.
+The world's parameters that no identification fixed (:class:`~hsa_core.disturbance.DisturbanceModel`
+fields: the actuation latency, the servos' speed cap and time constant, the plant's damping and
+shear-stiffness factors) are fitted to the paper's reference runs (:mod:`hsa_core.reference`), each
+replayed with its own conditions (:func:`hsa_core.experiment.replay_config`: profile, law, gains,
+σ_a,eq, real step instants). The measure is D of :mod:`hsa_core.sim_to_real` (each step aligned at
+its own instant, steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one
+set of world parameters for every run.
 
 * **Simulation**: the batched JAX loop (:mod:`hsa_core.closed_loop`); a whole population of
-candidate worlds is one
-  ``batch_rollout`` call per run (one compilation per run, whatever the candidates), so the same
-  code runs on a
-  GPU or on every CPU core. D is taken on the host from the population's logs (milliseconds).
+  candidate worlds is one ``batch_rollout`` call per run (one compilation per run, whatever the
+  candidates), so the same code runs on a GPU or on every CPU core. D is taken on the host from the
+  population's logs (milliseconds).
 * **Search**: derivative-free, a cross-entropy search (as :mod:`hsa_core.tune`) on the parameters
-mapped to [0, 1]
-  (a log scale for the damping factor), the latency rounded to the 1 ms grid, seeded and
-  deterministic. Gradients
-  are not used: the latency is integer, the speed cap a clip, D a max-free but kinked function of
-  both; and a
-  population is as cheap per run as one candidate on a vector machine.
+  mapped to [0, 1] (a log scale for the damping factor), the latency rounded to the 1 ms grid,
+  seeded and deterministic. Gradients are not used: the latency is integer, the speed cap a clip, D
+  a max-free but kinked function of both; and a population is as cheap per run as one candidate on a
+  vector machine.
 * **Identifiability and uncertainty**: after the search each parameter is scanned alone over its
-whole range around
-  the best world (one batched call per run): the interval where the pooled D stays within
-  ``tolerance`` of the best
-  is reported as its uncertainty, and a parameter whose scan moves D by less than ``tolerance``
-  over the whole range
-  is reported as not identified (the default value kept, not fitted to noise). ``tolerance``
-  defaults to 0.05 mm,
-  a sixth of the robot's own repeatability (0.32 mm RMS between two runs).
+  whole range around the best world (one batched call per run): the interval where the pooled D
+  stays within ``tolerance`` of the best is reported as its uncertainty, and a parameter whose scan
+  moves D by less than ``tolerance`` over the whole range is reported as not identified (the default
+  value kept, not fitted to noise). ``tolerance`` defaults to 0.05 mm, a sixth of the robot's own
+  repeatability (0.32 mm RMS between two runs).
 * **Leave-one-run-out**: the search repeated on all runs but one, and D of the left-out run with
-those parameters.
+  those parameters.
 
 ``python -m hsa_core.calibrate`` / ``hsa_calibrate`` (:func:`main`) writes the world YAML, the fit
-report (JSON) and
-one figure per run.
+report (JSON) and one figure per run.
 """
 
 from __future__ import annotations
@@ -129,10 +119,8 @@ class PreparedRun:
 
 def prepare_run(bag: str, duration: float | None = None) -> PreparedRun:
     """The run ``bag`` replayed with its own conditions; with its logbook σ_a,eq unless the planner
-    cannot reach
-    every setpoint with it (then the material's nominal, said in ``note``). ``duration`` cuts the
-    run (a quick
-    check: the steps it holds whole are compared)."""
+    cannot reach every setpoint with it (then the material's nominal, said in ``note``).
+    ``duration`` cuts the run (a quick check: the steps it holds whole are compared)."""
     real = reference.load_run(bag)
     config = replay_config(real)
     note = "logbook sigma_a_eq"
@@ -290,9 +278,9 @@ def search(
 def scan(
     runs: list[PreparedRun], name: str, world: DisturbanceModel, points: int = 9
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which
-    one is the world's
-    own (the nearest grid point moved onto it): (values, pooled D [m]), one call per run."""
+    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which one
+    is the world's own (the nearest grid point moved onto it): (values, pooled D [m]), one call per
+    run."""
     p = PARAMETERS[name]
     values = p.value(np.linspace(0.0, 1.0, points))
     values[np.argmin(np.abs(values - getattr(world, name)))] = getattr(world, name)

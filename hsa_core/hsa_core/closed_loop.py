@@ -1,29 +1,29 @@
-"""The offline experiment as one pure JAX function: jit-able, vmap-able over plants, gains and noise (no ROS).
+"""The offline experiment as one pure JAX function: jit-able, vmap-able over plants, gains and noise
+(no ROS).
 
-:func:`rollout` runs the timeline of :mod:`hsa_core.experiment` on the world of :mod:`hsa_core.world` — 1 ms grid,
-plant integrated with two RK4 steps per interval, MX-28 speed cap, goals effective after the actuation latency,
-200 Hz mocap with latency and noise, closed-form IK, causal Savitzky–Golay, the control law with its integrators and
-saturation, goal ticks truncated towards zero — as ``lax.scan`` over the control ticks (``fori_loop`` over the 1 ms
-instants inside). The world's part is the world's own code: each interval is :func:`hsa_core.world.interval_fn`, the
-start :func:`~hsa_core.world.hanging_at_rest`, a sample :func:`~hsa_core.world.mocap_sample`, the goal ticks
-``MotorMap.goal_offsets``. At each instant, as in the experiment: the tick (if one is due) runs first, then the
-samples that became available reach the estimator, then the world runs one interval; whether an instant takes or
-delivers a sample depends on the instant alone, so that work is a branch (``lax.cond``, which ``vmap`` keeps a
-branch) and the other instants only move the servos and integrate the plant. The setpoints come from the planner
-before the loop (:func:`prepare`); a tick uses the newest one planned strictly before it.
-Of controller_node's supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
-path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays below stale_timeout).
+:func:`rollout` runs the timeline of :mod:`hsa_core.experiment` on the world of
+:mod:`hsa_core.world` — 1 ms grid, plant integrated with two RK4 steps per interval, MX-28 speed
+cap, goals effective after the actuation latency, 200 Hz mocap with latency and noise, closed-form
+IK, causal Savitzky–Golay, the control law with its integrators and saturation, goal ticks truncated
+towards zero — as ``lax.scan`` over the control ticks (``fori_loop`` over the 1 ms instants inside).
+The world's part is the world's own code: each interval is :func:`hsa_core.world.interval_fn`, the
+start :func:`~hsa_core.world.hanging_at_rest`, a sample :func:`~hsa_core.world.mocap_sample`, the
+goal ticks ``MotorMap.goal_offsets``. At each instant, as in the experiment: the tick (if one is
+due) runs first, then the samples that became available reach the estimator, then the world runs one
+interval; whether an instant takes or delivers a sample depends on the instant alone, so that work
+is a branch (``lax.cond``, which ``vmap`` keeps a branch) and the other instants only move the
+servos and integrate the plant. The setpoints come from the planner before the loop
+(:func:`prepare`); a tick uses the newest one planned strictly before it. Of controller_node's
+supervision (:mod:`hsa_core.control_loop`, which ``run_experiment`` runs) it models the fault-free
+path only: every tick with a setpoint and a state tracks (true while mocap latency + 5 ms stays
+below stale_timeout).
 
 What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters
-(with its payload),
-the gains, the noise sequence, the servo speed and time constant, the actuation latency. What
-shapes the loop is
-static (:class:`LoopSpec`): law, rate, mocap latency, length, velocity estimator (the September
-2023 stand-in of
-:mod:`hsa_core.profiles` takes the newest state into its 16-sample fit at every tick, on the true
-stamps, as
-``run_experiment`` does).
-For the same :class:`~hsa_core.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s (test:
+(with its payload), the gains, the noise sequence, the servo speed and time constant, the actuation
+latency. What shapes the loop is static (:class:`LoopSpec`): law, rate, mocap latency, length,
+velocity estimator (the September 2023 stand-in of :mod:`hsa_core.profiles` takes the newest state
+into its 16-sample fit at every tick, on the true stamps, as ``run_experiment`` does). For the same
+:class:`~hsa_core.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s (test:
 tests/core/test_closed_loop.py).
 """
 
@@ -61,9 +61,8 @@ MOCAP_MS = MOCAP_PERIOD_NS // GRID_NS
 
 @dataclasses.dataclass(frozen=True)
 class LoopSpec:
-    """What shapes the loop (static under jit): law, rate, mocap latency [ms], number of ticks,
-    metrics window,
-    velocity estimator."""
+    """What shapes the loop (static under jit): law, rate, mocap latency [ms], number of ticks, metrics
+    window, velocity estimator."""
 
     kind: ControllerKind
     gravity_cancellation: bool

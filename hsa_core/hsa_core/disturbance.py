@@ -1,38 +1,41 @@
-"""The declared disturbance model between the simulated plant and the controller's model (offline and sim node).
+"""The declared disturbance model between the simulated plant and the controller's model (offline and
+sim node).
 
-It was fixed before any closed-loop result was looked at, from published sensor and hardware facts, and is not tuned
-to make a figure pass. Defaults (``DisturbanceModel()``):
+It was fixed before any closed-loop result was looked at, from published sensor and hardware facts,
+and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
 
-* **Measurement noise** — white Gaussian noise on the mocap planar pose, σ = (0.1 mm, 0.1 mm, 1 mrad) per sample.
-  OptiTrack rigid-body jitter is of the order of 0.1 mm; 1 mrad is 0.1 mm over a 100 mm marker base.
-* **Latency** — a mocap sample is available to the estimator 6 ms after its stamp (camera latency ≈ 4–6 ms at
-  200 Hz plus rigid-body solve and transport, ecosystem.md §3.2); a command reaches the motors 2 ms after the tick
-  (rclpy hop plus one sync write, ecosystem.md §3.1–3.3).
-* **Motor quantization** — goals reach the motors as whole ticks (1 tick = π/2048 rad, truncated towards zero by
-  the driver, planning_and_control.md §7) and Present Position reports whole ticks (:mod:`hsa_core.world`).
-* **Plant/model mismatch** — the plant's nominal stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh) are 5 % higher, its
-  elongation constant C_ε 3 % lower and its axial rest strains σ_a_eq 0.005 higher than the controller's model.
-  These are of the size of the run-to-run σ_a_eq spread (0.97–1.03, planning_and_control.md §6.5) and of a modest
-  identification error.
-* **Servo speed** — each motor moves towards its goal at no more than the MX-28's no-load speed, 55 rev/min at 12 V
-  = 5.76 rad/s (ROBOTIS e-Manual, MX-28(2.0) specifications); its position loop is otherwise taken as ideal
-  (:mod:`hsa_core.world` gives the evidence). This is a physical limit of the hardware, not a tuning knob: without
-  it the simulated plant follows a 25 ms command jump at once, which no servo does.
+* **Measurement noise** — white Gaussian noise on the mocap planar pose, σ = (0.1 mm, 0.1 mm, 1
+  mrad) per sample. OptiTrack rigid-body jitter is of the order of 0.1 mm; 1 mrad is 0.1 mm over a
+  100 mm marker base.
+* **Latency** — a mocap sample is available to the estimator 6 ms after its stamp (camera latency ≈
+  4–6 ms at 200 Hz plus rigid-body solve and transport, ecosystem.md §3.2); a command reaches the
+  motors 2 ms after the tick (rclpy hop plus one sync write, ecosystem.md §3.1–3.3).
+* **Motor quantization** — goals reach the motors as whole ticks (1 tick = π/2048 rad, truncated
+  towards zero by the driver, planning_and_control.md §7) and Present Position reports whole ticks
+  (:mod:`hsa_core.world`).
+* **Plant/model mismatch** — the plant's nominal stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh) are 5 %
+  higher, its elongation constant C_ε 3 % lower and its axial rest strains σ_a_eq 0.005 higher than
+  the controller's model. These are of the size of the run-to-run σ_a_eq spread (0.97–1.03,
+  planning_and_control.md §6.5) and of a modest identification error.
+* **Servo speed** — each motor moves towards its goal at no more than the MX-28's no-load speed, 55
+  rev/min at 12 V = 5.76 rad/s (ROBOTIS e-Manual, MX-28(2.0) specifications); its position loop is
+  otherwise taken as ideal (:mod:`hsa_core.world` gives the evidence). This is a physical limit of
+  the hardware, not a tuning knob: without it the simulated plant follows a 25 ms command jump at
+  once, which no servo does.
 
-* **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews
-at the cap
-  straight onto the goal) and ``damping_scale`` (default 1: the parameter set's hand-tuned damping
-  constants) are
-  the world's parameters that no identification fixed; :mod:`hsa_core.calibrate` fits them to the
-  real runs.
+* **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews at
+  the cap straight onto the goal) and ``damping_scale`` (default 1: the parameter set's hand-tuned
+  damping constants) are the world's parameters that no identification fixed;
+  :mod:`hsa_core.calibrate` fits them to the real runs.
 
-``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous sensing, ideal servos;
-goals are still whole ticks, as on the bus).
+``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous
+sensing, ideal servos; goals are still whole ticks, as on the bus).
 
-The declaration lives here; :class:`hsa_core.world.World` executes it, for the offline experiment and the simulator.
-``DisturbanceModel.shear_mismatch()`` is the default plus a plant whose shear stiffness Ŝ_sh is half the model's: the
-paper reports that the constant-strain model captures the shear poorly (experiments.md §6); this is the scenario in
-which the collocated integral cannot remove the end-effector error and the §3.8 extension is meant to.
+The declaration lives here; :class:`hsa_core.world.World` executes it, for the offline experiment
+and the simulator. ``DisturbanceModel.shear_mismatch()`` is the default plus a plant whose shear
+stiffness Ŝ_sh is half the model's: the paper reports that the constant-strain model captures the
+shear poorly (experiments.md §6); this is the scenario in which the collocated integral cannot
+remove the end-effector error and the §3.8 extension is meant to.
 """
 
 from __future__ import annotations
@@ -49,8 +52,7 @@ from hsa_core.params import HsaParams
 @dataclass(frozen=True)
 class DisturbanceModel:
     """Noise [m, m, rad], latencies [s], servo speed [rad/s] and time constant [s], plant/model
-    mismatch factors and
-    the plant's damping factor (see module doc)."""
+    mismatch factors and the plant's damping factor (see module doc)."""
 
     pose_noise_std: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
     measurement_latency: float = 0.006

@@ -1,17 +1,18 @@
-"""A run's conditions where the offline experiment and the ROS graph must apply them the same way (no ROS).
+"""A run's conditions where the offline experiment and the ROS graph must apply them the same way (no
+ROS).
 
-* :class:`TickEstimator`: the September 2023 velocity estimator (``smoothing_spline_16``, hsa_core.profiles), which
-  runs at the controller's ticks: at every tick the newest state (stamp, q, χ_ee) enters a cubic end-point fit over
-  the last ``SPLINE_WINDOW`` such samples on their true stamps; no estimate (no command) before the 16th. The offline
-  experiment and controller_node (parameter ``velocity_estimator``) both run this class.
-* :func:`plant_params`: the plant of a run with a payload (it hangs at rest with it from t = 0); the controller's
-  model keeps the material's. The offline experiment and sim_node (parameter ``payload``) both build their world
-  from it.
-* :func:`graph_arguments`: the launch arguments of ``launch_scripts/sim.launch.yaml`` that set a profile's or a real
-  run's conditions (control rate, integrators' step, estimator, command latency, σ_a,eq,
-  payload; a real run's law and material too),
-  and :func:`run_schedule`: a real run's setpoints at its real step instants, as the sequencer's ``points``,
-  ``times`` and ``rate``.
+* :class:`TickEstimator`: the September 2023 velocity estimator (``smoothing_spline_16``,
+  hsa_core.profiles), which runs at the controller's ticks: at every tick the newest state (stamp,
+  q, χ_ee) enters a cubic end-point fit over the last ``SPLINE_WINDOW`` such samples on their true
+  stamps; no estimate (no command) before the 16th. The offline experiment and controller_node
+  (parameter ``velocity_estimator``) both run this class.
+* :func:`plant_params`: the plant of a run with a payload (it hangs at rest with it from t = 0); the
+  controller's model keeps the material's. The offline experiment and sim_node (parameter
+  ``payload``) both build their world from it.
+* :func:`graph_arguments`: the launch arguments of ``launch_scripts/sim.launch.yaml`` that set a
+  profile's or a real run's conditions (control rate, integrators' step, estimator, command latency,
+  σ_a,eq, payload; a real run's law and material too), and :func:`run_schedule`: a real run's
+  setpoints at its real step instants, as the sequencer's ``points``, ``times`` and ``rate``.
 """
 
 from __future__ import annotations

@@ -140,9 +140,8 @@ def rise_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HO
 
 def onset_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
                 grid: float = GRID) -> np.ndarray:
-    """(steps,) [s]: per step, the aligned time the progress along the step (:func:`rise_times`)
-    first reaches 10 %
-    (NaN: never): how long after its step instant the run starts to move."""
+    """(steps,) [s]: per step, the aligned time the progress along the step (:func:`rise_times`) first
+    reaches 10 % (NaN: never): how long after its step instant the run starts to move."""
     responses = aligned_responses(run, steps, horizon, grid)
     out = []
     for (start, _), p in zip(run.step_bounds(steps), responses):

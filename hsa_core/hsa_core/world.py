@@ -100,10 +100,9 @@ class WorldParams(NamedTuple):
 
 def world_params(plant: HsaParams, motor_map: MotorMap, speed: ArrayLike,
                  lag: ArrayLike = 0.0) -> WorldParams:
-    """The world's parameters from the plant, the robot's wiring, the servos' speed cap [ticks per
-    grid interval,
-    :func:`servo_speed`] and their position loop's time constant [s] (0: the shaft slews at the cap
-    to the goal)."""
+    """The world's parameters from the plant, the robot's wiring, the servos' speed cap [ticks per grid
+    interval, :func:`servo_speed`] and their position loop's time constant [s] (0: the shaft slews
+    at the cap to the goal)."""
     return WorldParams(plant, speed, jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64),
                        jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK,
                        lag)
@@ -115,14 +114,14 @@ def servo_speed(max_speed: ArrayLike) -> ArrayLike:
 
 
 def interval_fn(params: WorldParams) -> Callable[[Array, Array, Array, ArrayLike], tuple[Array, Array]]:
-    """One grid interval of the world, pure and traceable (the plant's parameter terms are computed here, once).
+    """One grid interval of the world, pure and traceable (the plant's parameter terms are computed
+    here, once).
 
-    The returned ``interval(x, position, goal, torque) → (x, position)`` takes the plant state [q, q_dot], the shaft
-    positions and the goal in force [ticks] and whether each motor has torque: the shafts with torque move towards
-    the goal by the first-order step of the position loop (the whole way when ``servo_lag`` is 0)
-    but at most the
-    speed cap, then the plant is integrated over the interval with ``PLANT_SUBSTEPS`` RK4
-    steps, the twists those shafts realise held."""
+    The returned ``interval(x, position, goal, torque) → (x, position)`` takes the plant state [q,
+    q_dot], the shaft positions and the goal in force [ticks] and whether each motor has torque: the
+    shafts with torque move towards the goal by the first-order step of the position loop (the whole
+    way when ``servo_lag`` is 0) but at most the speed cap, then the plant is integrated over the
+    interval with ``PLANT_SUBSTEPS`` RK4 steps, the twists those shafts realise held."""
     q_ddot = simulation.forward_dynamics_fn(params.plant)
     dt = GRID_NS * 1e-9 / PLANT_SUBSTEPS
     speed = params.servo_speed

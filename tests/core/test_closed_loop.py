@@ -88,11 +88,10 @@ def test_a_september_replay_with_a_payload_equals_the_offline_experiment() -> No
 
 
 def test_a_world_parameter_reaches_both_paths() -> None:
-    """The servos' time constant and the damping factor are the world's (WorldParams /
-    interval_fn), the actuation
-    latency the world's goal queue: set in the DisturbanceModel, they change the offline experiment
-    and the batched
-    loop alike (a latency of more than two 25 ms periods: three goals in flight)."""
+    """The servos' time constant and the damping factor are the world's (WorldParams / interval_fn),
+    the actuation latency the world's goal queue: set in the DisturbanceModel, they change the
+    offline experiment and the batched loop alike (a latency of more than two 25 ms periods: three
+    goals in flight)."""
     config = ExperimentConfig("fpu", "psatid", reference=short(seconds=3.0))
     world = DisturbanceModel(servo_time_constant=0.04, damping_scale=2.0, actuation_latency=0.061)
     changed = dataclasses.replace(config, disturbance=world)

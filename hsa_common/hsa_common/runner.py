@@ -122,8 +122,12 @@ def run_nodes(
                 nodes.append(factory())
         except ParameterValidationError as exc:
             logger.fatal(f"refusing to start: {exc}")
+            _shut_down(nodes)
             rclpy.try_shutdown()
             return 2
+        except BaseException:
+            _shut_down(nodes)  # a later node failed or a stop came: the nodes made so far stop first
+            raise
         starting.clear()
     except StopBeforeReady:
         logger.info("stopped before ready")
@@ -184,6 +188,14 @@ def run_nodes(
         except OSError:
             pass  # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
     os._exit(code)  # the hooks persisted what matters: skip the interpreter's teardown (JAX/XLA)
+
+
+def _shut_down(nodes: Sequence[Node]) -> None:
+    """Run the ``on_shutdown`` hook of each node already made (the driver turns torque off there)."""
+    for node in nodes:
+        hook = getattr(node, "on_shutdown", None)
+        if hook is not None:
+            hook()
 
 
 def exit_code(nodes: Sequence[Node]) -> int:

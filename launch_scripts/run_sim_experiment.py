@@ -17,7 +17,6 @@ turns them into the graph's launch arguments, as hsa_experiment does for the off
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import threading
@@ -32,8 +31,8 @@ from hsa_common import convert, rosenv
 from hsa_common.launcher import Launcher, LaunchFile
 from hsa_core import cli, metrics
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, load_profile, profile_names
-from hsa_core.reference import ReferenceRun, load_run, run_names
+from hsa_core.profiles import DEFAULT_PROFILE, load_profile, profile_names
+from hsa_core.reference import run_names
 from hsa_core.run_conditions import graph_arguments, run_schedule
 from hsa_core.tune import gains_yaml
 
@@ -121,33 +120,6 @@ def _gains_file(text: str) -> Path:
     return path.resolve()
 
 
-def _profile(text: str) -> RunProfile:
-    """argparse type of --profile: a packaged run profile."""
-    try:
-        return load_profile(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _run(text: str) -> ReferenceRun:
-    """argparse type of --run: a packaged real run of the paper."""
-    try:
-        return load_run(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _sigma_a_eq(text: str) -> tuple[float, float]:
-    """argparse type of --sigma-a-eq: A (both rods) or A,B, each a finite number > 0."""
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) not in (1, 2) or not all(0.0 < v < math.inf for v in values):
-        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
-    return values[0], values[-1]
-
-
 def _conditions(args: argparse.Namespace) -> dict[str, str]:
     """Launch arguments of the run's conditions (hsa_core.run_conditions); a real run's gains and setpoints are
     written as parameter files under --out."""
@@ -183,16 +155,16 @@ def main(argv: list[str] | None = None) -> int:
                              "wall: real time")
     parser.add_argument("--rate", type=cli.positive, default=None,
                         help="[Hz] control rate (default: the profile's, 40 Hz for lab)")
-    parser.add_argument("--profile", type=_profile, default=None,
+    parser.add_argument("--profile", type=cli.run_profile, default=None,
                         help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default "
                              f"{DEFAULT_PROFILE}): control rate, integrators' step, velocity estimator, sigma_a_eq, "
                              "payload (docs/simulation.md, 'Run profiles')")
-    parser.add_argument("--run", type=_run, default=None,
+    parser.add_argument("--run", type=cli.reference_run, default=None,
                         help="replay a real run of the paper with its own conditions (profile, material, law, gains, "
                              f"sigma_a_eq, payload, setpoints at its real step instants): {', '.join(run_names())}")
     parser.add_argument("--payload", type=cli.non_negative, default=None,
                         help="[kg] the plant's payload (default: the profile's or the run's)")
-    parser.add_argument("--sigma-a-eq", type=_sigma_a_eq, default=None,
+    parser.add_argument("--sigma-a-eq", type=cli.sigma_a_eq, default=None,
                         help="A or A,B: sigma_a_eq of the rods, the model's and the plant's (default: the profile's or "
                              "the run's, else the material's)")
     parser.add_argument("--gains", type=_gains_file, default=None,

@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import NoReturn
+import math
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    from hsa_core.profiles import RunProfile
+    from hsa_core.reference import ReferenceRun
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -36,3 +41,37 @@ def non_negative(text: str) -> float:
     if not 0.0 <= value < float("inf"):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
     return value
+
+
+def sigma_a_eq(text: str) -> tuple[float, float]:
+    """argparse type of --sigma-a-eq: A (both rods) or A,B (rod 1, rod 2), each finite and > 0."""
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if (len(parts) not in (1, 2) or len(values) != len(parts)
+            or not all(0.0 < v < math.inf for v in values)):
+        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
+    return values[0], values[-1]
+
+
+def run_profile(text: str) -> RunProfile:
+    """argparse type of --profile: a packaged run profile (hsa_core.profiles)."""
+    from hsa_core.profiles import load_profile
+
+    try:
+        return load_profile(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def reference_run(text: str) -> ReferenceRun:
+    """argparse type of --run: a packaged real run of the paper (hsa_core.reference, imported on
+    use: it loads JAX)."""
+    from hsa_core.reference import load_run
+
+    try:
+        return load_run(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

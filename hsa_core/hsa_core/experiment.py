@@ -51,7 +51,7 @@ from hsa_core.estimation import SavitzkyGolayDifferentiator, configuration_from_
 from hsa_core.params import HsaParams, load_params
 from hsa_core.planning import Planner, PlanResult
 from hsa_core.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile, profile_names
-from hsa_core.reference import ReferenceRun, load_run, run_names
+from hsa_core.reference import ReferenceRun, run_names
 from hsa_core.run_conditions import TickEstimator, plant_params, run_disturbance
 from hsa_core.runlog import RunLog
 from hsa_core.sequencer_timing import first_point_ns
@@ -322,32 +322,6 @@ def _rate(text: str) -> float:
     return rate
 
 
-def _profile(text: str) -> str:
-    """argparse type of --profile: the name of a packaged run profile."""
-    if text not in profile_names():
-        raise argparse.ArgumentTypeError(f"unknown run profile {text!r}; known: {', '.join(profile_names())}")
-    return text
-
-
-def _run(text: str) -> str:
-    """argparse type of --run: the bag name of a packaged reference run."""
-    if text not in run_names():
-        raise argparse.ArgumentTypeError(f"unknown reference run {text!r}; known: {', '.join(run_names())}")
-    return text
-
-
-def _sigma_a_eq(text: str) -> tuple[float, float]:
-    """argparse type of --sigma-a-eq: A (both rods) or A,B (rod 1, rod 2), each a finite number > 0."""
-    parts = text.split(",")
-    try:
-        values = [float(v) for v in parts]
-    except ValueError:
-        values = []
-    if len(parts) not in (1, 2) or len(values) != len(parts) or not all(0.0 < v < math.inf for v in values):
-        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
-    return (values[0], values[-1])
-
-
 def _trajectory(text: str) -> str:
     """argparse type of --trajectory: steps, star, circle or an existing image file."""
     if text in ("steps", "star", "circle") or Path(text).is_file():
@@ -358,10 +332,10 @@ def _trajectory(text: str) -> str:
 def _configs(args: argparse.Namespace, dist: DisturbanceModel) -> list[ExperimentConfig]:
     """The experiments the command line selects: one replayed run, or every material × law under the profile."""
     if args.run is not None:
-        configs = [replay_config(load_run(args.run), sigma_a_eq=args.sigma_a_eq, payload=args.payload,
+        configs = [replay_config(args.run, sigma_a_eq=args.sigma_a_eq, payload=args.payload,
                                  disturbance=dist)]
     else:
-        profile = load_profile(args.profile or DEFAULT_PROFILE)
+        profile = args.profile or load_profile(DEFAULT_PROFILE)
         material = args.material or "fpu"
         configs = []
         for material in ["fpu", "epu"] if material == "both" else [material]:
@@ -395,15 +369,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller", type=_laws, default=None,
                         help="psatid, psatid_gc, pid, psatid+eei, psatid_gc+eei, or 'all' (comma-separated list ok; "
                              "default: all)")
-    parser.add_argument("--profile", type=_profile, default=None,
+    parser.add_argument("--profile", type=cli.run_profile, default=None,
                         help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default: "
                              f"{DEFAULT_PROFILE}; docs/simulation.md)")
-    parser.add_argument("--run", type=_run, default=None,
+    parser.add_argument("--run", type=cli.reference_run, default=None,
                         help="replay a paper run with its own conditions (profile, law, gains, sigma_a_eq, real step "
                              f"instants): {', '.join(run_names())}")
     parser.add_argument("--payload", type=cli.non_negative, default=None,
                         help="[kg] the plant's payload (default: the profile's or the run's)")
-    parser.add_argument("--sigma-a-eq", type=_sigma_a_eq, default=None,
+    parser.add_argument("--sigma-a-eq", type=cli.sigma_a_eq, default=None,
                         help="A or A,B: sigma_a_eq per rod (default: the profile's or the run's)")
     parser.add_argument("--trajectory", type=_trajectory, default="steps",
                         help="steps, star, circle, or the path of an image file")

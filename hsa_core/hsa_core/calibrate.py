@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import yaml
 
@@ -429,14 +428,13 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(f"argument --duration: {err}")
     base = DisturbanceModel()
-    fit = search(
-        runs,
-        args.fit,
-        base,
-        population=args.population,
-        generations=args.generations,
-        seed=args.seed,
-    )
+
+    def fit_on(subset: list[PreparedRun]) -> SearchResult:
+        """The search over ``subset`` with the command line's fit, budget and seed."""
+        return search(subset, args.fit, base, population=args.population, generations=args.generations,
+                      seed=args.seed)
+
+    fit = fit_on(runs)
     world = dataclasses.replace(base, **fit.best)
     ident = {}
     for name in args.fit:
@@ -448,14 +446,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_loo and len(runs) > 2:
         for i, left in enumerate(runs):
             rest = runs[:i] + runs[i + 1 :]
-            sub = search(
-                rest,
-                args.fit,
-                base,
-                population=args.population,
-                generations=args.generations,
-                seed=args.seed,
-            )
+            sub = fit_on(rest)
             d = deviations(left, [dataclasses.replace(base, **sub.best)])[0]
             loo[left.bag] = {
                 "fitted_on_others": sub.best,

@@ -259,7 +259,8 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
             full = c.count >= n_window
             mean_dt = jnp.where(full, mean_dt, 1.0)
             stamps = jnp.where(full, c.stamps, jnp.arange(n_window) * 1.0)
-            derivative = _true_stamp_coefficients(stamps, mean_dt) @ c.window / mean_dt
+            tau = (stamps - stamps[-1]) / mean_dt
+            derivative = derivative_coefficients(tau, ESTIMATOR_ORDER, jnp) @ c.window / mean_dt
         else:
             derivative = coeffs @ c.window / mean_dt
         meas = control.Measurement(c.window[-1, :3], derivative[:3], c.window[-1, 3:], derivative[3:])
@@ -292,16 +293,6 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
     c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)  # the instants before the first tick
     _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
     return log
-
-
-def _true_stamp_coefficients(stamps: Array, mean_dt: Array) -> Array:
-    """End-point derivative weights of the cubic least-squares fit on the true stamps, in units of
-    ``mean_dt``
-    (:meth:`hsa_core.estimation.SavitzkyGolayDifferentiator._fit_true_stamps`, traced)."""
-    tau = (stamps - stamps[-1]) / mean_dt
-    scale = jnp.maximum(jnp.max(jnp.abs(tau)), 1.0)
-    vander = (tau / scale)[:, None] ** jnp.arange(ESTIMATOR_ORDER + 1)
-    return jnp.linalg.solve(vander.T @ vander, vander.T)[1] / scale
 
 
 XLA_OPTIONS = {"xla_cpu_enable_fast_math": True, "xla_cpu_fast_math_honor_nans": True,

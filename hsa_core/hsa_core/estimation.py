@@ -83,12 +83,13 @@ def _rejected(rejection: SampleRejection, detail: str) -> Estimate:
     return Estimate(None, None, False, EstimateMode.REJECTED, f"{rejection}{detail}", rejection)
 
 
-def derivative_coefficients(tau: ArrayLike, order: int) -> np.ndarray:
-    """Weights c with Σ c_k x_k = d/dτ at τ = 0 of the degree-``order`` least-squares polynomial through (τ_k, x_k)."""
-    tau = np.asarray(tau, dtype=np.float64)
-    scale = max(float(np.max(np.abs(tau))), 1.0)  # fit on u = τ/scale ∈ [−1, 0] for conditioning
-    vander = (tau / scale)[:, None] ** np.arange(order + 1)
-    return np.linalg.solve(vander.T @ vander, vander.T)[1] / scale
+def derivative_coefficients(tau: ArrayLike, order: int, xp: Any = np) -> Any:
+    """Weights c with Σ c_k x_k = d/dτ at τ = 0 of the degree-``order`` least-squares polynomial through (τ_k, x_k);
+    ``xp`` is numpy or jax.numpy (traceable: the batched loop's September estimator)."""
+    tau = xp.asarray(tau, dtype=xp.float64)
+    scale = xp.maximum(xp.max(xp.abs(tau)), 1.0)  # fit on u = τ/scale ∈ [−1, 0] for conditioning
+    vander = (tau / scale)[:, None] ** xp.arange(order + 1)
+    return xp.linalg.solve(vander.T @ vander, vander.T)[1] / scale
 
 
 class SavitzkyGolayDifferentiator:

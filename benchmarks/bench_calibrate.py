@@ -1,7 +1,7 @@
 """The world's calibration against the paper's four real step runs, end to end (hsa_calibrate),
 with its wall time.
 
-Runs ``hsa_core.calibrate.main`` (the ``hsa_calibrate`` CLI: cross-entropy search through the
+Runs ``hsa_core.apps.calibrate.main`` (the ``hsa_calibrate`` CLI: cross-entropy search through the
 batched JAX loop, one
 scan per parameter, leave-one-run-out) and writes its report with the machine and the wall time to
 benchmarks/results/calibration.json (``--label NAME``: calibration_NAME.json); the figures and
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv: list[str]) -> int:
-    from hsa_core import calibrate
+    from hsa_core.apps import calibrate
 
     label = ""
     if argv[:1] == ["--label"]:
@@ -35,7 +35,7 @@ def main(argv: list[str]) -> int:
     wall = time.perf_counter() - started
     report = json.loads((out / "report.json").read_text())
     doc = {
-        "what": "hsa_calibrate against the reference runs (hsa_core.calibrate); arguments: "
+        "what": "hsa_calibrate against the reference runs (hsa_core.apps.calibrate); arguments: "
         + (" ".join(argv) or "defaults"),
         "report": report,
         "wall_s": round(wall, 1),

@@ -1,4 +1,4 @@
-"""Throughput of the batched JAX closed loop (hsa_core.closed_loop) on the 110 s FPU step experiment, P-satI-D.
+"""Throughput of the batched JAX closed loop (hsa_core.sim.closed_loop) on the 110 s FPU step experiment, P-satI-D.
 
 The batch is split over one XLA host device per core (``--host-devices``), as ``batch_rollout`` splits it over GPUs.
 For batch sizes B (``--batches``, default 8 32 128): the first call (compiling with an empty compilation cache,
@@ -42,7 +42,7 @@ TARGET_CLI_RUNS_PER_MIN = 550.0
 LOOP_LOWERING = re.compile(r"Compiling jit\(rollout\)")
 
 
-def metric_vector(m) -> np.ndarray:  # noqa: ANN001 - hsa_core.metrics.RunMetrics
+def metric_vector(m) -> np.ndarray:  # noqa: ANN001 - hsa_core.analysis.metrics.RunMetrics
     """RMSE, saturated fraction, mean t_r, t_s, overshoot and e_ss of a run."""
     return np.array([m.rmse, m.saturated_fraction, m.response_time_mean, m.settling_time_mean, m.overshoot_mean,
                      m.steady_state_error_mean])
@@ -50,7 +50,7 @@ def metric_vector(m) -> np.ndarray:  # noqa: ANN001 - hsa_core.metrics.RunMetric
 
 def cli_run(n: int, batch: int, out: Path, env: dict[str, str]) -> dict:
     """One ``hsa_robustness`` process: its own wall_s and how often it lowered the loop for compilation."""
-    argv = [sys.executable, "-m", "hsa_core.robustness", "--material", "fpu", "--laws", "psatid", "--n", str(n),
+    argv = [sys.executable, "-m", "hsa_core.apps.robustness", "--material", "fpu", "--laws", "psatid", "--n", str(n),
             "--batch", str(batch), "--out", str(out)]
     t0 = time.perf_counter()
     done = subprocess.run(argv, env=env | {"JAX_LOG_COMPILES": "1"}, capture_output=True, text=True, check=True)
@@ -123,8 +123,8 @@ def kernel_part(batches: list[int]) -> dict:
     """The loop alone at each batch size, and one run of the Python experiment loop (module docstring)."""
     import jax
 
-    from hsa_core import closed_loop
-    from hsa_core.experiment import ExperimentConfig, run_experiment
+    from hsa_core.sim import closed_loop
+    from hsa_core.sim.experiment import ExperimentConfig, run_experiment
 
     config = ExperimentConfig("fpu", "psatid")
     started = time.perf_counter()

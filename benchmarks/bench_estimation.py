@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from hsa_core.actuation import MotorLimits, MotorMap, limit_goal_rate
-from hsa_core.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
-from hsa_core.mocap import planar_to_world, world_to_planar
-from hsa_core.params import load_params
-from hsa_core.trajectories import step_reference
+from hsa_core.model.actuation import MotorLimits, MotorMap, limit_goal_rate
+from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
+from hsa_core.sensing.mocap import planar_to_world, world_to_planar
+from hsa_core.model.params import load_params
+from hsa_core.task.trajectories import step_reference
 from hsa_core.jaxsetup import configure_jax
 
 RESULTS = Path(__file__).resolve().parent / "results" / "estimation.json"

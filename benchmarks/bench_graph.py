@@ -37,7 +37,7 @@ from rosbags.rosbag2 import Reader
 
 from hsa_bag.msgtypes import TypeRegistry
 from hsa_common import rosenv
-from hsa_core.trajectories import step_reference
+from hsa_core.task.trajectories import step_reference
 from hsa_core.jaxsetup import configure_jax
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -37,8 +37,8 @@ import numpy as np
 
 from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
-from hsa_core import metrics
-from hsa_core.experiment import ExperimentConfig, run_experiment
+from hsa_core.analysis import metrics
+from hsa_core.sim.experiment import ExperimentConfig, run_experiment
 from hsa_core.jaxsetup import configure_jax
 
 ROOT = Path(__file__).resolve().parents[1]

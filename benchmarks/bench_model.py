@@ -46,8 +46,8 @@ import time, json, sys
 t0 = time.perf_counter()
 import jax, jax.numpy as jnp
 from functools import partial
-from hsa_core.params import load_params
-from hsa_core import dynamics
+from hsa_core.model.params import load_params
+from hsa_core.model import dynamics
 from hsa_core.jaxsetup import configure_jax
 configure_jax()
 t_import = time.perf_counter() - t0
@@ -116,8 +116,8 @@ def warm_latencies(n: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from hsa_core import dynamics, kinematics
-    from hsa_core.params import load_params
+    from hsa_core.model import dynamics, kinematics
+    from hsa_core.model.params import load_params
 
     p = load_params("fpu")
     q_np, qd_np, phi_np = np.array([1.0, 0.01, 0.2]), np.array([0.1, 0.2, 0.3]), np.array([1.0, 2.0])
@@ -161,8 +161,8 @@ def simulator(material: str, kind: str, repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from hsa_core import kinematics, simulation
-    from hsa_core.params import load_params
+    from hsa_core.model import kinematics, simulation
+    from hsa_core.model.params import load_params
 
     p = load_params(material)
     duration, hold = 10.0, 0.025

@@ -1,4 +1,4 @@
-"""Benchmark of hsa_core.planning and hsa_core.control against the original figures (reference_performance.md).
+"""Benchmark of hsa_core.task.planning and hsa_core.controller.control against the original figures (reference_performance.md).
 
 Each section runs in a fresh process with hsa_core's persistent compilation cache disabled, so "cold" includes tracing
 and XLA compilation as a first start pays it; one extra run measures a restart that finds the cache filled.
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_core.trajectories import STEP_LISTS
+from hsa_core.task.trajectories import STEP_LISTS
 
 RESULTS = Path(__file__).resolve().parent / "results" / "planning_control.json"
 EPU_STEPS = STEP_LISTS["epu"]  # experiments.md §2
@@ -76,8 +76,8 @@ def timed_plans(planner, points, warm_start: bool, passes: int) -> tuple[list[fl
 
 def section_static(material: str) -> dict:
     """Static inversion: cold (construction incl. compile + first plan), warm fresh and warm-started over 5 passes."""
-    from hsa_core.params import load_params
-    from hsa_core.planning import Planner
+    from hsa_core.model.params import load_params
+    from hsa_core.task.planning import Planner
 
     steps = STEP_LISTS[material]
     t0 = time.perf_counter()
@@ -99,9 +99,9 @@ def section_rollout(full: bool) -> dict:
     """EPU rollout planner: cold construction, warm per setpoint (seeded), one rollout, one jacfwd, unseeded LM."""
     import jax
 
-    from hsa_core import planning
-    from hsa_core.params import load_params
-    from hsa_core.planning import Planner
+    from hsa_core.task import planning
+    from hsa_core.model.params import load_params
+    from hsa_core.task.planning import Planner
 
     params = load_params("epu")
     t0 = time.perf_counter()
@@ -143,8 +143,8 @@ def section_rollout(full: bool) -> dict:
 
 def section_default_epu() -> dict:
     """The default EPU planner (bounded static inversion), warm per setpoint."""
-    from hsa_core.params import load_params
-    from hsa_core.planning import Planner
+    from hsa_core.model.params import load_params
+    from hsa_core.task.planning import Planner
 
     planner = Planner(load_params("epu"))
     walls, _ = timed_plans(planner, EPU_STEPS, warm_start=False, passes=5)
@@ -153,9 +153,9 @@ def section_default_epu() -> dict:
 
 def section_control(material: str) -> dict:
     """One tick of each law incl. NumPy conversion in and out, with varying measurements (5000 ticks each)."""
-    from hsa_core.control import Controller, EeIntegralGains
-    from hsa_core.params import load_params
-    from hsa_core.planning import Planner
+    from hsa_core.controller.control import Controller, EeIntegralGains
+    from hsa_core.model.params import load_params
+    from hsa_core.task.planning import Planner
 
     params = load_params(material)
     setpoint = Planner(params).plan(STEP_LISTS[material][1]).setpoint

@@ -1,6 +1,6 @@
 """Robustness table and tuning target (issue "batched closed loop"): the paper's and the tuned gains over 256 plants.
 
-For FPU and EPU, the same N perturbed plants (``hsa_core.robustness.perturbed_plants``, ±10 %, ``--seed``, default
+For FPU and EPU, the same N perturbed plants (``hsa_core.apps.robustness.perturbed_plants``, ±10 %, ``--seed``, default
 1: plants the tuner, which draws with seed 0, has not seen) run the full 110 s step list under P-satI-D, P-satI-D+GC,
 PID and P-satI-D + EE integral, once with the paper's gains and once with the tuned gains of ``--tuned`` where that
 directory has them (``<material>_<law>.yaml``, the ``gains.yaml`` ``hsa_tune`` writes; the EE-integral run uses the
@@ -50,11 +50,11 @@ def main() -> int:
     configure_jax()
     import jax
 
-    from hsa_core import robustness
-    from hsa_core.control import load_gains
-    from hsa_core.disturbance import DisturbanceModel
-    from hsa_core.experiment import ExperimentConfig, run_experiment
-    from hsa_core.params import load_params
+    from hsa_core.apps import robustness
+    from hsa_core.controller.control import load_gains
+    from hsa_core.sim.disturbance import DisturbanceModel
+    from hsa_core.sim.experiment import ExperimentConfig, run_experiment
+    from hsa_core.model.params import load_params
 
     tuned_dir = args.tuned.relative_to(ROOT) if args.tuned.is_relative_to(ROOT) else args.tuned
     result: dict = {"plants": args.plants, "range": 0.10, "seed": args.seed, "devices": len(jax.devices()),

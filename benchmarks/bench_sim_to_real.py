@@ -1,9 +1,9 @@
 """How far today's simulator is from the real robot: the paper's four reference runs against the offline experiment.
 
-For each packaged real run (hsa_core.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU P-satI-D) this runs
-``hsa_core.experiment.run_experiment`` (what ``hsa_experiment`` runs) with the run's material, law and the paper's
+For each packaged real run (hsa_core.analysis.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU P-satI-D) this runs
+``hsa_core.sim.experiment.run_experiment`` (what ``hsa_experiment`` runs) with the run's material, law and the paper's
 gains on the default world (seed 0), and compares the measured end-effector position with the robot's
-(hsa_core.sim_to_real, each step aligned at its own instant: the real one for the robot, the simulated one for the
+(hsa_core.analysis.sim_to_real, each step aligned at its own instant: the real one for the robot, the simulated one for the
 sim; steps 1–10, first 9.3 s, 100 Hz): D, x peak-to-peak over the last 2 s of a step (max over steps), ‖e‖ over the
 last 2 s (median over steps), median relative rise-time (10-90 %) and response-time differences, RMSE. Variants
 (``--variants``):
@@ -11,7 +11,7 @@ last 2 s (median over steps), median relative rise-time (10-90 %) and response-t
 * ``default``: the experiment as ``hsa_experiment --material M --controller LAW`` runs it (σ_a,eq nominal);
 * ``logbook_sigma``: the same with the run's σ_a,eq from the logbook (controller model and plant);
 * ``own_profile`` (added by ``--profiles``): the run replayed with its own conditions, as
-  ``hsa_experiment --run BAG`` does (hsa_core.experiment.replay_config: the run's profile of hsa_core.profiles, law,
+  ``hsa_experiment --run BAG`` does (hsa_core.sim.experiment.replay_config: the run's profile of hsa_core.sim.profiles, law,
   gains, σ_a,eq and real step instants), on the same default world;
 * ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook σ_a,eq has a
   setpoint the planner refuses, so it is compared only this way);
@@ -49,7 +49,7 @@ ISSUE_TABLE = {  # issue 20, commit 12bcf5d: D [mm], x p2p sim / robot [mm], ‖
 
 def _default(real):
     """hsa_experiment --material M --controller LAW with the paper's gains: the lab profile, nominal σ_a,eq."""
-    from hsa_core.experiment import ExperimentConfig
+    from hsa_core.sim.experiment import ExperimentConfig
 
     return ExperimentConfig(real.conditions.material, real.conditions.law.value, gains=real.conditions.gains)
 
@@ -61,7 +61,7 @@ def _logbook_sigma(real):
 
 def _own_profile(real):
     """hsa_experiment --run BAG."""
-    from hsa_core.experiment import replay_config
+    from hsa_core.sim.experiment import replay_config
 
     return replay_config(real)
 
@@ -73,7 +73,7 @@ def _own_profile_nominal_sigma(real):
 
 def _own_rate_only(real):
     """The replay with nominal σ_a,eq and the lab profile's velocity estimator."""
-    from hsa_core.profiles import load_profile
+    from hsa_core.sim.profiles import load_profile
 
     lab = load_profile("lab")
     return dataclasses.replace(_own_profile_nominal_sigma(real), velocity_estimator=lab.velocity_estimator)
@@ -81,7 +81,7 @@ def _own_rate_only(real):
 
 def _own_estimator_only(real):
     """The replay with nominal σ_a,eq and the lab profile's control period and integrator step."""
-    from hsa_core.profiles import load_profile
+    from hsa_core.sim.profiles import load_profile
 
     lab = load_profile("lab")
     return dataclasses.replace(_own_profile_nominal_sigma(real), rate=lab.rate, integrator_dt=lab.integrator_dt)
@@ -100,8 +100,8 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "sim_to_real.json")
     args = parser.parse_args()
     configure_jax()
-    from hsa_core import reference, sim_to_real
-    from hsa_core.experiment import run_experiment
+    from hsa_core.analysis import reference, sim_to_real
+    from hsa_core.sim.experiment import run_experiment
 
     variants = args.variants + (["own_profile"] if args.profiles and "own_profile" not in args.variants else [])
     rows = []
@@ -146,7 +146,7 @@ def main() -> int:
                   f"RMSE {row['rmse_mm']['sim']:5.2f} / {row['rmse_mm']['robot']:5.2f}   ({wall:.0f} s)", flush=True)
     result_doc = {
         "what": "sim (offline experiment, paper's gains, default world, seed 0) against the real runs; "
-                "hsa_core.sim_to_real, steps 1-10 each aligned at its own instant, first 9.3 s, 100 Hz; "
+                "hsa_core.analysis.sim_to_real, steps 1-10 each aligned at its own instant, first 9.3 s, 100 Hz; "
                 "variants: the bench's docstring",
         "targets": {"D_mm": 1.0, "x_p2p_last2s_max_mm": 0.5, "rise_time_relative": 0.25, "rmse_relative": 0.10},
         "rows": rows,

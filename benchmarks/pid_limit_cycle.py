@@ -1,6 +1,6 @@
 """Why the simulated task-space PID limit-cycles (and P-satI-D overshoots): one world factor switched off at a time.
 
-Runs the offline experiment (hsa_core.experiment.run_experiment, the reference the lockstep ROS graph reproduces) on
+Runs the offline experiment (hsa_core.sim.experiment.run_experiment, the reference the lockstep ROS graph reproduces) on
 the FPU step list, truncated to ``--duration`` seconds, with the paper's gains, the default disturbance (seed 0) and
 one factor changed per row: measurement noise, measurement latency, actuation latency, the servo speed cap, the
 plant/model mismatch, K_d, the 40 Hz control rate, the Savitzky–Golay derivative (replaced by the plant's exact
@@ -34,16 +34,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_core import experiment, kinematics, simulation
-from hsa_core.control import default_gains
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.dynamics import forward_dynamics_fn
-from hsa_core.estimation import Estimate, derivative_coefficients
+from hsa_core.model import kinematics, simulation
+from hsa_core.sim import experiment
+from hsa_core.controller.control import default_gains
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.model.dynamics import forward_dynamics_fn
+from hsa_core.sensing.estimation import Estimate, derivative_coefficients
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.params import HsaParams, load_params
-from hsa_core.experiment import ExperimentConfig, ExperimentResult, run_experiment
-from hsa_core.trajectories import TimedReference, step_reference
-from hsa_core.world import MOCAP_PERIOD_NS, MocapSample, World
+from hsa_core.model.params import HsaParams, load_params
+from hsa_core.sim.experiment import ExperimentConfig, ExperimentResult, run_experiment
+from hsa_core.task.trajectories import TimedReference, step_reference
+from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World
 
 ESTIMATOR_WINDOW = experiment.ESTIMATOR_WINDOW
 """The kinematics node's Savitzky–Golay window (samples), restored after every run."""
@@ -131,7 +132,7 @@ class _ExactDerivative:
 class _World(World):
     """World that registers itself for _ExactDerivative and, with zero mocap latency, hands a tick its own sample.
 
-    hsa_core.world.World draws the sample stamped t when it starts the interval after t, so with
+    hsa_core.sim.world.World draws the sample stamped t when it starts the interval after t, so with
     ``measurement_latency = 0`` run_experiment asks again and again for instant t and never advances (it hangs; reported
     to the lead). Here a sample due at the instant the world stops at is drawn there (the pose at t, available at t);
     the World's own draw for that stamp is dropped. Without zero latency nothing changes."""

@@ -26,8 +26,8 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["hsa_experiment = hsa_core.experiment:main",
-                                      "hsa_robustness = hsa_core.robustness:main",
-                                      "hsa_tune = hsa_core.tune:main",
-                                      "hsa_calibrate = hsa_core.calibrate:main"]},
+    entry_points={"console_scripts": ["hsa_experiment = hsa_core.sim.experiment:main",
+                                      "hsa_robustness = hsa_core.apps.robustness:main",
+                                      "hsa_tune = hsa_core.apps.tune:main",
+                                      "hsa_calibrate = hsa_core.apps.calibrate:main"]},
 )

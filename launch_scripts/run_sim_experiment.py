@@ -10,7 +10,7 @@ progress line per step; the nodes' output goes to ``<out>/graph.log`` unless ``-
 
 A run's conditions: ``--profile sep2023`` (a run profile: control rate, integrators' step, velocity estimator,
 σ_a,eq, payload), ``--run 20230925_093236`` (a real run of the paper replayed with its own conditions, gains and
-setpoints at its real step instants), ``--payload KG`` and ``--sigma-a-eq A[,B]`` (overrides); hsa_core.run_conditions
+setpoints at its real step instants), ``--payload KG`` and ``--sigma-a-eq A[,B]`` (overrides); hsa_core.sim.run_conditions
 turns them into the graph's launch arguments, as hsa_experiment does for the offline run.
 """
 
@@ -29,12 +29,13 @@ import yaml
 from hsa_bag.analysis import analyze
 from hsa_common import convert, rosenv
 from hsa_common.launcher import Launcher, LaunchFile
-from hsa_core import cli, metrics
+from hsa_core.analysis import metrics
+from hsa_core.apps import cli
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.profiles import DEFAULT_PROFILE, load_profile, profile_names
-from hsa_core.reference import run_names
-from hsa_core.run_conditions import graph_arguments, run_schedule
-from hsa_core.tune import gains_yaml
+from hsa_core.sim.profiles import DEFAULT_PROFILE, load_profile, profile_names
+from hsa_core.analysis.reference import run_names
+from hsa_core.sim.run_conditions import graph_arguments, run_schedule
+from hsa_core.apps.tune import gains_yaml
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
 
@@ -121,7 +122,7 @@ def _gains_file(text: str) -> Path:
 
 
 def _conditions(args: argparse.Namespace) -> dict[str, str]:
-    """Launch arguments of the run's conditions (hsa_core.run_conditions); a real run's gains and setpoints are
+    """Launch arguments of the run's conditions (hsa_core.sim.run_conditions); a real run's gains and setpoints are
     written as parameter files under --out."""
     if args.run is None:
         return graph_arguments(args.profile or load_profile(DEFAULT_PROFILE), sigma_a_eq=args.sigma_a_eq,

@@ -21,9 +21,9 @@ decoded with the definition stored in the bag:
 ``hsa_analyze RUN [RUN ...] [--out DIR] [--duration S] [--csv] [--npz] [--topic T] [--contour] [--phi-max RAD]
 [--name N]``: a RUN is a bag (directory or .mcap file) or the NPZ log of an offline experiment (``hsa_experiment``'s
 ``log.npz``, or a ``run.npz`` written here). For each run it prints the run summary and the per-step table
-(``hsa_core.metrics``) and writes into its directory (DIR for one run, default ``out/analysis/<name>``; DIR/<name>
+(``hsa_core.analysis.metrics``) and writes into its directory (DIR for one run, default ``out/analysis/<name>``; DIR/<name>
 for several, default DIR ``out/analysis/overlay``): ``metrics.txt``, with ``--csv``/``--npz`` the RunLog as
-``run.csv``/``run.npz``, and the figures of ``hsa_core.plotting`` (PDF and PNG) under ``figures/``. With several
+``run.csv``/``run.npz``, and the figures of ``hsa_core.analysis.plotting`` (PDF and PNG) under ``figures/``. With several
 runs, DIR also gets the summary table of all runs in ``metrics.txt`` and the overlay figures in ``figures/``. The
 step figure is left out, and the Cartesian path drawn as a line, for contour runs: a trajectory longer than
 ``CONTOUR_MIN_POINTS`` setpoints, or ``--contour``. Trimming: ``--duration S`` keeps 0 ≤ t < S; by default 110 s
@@ -49,11 +49,11 @@ from tqdm import tqdm
 
 from hsa_bag.bagio import Bag, BagError, stamp_ns
 from hsa_bag.storage import read_metadata
-from hsa_core import cli
-from hsa_core.metrics import RunMetrics, evaluate_run, format_steps, format_summary
-from hsa_core.params import ParameterError, load_params
-from hsa_core.plotting import all_figures, overlay_figures
-from hsa_core.runlog import RunLog
+from hsa_core.apps import cli
+from hsa_core.analysis.metrics import RunMetrics, evaluate_run, format_steps, format_summary
+from hsa_core.model.params import ParameterError, load_params
+from hsa_core.analysis.plotting import all_figures, overlay_figures
+from hsa_core.analysis.runlog import RunLog
 from hsa_core.jaxsetup import configure_jax
 
 TOPIC = "/hsa/controller_info"

@@ -22,7 +22,7 @@
   viewer may take).
 * **Lockstep** (ROS parameter ``lockstep: true``, with ``use_sim_time``; the replay graph's default): the player owns
   /clock and plays losslessly and deterministically, whatever the machine's load. It coordinates the barrier of
-  :mod:`hsa_core.lockstep` (decisions in :mod:`hsa_core.playback`): simulated time starts once the nodes named in the
+  :mod:`hsa_core.sim.lockstep` (decisions in :mod:`hsa_core.sim.playback`): simulated time starts once the nodes named in the
   parameter ``participants`` have reported and every topic the player publishes is matched by the participants that
   take it; each message is published at the instant of its log time (timer dues of the participants in between are
   instants of their own), after every message before it has been taken and the instant's timers have run. ``--rate``,
@@ -60,8 +60,8 @@ from hsa_bag.play_options import Options, parse_args, split_ros_args
 from hsa_bag.qos import publisher_profile
 from hsa_common import convert, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
-from hsa_core.lockstep import Barrier
-from hsa_core.playback import Action, LockstepPlayback
+from hsa_core.sim.lockstep import Barrier
+from hsa_core.sim.playback import Action, LockstepPlayback
 from hsa_msgs.msg import LockstepAck
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)

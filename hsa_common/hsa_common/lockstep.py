@@ -4,7 +4,7 @@
 topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the barrier's own topic and the node's private
 parameter/lifecycle services are not counted),
 and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
-(:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.lockstep`; the contract is in
+(:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in
 docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder:
 every selected topic subscribed). A node whose log times are simulated time (the recorder) reads them from a
 :class:`LeadClock` kept as its ``lockstep_clock``: the coordinator sends each timer instant there before /clock moves,
@@ -25,7 +25,7 @@ from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from hsa_common import convert
-from hsa_core.lockstep import Report
+from hsa_core.sim.lockstep import Report
 from hsa_msgs.msg import LockstepAck
 
 ACK_TOPIC = "/_lockstep/ack"

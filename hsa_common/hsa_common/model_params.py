@@ -12,8 +12,8 @@ from rclpy.parameter import Parameter
 from hsa_common.parameters import ParameterValidationError, ParamSpec
 
 if TYPE_CHECKING:
-    from hsa_core.params import HsaParams
-    from hsa_core.wiring import Wiring
+    from hsa_core.model.params import HsaParams
+    from hsa_core.model.wiring import Wiring
 
 MATERIALS = ("fpu", "epu")
 
@@ -45,7 +45,7 @@ WIRING_SPEC = ParamSpec("wiring_file", "", "robot wiring YAML: motor IDs, rod an
 
 def load_wiring_param(value: str) -> Wiring:
     """The Wiring named by the ``wiring_file`` parameter (raises ParameterValidationError naming it)."""
-    from hsa_core.wiring import WiringError, load_wiring
+    from hsa_core.model.wiring import WiringError, load_wiring
 
     try:
         return load_wiring(value)
@@ -56,7 +56,7 @@ def load_wiring_param(value: str) -> Wiring:
 def load_model(values: dict[str, Any]) -> HsaParams:
     """HsaParams selected by the declared MODEL_SPECS values (``sigma_a_eq`` may be undeclared), refusing a set whose
     material is not ``material`` (raises ParameterValidationError naming the parameter)."""
-    from hsa_core.params import ParameterError, load_params  # JAX: only nodes that load the model import it
+    from hsa_core.model.params import ParameterError, load_params  # JAX: only nodes that load the model import it
 
     source = values["params_file"] or values["material"]
     sigma_a_eq = values.get("sigma_a_eq")

@@ -1,15 +1,15 @@
 """controller_node: one control law of planning_and_control.md §3 at a fixed rate, with the supervision
 of §5.
 
-Every input is checked before it can reach the law (hsa_core.validation): a setpoint must be
+Every input is checked before it can reach the law (hsa_core.controller.validation): a setpoint must be
 plausible and an equilibrium of the model under its own phi^ss (static residual at q^d within
 `setpoint_residual_tol`, chiee^d = FK(q^d) within `setpoint_pose_tol`, 0 <= optimality error <=
 1e-3); a refused one leaves the previous one active. A state must have plausible magnitudes and a
 stamp newer than the newest accepted one. Refusals are counted on /diagnostics and logged at most
 once per `rejection_log_period`.
 
-Every decision of a tick is hsa_core.control_loop.ControlLoop (the offline experiment runs the same
-one), around the mode state machine hsa_core.supervision.Supervisor, fed by this node with the node
+Every decision of a tick is hsa_core.controller.control_loop.ControlLoop (the offline experiment runs the same
+one), around the mode state machine hsa_core.controller.supervision.Supervisor, fed by this node with the node
 clock (the clock of the state stamps): E-stop (latched `estop` true) -> nothing is sent, the
 integrators were reset; no setpoint, no driver heartbeat (`phi_present`) within `driver_timeout`,
 the driver's servos without torque (latched `torque` false), or no usable state -> nothing is sent;
@@ -18,13 +18,13 @@ the controller is not stepped (no integral wind-up) for at most `hold_timeout`, 
 is sent (the driver's command watchdog holds the motors); otherwise the controller steps and
 `phi_cmd` is published. From the first tracking tick on, `controller_info` reports every tick. A
 setpoint costs O(1) on arrival (its serialized message is kept, at most SETPOINT_INTAKE of them);
-the tick decodes the kept ones and checks at most a few, the newest winning (hsa_core.control_loop),
+the tick decodes the kept ones and checks at most a few, the newest winning (hsa_core.controller.control_loop),
 so a setpoint flood cannot stall the tick. With `realtime_priority` > 0 every thread runs under
 SCHED_RR once the node is built (hsa_controller_node.scheduling), so busy processes cannot keep the
-tick waiting for a CPU either. The math is hsa_core.control's Controller, compiled in the
+tick waiting for a CPU either. The math is hsa_core.controller.control's Controller, compiled in the
 constructor; the integrators use dt = 1/rate (or `integrator_dt`) and stay finite by construction
 (Controller.step). With `velocity_estimator` smoothing_spline_16 (the September 2023 stand-in,
-hsa_core.run_conditions.TickEstimator) the rates of the states are not used: each tick fits them to
+hsa_core.sim.run_conditions.TickEstimator) the rates of the states are not used: each tick fits them to
 the newest state of the last 16 ticks. This node only declares parameters, converts messages,
 publishes and logs.
 """
@@ -51,14 +51,14 @@ from hsa_controller_node import scheduling
 from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info, tracking_info
 from hsa_controller_node.parameters import SPECS, check_combination, ee_gains, gains, tuning
 from hsa_controller_node.report import ControlReport
-from hsa_core.control import Controller, ControllerKind, retune
-from hsa_core.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
+from hsa_core.controller.control import Controller, ControllerKind, retune
+from hsa_core.controller.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.planning import Setpoint as CoreSetpoint
-from hsa_core.profiles import VelocityEstimator
-from hsa_core.run_conditions import TickEstimator
-from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
-from hsa_core.validation import SetpointValidator
+from hsa_core.task.planning import Setpoint as CoreSetpoint
+from hsa_core.sim.profiles import VelocityEstimator
+from hsa_core.sim.run_conditions import TickEstimator
+from hsa_core.controller.supervision import Action, Mode, Supervisor, SupervisorConfig
+from hsa_core.controller.validation import SetpointValidator
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 
 
@@ -171,7 +171,7 @@ class ControllerNode(Node):
 
     def _hand_setpoints(self) -> None:
         """Decode the kept setpoints and queue them in arrival order; the first tick after its stamp activates one
-        (hsa_core.control_loop)."""
+        (hsa_core.controller.control_loop)."""
         while self._setpoints:
             try:
                 msg = deserialize_message(self._setpoints.popleft(), Setpoint)

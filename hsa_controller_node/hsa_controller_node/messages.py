@@ -9,9 +9,9 @@ import numpy as np
 from rclpy.time import Time
 
 from hsa_common import convert
-from hsa_core.control import ControllerState
-from hsa_core.control_loop import Command, Tick
-from hsa_core.supervision import Mode
+from hsa_core.controller.control import ControllerState
+from hsa_core.controller.control_loop import Command, Tick
+from hsa_core.controller.supervision import Mode
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, Setpoint
 
 FRAME_ID = "hsa_base"

@@ -13,12 +13,12 @@ from typing import Any
 from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC
 from hsa_common.parameters import ParameterValidationError, ParamSpec, typed
 from hsa_controller_node import scheduling
-from hsa_core.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains, Tuning,
+from hsa_core.controller.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains, Tuning,
                               default_gains)
-from hsa_core.planning import MAX_OPTIMALITY_ERROR
-from hsa_core.profiles import VelocityEstimator
-from hsa_core.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
-from hsa_core.validation import POSE_TOLERANCE
+from hsa_core.task.planning import MAX_OPTIMALITY_ERROR
+from hsa_core.sim.profiles import VelocityEstimator
+from hsa_core.controller.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
+from hsa_core.controller.validation import POSE_TOLERANCE
 
 
 def _positive(value: Any) -> str | None:
@@ -51,7 +51,7 @@ def specs() -> tuple[ParamSpec, ...]:
         ParamSpec("velocity_estimator", VelocityEstimator.SAVITZKY_GOLAY_20.value,
                   "rates the law uses: savitzky_golay_20 = the state's (kinematics_node); "
                   "smoothing_spline_16 = the September 2023 stand-in, fitted at each tick to the "
-                  "newest states of the last 16 ticks (hsa_core.run_conditions.TickEstimator)",
+                  "newest states of the last 16 ticks (hsa_core.sim.run_conditions.TickEstimator)",
                   choices=tuple(v.value for v in VelocityEstimator), read_only=True),
         ParamSpec("kp", collocated.kp, "[rad^2/(N m)] P-satI-D(+GC) proportional gain", low=0.0,
                   high=100.0),

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from hsa_common.diagnostics import ERROR, OK, WARN, Report
-from hsa_core.control_loop import ControlLoop
-from hsa_core.supervision import Mode
+from hsa_core.controller.control_loop import ControlLoop
+from hsa_core.controller.supervision import Mode
 
 
 class ControlReport:

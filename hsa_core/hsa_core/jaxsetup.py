@@ -5,7 +5,7 @@ calls on the calling thread (no hand-off to a dispatch thread: the per-tick mode
 long, benchmarks/results/model.json), and enables JAX's persistent compilation cache, so that a process started a
 second time loads every compiled function, small ones too, instead of compiling it again (directory:
 ``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``; an empty string disables it). :func:`require` is the guard of the model's entry
-(:func:`hsa_core.params.load_params`): a program that forgot the call fails with one clear line instead of computing
+(:func:`hsa_core.model.params.load_params`): a program that forgot the call fails with one clear line instead of computing
 in float32. Nodes and programs that never touch the model (bridge, sequencer, recorder, player, launcher) never
 import JAX; the driver does, for the parameter set's h and φ_max.
 """

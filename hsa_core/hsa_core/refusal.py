@@ -3,8 +3,8 @@ one-line text (for logs and /diagnostics).
 
 A :class:`Refusal` is a ``str`` (the text), so whoever shows it needs nothing more; whoever counts
 refusals keys by :attr:`Refusal.reason`, never by parsing the text. Each part that refuses inputs
-has its own reasons (:class:`StateRejection` here; :class:`hsa_core.validation.SetpointRejection`,
-:class:`hsa_core.mocap_gate.Rejection`); their values are the names shown on /diagnostics.
+has its own reasons (:class:`StateRejection` here; :class:`hsa_core.controller.validation.SetpointRejection`,
+:class:`hsa_core.sensing.mocap_gate.Rejection`); their values are the names shown on /diagnostics.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ class Refusal(str):
 
 class StateRejection(enum.StrEnum):
     """Why the controller refuses a measured state: implausible values
-    (hsa_core.validation.state_problem) or its stamp's order (Supervisor.state)."""
+    (hsa_core.controller.validation.state_problem) or its stamp's order (Supervisor.state)."""
 
     NON_FINITE_POSE = "non-finite pose or configuration"
     IMPLAUSIBLE_POSE = "implausible pose or configuration"

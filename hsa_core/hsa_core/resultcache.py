@@ -29,8 +29,8 @@ _PACKAGE = Path(__file__).resolve().parent
 def _source_digest() -> bytes:
     """SHA-256 of every module of hsa_core: a code change invalidates every entry."""
     digest = hashlib.sha256()
-    for path in sorted(_PACKAGE.glob("*.py")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    for path in sorted(_PACKAGE.rglob("*.py")):
+        digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0" + path.read_bytes())
     return digest.digest()
 
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from hsa_core.actuation import MotorLimits, MotorMap
-from hsa_core.actuation import GoalRateLimiter
+from hsa_core.model.actuation import MotorLimits, MotorMap
+from hsa_core.model.actuation import GoalRateLimiter
 
 
 @dataclasses.dataclass(frozen=True)

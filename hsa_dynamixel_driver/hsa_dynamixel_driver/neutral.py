@@ -2,7 +2,7 @@
 
 The configured neutral fixes the absolute goal limits before the bus is opened (issue 10): the ``neutral_ticks``
 parameter, or the ``neutral_file`` written once from the present positions at the first start (the decision whether
-those may be stored is `hsa_core.servo_supervision.PositionCheck.first_calibration`).
+those may be stored is `hsa_core.driver.servo_supervision.PositionCheck.first_calibration`).
 """
 
 from __future__ import annotations

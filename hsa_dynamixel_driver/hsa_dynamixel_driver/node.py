@@ -9,7 +9,7 @@ the latched ``torque`` topic says whether phi_cmd moves the servos; a command wa
 bus errors are counted and reported, and the bus is reopened every ``reconnect_period`` while it is down. See
 docs/nodes/hsa_dynamixel_driver.md.
 
-ROS wiring only: the decisions are `hsa_core.servo_supervision.ServoSupervisor`'s; `servos.Servos`
+ROS wiring only: the decisions are `hsa_core.driver.servo_supervision.ServoSupervisor`'s; `servos.Servos`
 owns the state (bus, supervisor, goal pipeline `goals.GoalPipeline`, counters) and takes one call
 per event; diagnostics `reports`, parameters `params.SPECS`.
 """
@@ -29,9 +29,9 @@ from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.parameters import declare, guard_updates
 from hsa_common.runner import run
-from hsa_core.actuation import ticks_to_angles
+from hsa_core.model.actuation import ticks_to_angles
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.servo_supervision import Answer
+from hsa_core.driver.servo_supervision import Answer
 from hsa_dynamixel_driver.bus import VELOCITY_UNIT_RAD_S
 from hsa_dynamixel_driver.params import SPECS
 from hsa_dynamixel_driver.reports import add_statuses

@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 
 from hsa_common.model_params import WIRING_SPEC
 from hsa_common.parameters import ParamSpec
-from hsa_core.actuation import DEFAULT_MAX_GOAL_RATE
+from hsa_core.model.actuation import DEFAULT_MAX_GOAL_RATE
 from hsa_dynamixel_driver.bus import SDK_BAUDRATES
 
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_core.rate_meter import RateMeter
-from hsa_core.servo_supervision import Watchdog
+from hsa_core.driver.servo_supervision import Watchdog
 from hsa_dynamixel_driver.bus import describe_hardware_error
 from hsa_dynamixel_driver.servos import Servos
 

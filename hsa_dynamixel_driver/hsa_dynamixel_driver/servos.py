@@ -1,5 +1,5 @@
 """The dynamixel_driver's bus side: connect and reconnect, neutral ticks, torque on/off, link loss, hardware errors
-and reboots — the I/O around the decisions of `hsa_core.servo_supervision.ServoSupervisor` (no ROS: the node passes
+and reboots — the I/O around the decisions of `hsa_core.driver.servo_supervision.ServoSupervisor` (no ROS: the node passes
 its logger and node clock in).
 
 Torque-on holds the present positions (goal := present, so nothing jumps); torque-off is best effort with plain
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from hsa_common.model_params import load_model, load_wiring_param
-from hsa_core.actuation import MotorLimits, MotorMap, RejectionLog, accept_read_neutral
-from hsa_core.servo_supervision import Alert, Answer, ServoSupervisor, Verdict, WatchdogEvent
+from hsa_core.model.actuation import MotorLimits, MotorMap, RejectionLog, accept_read_neutral
+from hsa_core.driver.servo_supervision import Alert, Answer, ServoSupervisor, Verdict, WatchdogEvent
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     BusError,

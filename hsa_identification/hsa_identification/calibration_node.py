@@ -3,8 +3,8 @@
 It keeps the newest `state` samples (EE pose, mocap stamp, receive time) and `phi_present` samples (the driver's
 present twist, receive time; receive times pair the two streams, so an unsynchronised mocap clock does no harm). A
 request takes the last `num_samples` states, refuses unless the robot is at rest with phi = 0 over that window
-(hsa_core.calibration.rest_problem: phi, pose spread and drift), and otherwise returns sigma_a_eq of both virtual
-rods with its one-sigma uncertainty and residual (hsa_core.calibration.calibrate, planning_and_control.md §6.5). With
+(hsa_core.sysid.calibration.rest_problem: phi, pose spread and drift), and otherwise returns sigma_a_eq of both virtual
+rods with its one-sigma uncertainty and residual (hsa_core.sysid.calibration.calibrate, planning_and_control.md §6.5). With
 `write_parameter_file` it writes the estimate into the parameter file in use (`write_file`, else `params_file`; the
 packaged set is never overwritten), keeping every other line. Nodes read sigma_a_eq at start: restart them (or pass
 the values as their `sigma_a_eq` parameter) to use a new calibration.
@@ -24,9 +24,9 @@ from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core import calibration
-from hsa_core.identification import write_parameter_file
-from hsa_core.params import CONFIG_DIR
+from hsa_core.sysid import calibration
+from hsa_core.sysid.identification import write_parameter_file
+from hsa_core.model.params import CONFIG_DIR
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import PlanarActuation, PlanarState
 from hsa_msgs.srv import CalibrateRestStrain

@@ -16,8 +16,9 @@ import numpy as np
 import yaml
 
 from hsa_bag.bagio import BagError
-from hsa_core import calibration, identification, verification, workspace
-from hsa_core.params import CONFIG_DIR, HsaParams, ParameterError, load_params
+from hsa_core.sysid import calibration, identification, verification
+from hsa_core.task import workspace
+from hsa_core.model.params import CONFIG_DIR, HsaParams, ParameterError, load_params
 from hsa_core.jaxsetup import configure_jax
 from hsa_identification.records import load_arrays, load_record
 

@@ -1,4 +1,4 @@
-"""excitation_player: plays a step, staircase or GBN twist sequence (hsa_core.excitation) on `phi_cmd`.
+"""excitation_player: plays a step, staircase or GBN twist sequence (hsa_core.sysid.excitation) on `phi_cmd`.
 
 The commands take the normal actuation path: the controller's topic and QoS (hsa_msgs/PlanarActuation, COMMAND), so the
 dynamixel_driver applies its clip, goal clamp, rate limit and watchdog exactly as in closed loop (do not run a
@@ -21,7 +21,7 @@ from hsa_common import convert, qos
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_common.runner import run
-from hsa_core import excitation
+from hsa_core.sysid import excitation
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import PlanarActuation
 

@@ -1,4 +1,4 @@
-"""Recorded experiments for identification and verification: bags (or NPZ files) → hsa_core.identification.Record.
+"""Recorded experiments for identification and verification: bags (or NPZ files) → hsa_core.sysid.identification.Record.
 
 From a bag: the EE pose stream (`<ns>/ee_pose`, hsa_msgs/PlanarPoseStamped, else `<ns>/state`, hsa_msgs/PlanarState;
 found by type, in any namespace) with its mocap stamps, and the present twist of the motors (`<ns>/phi_present`, the
@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from hsa_bag.bagio import Bag, BagError, stamp_ns
-from hsa_core.excitation import zero_order_hold
-from hsa_core.identification import Record
+from hsa_core.sysid.excitation import zero_order_hold
+from hsa_core.sysid.identification import Record
 
 POSE_TYPES = {"hsa_msgs/msg/PlanarPoseStamped": "pose", "hsa_msgs/msg/PlanarState": "chiee"}
 ACTUATION = "hsa_msgs/msg/PlanarActuation"

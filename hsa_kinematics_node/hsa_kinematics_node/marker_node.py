@@ -5,7 +5,7 @@ between are dropped before any work is done): backbone and both rods as LINE_STR
 setpoint is known the desired EE position as a SPHERE and a translucent ghost of q^d (backbone, rods, platform
 outline). A new setpoint is drawn at once. Every marker carries the stamp of the newest state and the ``frame_id``
 parameter; namespaces and ids never change, so each marker is replaced in place. All geometry comes from
-hsa_core.visual. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
+hsa_core.model.visual. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core.rate_meter import RateMeter
-from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import CsConfiguration, PlanarState, Setpoint
 
@@ -54,7 +54,7 @@ GHOST = (0.3, 0.8, 1.0)
 
 
 class MarkerNode(Node):
-    """Draws the measured configuration and the setpoint with hsa_core.visual geometry, rate-limited."""
+    """Draws the measured configuration and the setpoint with hsa_core.model.visual geometry, rate-limited."""
 
     def __init__(self) -> None:
         super().__init__("marker_node")

@@ -5,7 +5,7 @@ are the end-point derivative of a polynomial fit over the last ``window`` sample
 full (after start-up or a stamp gap) ``velocity_valid`` is false and both rates are NaN, never a made-up zero. Samples
 the estimator rejects (non-finite, duplicate or out-of-order stamps) produce no ``state`` and are counted on
 /diagnostics. So are samples whose state would go out more than ``max_lag`` later, relative to their stamp, than the
-promptest of the last second (hsa_core.validation.DelayGate: samples queued, or in flight, while this node was
+promptest of the last second (hsa_core.controller.validation.DelayGate: samples queued, or in flight, while this node was
 stalled, which would otherwise come out as an old state with a valid velocity); they still enter the window. The gate
 judges before ``publish()``: a node stopped inside the write still delivers that state late, so consumers judge age
 by stamp. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
@@ -26,10 +26,10 @@ from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_lev
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run, seconds
-from hsa_core.estimation import EstimateMode, SavitzkyGolayDifferentiator, configuration_from_pose
-from hsa_core.mocap import REST_POSE
+from hsa_core.sensing.estimation import EstimateMode, SavitzkyGolayDifferentiator, configuration_from_pose
+from hsa_core.sensing.mocap import REST_POSE
 from hsa_core.rate_meter import RateMeter
-from hsa_core.validation import DelayGate
+from hsa_core.controller.validation import DelayGate
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 

@@ -6,7 +6,7 @@ logs them on Foxglove channels (docs/nodes/hsa_live.md):
 * ``/live/scene`` (foxglove.SceneUpdate): entity ``robot`` (backbone and rod LINE strips, the platform as a cube) of
   the newest state, at most ``scene_rate`` per second of the steady (wall) clock, whatever the simulation speed;
   entity ``goal`` (setpoint sphere and a translucent ghost of q^d) once a setpoint is known, redrawn at once on a new
-  setpoint. Geometry from hsa_core.visual.
+  setpoint. Geometry from hsa_core.model.visual.
 * ``/live/tracking``, ``/live/actuation``, ``/live/configuration`` (JSON, one message per controller tick): p_ee and
   p^d with e and ‖e‖; φ commanded, before saturation, φ^ss and the admissible box; q and q^d.
   ``/live/phi_present`` (JSON): the measured φ at the driver rate. The log time of each message is the stamp of the
@@ -40,8 +40,8 @@ from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core import live
-from hsa_core.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.analysis import live
+from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
 from hsa_core.jaxsetup import configure_jax
 from hsa_live import scene
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint

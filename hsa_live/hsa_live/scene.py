@@ -1,4 +1,4 @@
-"""Foxglove SceneUpdate entities of the robot and of the goal, from hsa_core.visual geometry (colours as marker_node).
+"""Foxglove SceneUpdate entities of the robot and of the goal, from hsa_core.model.visual geometry (colours as marker_node).
 
 Entity ``robot``: backbone and both virtual rods as line strips, the platform as a cube at its pose. Entity ``goal``:
 a sphere at the desired EE position and a translucent ghost of q^d (backbone, rods, platform outline). Planar points
@@ -23,7 +23,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from hsa_core.visual import RobotGeometry
+from hsa_core.model.visual import RobotGeometry
 
 BACKBONE = (0.9, 0.9, 0.9)
 RODS = ((0.85, 0.33, 0.10), (0.00, 0.45, 0.74))  # virtual rod 1 (roff < 0), rod 2 (roff > 0)

@@ -1,8 +1,8 @@
 """mocap_bridge: motion-capture PoseStamped of the platform (and base) rigid bodies → validated planar pose ``ee_pose``.
 
-Each platform sample goes through the check chain of ``hsa_core.mocap_gate`` (frame_id, non-finite values, quaternion,
+Each platform sample goes through the check chain of ``hsa_core.sensing.mocap_gate`` (frame_id, non-finite values, quaternion,
 stale/future/duplicate/out-of-order stamp against the node clock, missing or stale base, workspace box, jump), is
-projected to χ_ee = [x, y, θ] in {0} by ``hsa_core.mocap`` (spec §6.1–6.2) and published with its mocap stamp in frame
+projected to χ_ee = [x, y, θ] in {0} by ``hsa_core.sensing.mocap`` (spec §6.1–6.2) and published with its mocap stamp in frame
 ``hsa_base``. Base samples (``use_base_pose``) go through the same frame, value and stamp checks. Every drop is counted
 per reason on /diagnostics and logged at most every 5 s. Parameters and topics: docs/nodes/hsa_mocap_bridge.md.
 """
@@ -20,8 +20,8 @@ from hsa_common import convert, qos
 from hsa_common.diagnostics import ERROR, OK, WARN, Diagnostics, Report, log_level_change
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core import mocap
-from hsa_core.mocap_gate import BASE_REASONS, MAX_FUTURE, REASONS, BaseMode, GateConfig, Health, MocapGate, Sample
+from hsa_core.sensing import mocap
+from hsa_core.sensing.mocap_gate import BASE_REASONS, MAX_FUTURE, REASONS, BaseMode, GateConfig, Health, MocapGate, Sample
 from hsa_core.rate_meter import RateMeter
 from hsa_msgs.msg import PlanarPoseStamped
 
@@ -30,7 +30,7 @@ GAP_PERIODS = 3  # nominal mocap periods of silence reported as WARN
 
 
 def _unit_quaternion(value: list[float]) -> str | None:
-    """Refuse quaternions hsa_core.mocap refuses (not of unit norm)."""
+    """Refuse quaternions hsa_core.sensing.mocap refuses (not of unit norm)."""
     try:
         mocap.MocapConfig(base_quaternion=tuple(value))
     except ValueError as exc:

@@ -1,6 +1,6 @@
 """planner_node: the `plan_setpoint` service, desired EE position -> steady-state setpoint (planning_and_control.md §2).
 
-The planners are hsa_core.planning.Planner objects, one per kind in the `planners` parameter, compiled in the
+The planners are hsa_core.task.planning.Planner objects, one per kind in the `planners` parameter, compiled in the
 constructor; a request never compiles. Every outcome is a response: failures carry a status and a reason, so no
 setpoint is ever dropped silently (reference_ros_graph.md §6, weakness 9); they are counted on /diagnostics and logged
 at most every 5 s. The service uses hsa_common.qos.SERVICE (reliable, keep all), so no request of a burst is
@@ -21,7 +21,7 @@ from hsa_common import convert, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core.planning import DEFAULT_PLANNER, MAX_OPTIMALITY_ERROR, PLANNER_KINDS, Planner, PlanResult, PlanStatus
+from hsa_core.task.planning import DEFAULT_PLANNER, MAX_OPTIMALITY_ERROR, PLANNER_KINDS, Planner, PlanResult, PlanStatus
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
 from hsa_common.model_params import MODEL_SPECS, load_model

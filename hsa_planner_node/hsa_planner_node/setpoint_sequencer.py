@@ -24,9 +24,9 @@ from hsa_common import qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core import trajectories
-from hsa_core.sequencer_timing import SUPERVISION_PERIOD_NS
-from hsa_core.trajectories import TimedReference
+from hsa_core.task import trajectories
+from hsa_core.task.sequencer_timing import SUPERVISION_PERIOD_NS
+from hsa_core.task.trajectories import TimedReference
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
 from hsa_common.model_params import MODEL_SPECS

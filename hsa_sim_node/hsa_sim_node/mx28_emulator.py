@@ -24,7 +24,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from hsa_core.actuation import ServoModel
+from hsa_core.model.actuation import ServoModel
 from hsa_sim_node.control_table import ADDR_BAUD_RATE, ADDR_GOAL_POSITION, ADDR_HARDWARE_ERROR, \
     ADDR_PRESENT_POSITION, ADDR_RETURN_DELAY, BAUD_RATE_CODES, COMPUTED, SPEED_CODES
 from hsa_sim_node.protocol import ERR_CRC, INST_STATUS, INST_SYNC_READ, INST_SYNC_WRITE, MAX_ID, Packet, \

@@ -1,12 +1,12 @@
 """sim_node: replaces the hardware — an emulated MX-28 bus for the driver and mocap poses of the simulated world.
 
-The world (plant, servos, motion capture) is :class:`hsa_core.world.World`, the same as the offline experiment's. The
+The world (plant, servos, motion capture) is :class:`hsa_core.sim.world.World`, the same as the offline experiment's. The
 emulated servos' shafts are the world's: goals the driver writes reach the world (with their write time), Present
 Position reads report the world's shafts. Two clocks (docs/simulation.md):
 
 * ``lockstep`` (parameter ``lockstep: true``): the node owns /clock. Simulated time starts when every expected
-  participant is ready, and moves from instant to instant only when the barrier (:mod:`hsa_core.lockstep`) says the
-  graph has finished with the current one (decisions: :mod:`hsa_core.sim_lockstep`); mocap samples are published
+  participant is ready, and moves from instant to instant only when the barrier (:mod:`hsa_core.sim.lockstep`) says the
+  graph has finished with the current one (decisions: :mod:`hsa_core.sim.sim_lockstep`); mocap samples are published
   at the instants they become available. A barrier that does not finish within ``barrier_timeout`` seconds of wall
   time is an ERROR, and the node exits 1.
 * ``wall``: the world follows the node clock; a timer at the mocap rate publishes every sample that became available.
@@ -37,14 +37,14 @@ from hsa_common.diagnostics import Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC, load_model, load_wiring_param
 from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.lockstep import Barrier
-from hsa_core.mocap import planar_to_world
-from hsa_core.playback import Action, Step
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.lockstep import Barrier
+from hsa_core.sensing.mocap import planar_to_world
+from hsa_core.sim.playback import Action, Step
 from hsa_core.rate_meter import RateMeter
-from hsa_core.run_conditions import plant_params, run_disturbance
-from hsa_core.sim_lockstep import SimLockstep
-from hsa_core.world import MOCAP_PERIOD_NS, World, payload_schedule
+from hsa_core.sim.run_conditions import plant_params, run_disturbance
+from hsa_core.sim.sim_lockstep import SimLockstep
+from hsa_core.sim.world import MOCAP_PERIOD_NS, World, payload_schedule
 from hsa_core.jaxsetup import configure_jax
 from hsa_msgs.msg import LockstepAck
 from hsa_sim_node.mx28_emulator import ADDR_GOAL_POSITION, ADDR_TORQUE_ENABLE, BAUD_RATE_CODES, MX28Emulator
@@ -101,10 +101,10 @@ SPECS = (
     ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails",
               low=0.1, high=3600.0, read_only=True),
     ParamSpec("payload", 0.0, "[kg] the plant's point payload from t = 0, at rest with it (a run's condition; "
-              "hsa_core.run_conditions.plant_params)", low=0.0, high=10.0, read_only=True),
+              "hsa_core.sim.run_conditions.plant_params)", low=0.0, high=10.0, read_only=True),
     ParamSpec("command_latency", 0.0, "[s] a run's controller-side delay from a tick to its goal "
               "on the bus, added to the world's actuation latency "
-              "(hsa_core.run_conditions.run_disturbance)", low=0.0, high=1.0, read_only=True),
+              "(hsa_core.sim.run_conditions.run_disturbance)", low=0.0, high=1.0, read_only=True),
     ParamSpec("payload_schedule", Parameter.Type.DOUBLE_ARRAY, "[s, kg] flat pairs [t0, m0, t1, m1, ...]: from "
               "simulated time t_k the payload (at the params' CoG_pl) is m_k; unset or empty = none", read_only=True,
               validator=_payload_problem),
@@ -221,7 +221,7 @@ class SimNode(Node):
         self._pump()
 
     def _pump(self) -> None:
-        """Move simulated time as far as the barrier allows (decisions: :class:`hsa_core.sim_lockstep.SimLockstep`)."""
+        """Move simulated time as far as the barrier allows (decisions: :class:`hsa_core.sim.sim_lockstep.SimLockstep`)."""
         if self._failure:
             return
         self._traffic["pumps"] += 1

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from hsa_common.diagnostics import ERROR, OK, WARN, Report
-from hsa_core.world import World
+from hsa_core.sim.world import World
 from hsa_sim_node.mx28_emulator import ADDR_TORQUE_ENABLE, EmulatorStats, MX28Emulator, RegisterWrite
 
 MIN_REAL_TIME_FACTOR = 0.95

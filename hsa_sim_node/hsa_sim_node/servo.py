@@ -2,9 +2,9 @@
 
 The register semantics (access, ranges, EEPROM lock, bus watchdog, shutdown, multi-turn reset) follow the ROBOTIS
 e-Manual MX-28(2.0) page; behaviour the manual leaves open is marked "assumption". The shaft's motion is not modelled
-here: with a :class:`hsa_core.actuation.ServoModel` the shaft follows its goal by that model (the emulator used alone,
+here: with a :class:`hsa_core.model.actuation.ServoModel` the shaft follows its goal by that model (the emulator used alone,
 by the driver's tests); with ``model=None`` it is driven from outside (sim_node: the shafts of
-:class:`hsa_core.world.World`).
+:class:`hsa_core.sim.world.World`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import math
 from collections import deque
 from typing import NamedTuple
 
-from hsa_core.actuation import ServoModel
+from hsa_core.model.actuation import ServoModel
 from hsa_sim_node.control_table import (
     ADDR_BAUD_RATE,
     ADDR_BUS_WATCHDOG,

@@ -9,8 +9,8 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, kinematics, simulation
-from hsa_core.params import HsaParams, load_params
+from hsa_core.model import dynamics, kinematics, simulation
+from hsa_core.model.params import HsaParams, load_params
 
 
 class Model:

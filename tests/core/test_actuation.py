@@ -1,11 +1,11 @@
-"""Tests of hsa_core.actuation: φ ↔ ψ ↔ Dynamixel ticks, goal limits and rate limit (spec §7–§8)."""
+"""Tests of hsa_core.model.actuation: φ ↔ ψ ↔ Dynamixel ticks, goal limits and rate limit (spec §7–§8)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from hsa_core.actuation import (
+from hsa_core.model.actuation import (
     DEFAULT_MAX_GOAL_RATE,
     MotorLimits,
     MotorMap,

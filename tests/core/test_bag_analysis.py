@@ -2,7 +2,7 @@
 
 The analysis is checked on a bag whose metrics are known by construction: an exponential step response
 p_ee = p^d + (p_start − p^d)·r^k with r = exp(−dt/τ) at tick k of each step, so e_k = |Δ|·r^k and RMSE, response
-time, steady-state error, saturation and rate follow in closed form (computed here, not with hsa_core.metrics).
+time, steady-state error, saturation and rate follow in closed form (computed here, not with hsa_core.analysis.metrics).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from hsa_bag import analysis
 from hsa_bag.bagio import Bag, BagError
 from hsa_bag.recover import recover_bag
 from hsa_bag.storage import SplitBagWriter, read_metadata
-from hsa_core.runlog import RunLog
+from hsa_core.analysis.runlog import RunLog
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "hsa_msgs" / "msg"
 INFO = "hsa_msgs/msg/ControllerInfo"
@@ -262,7 +262,7 @@ def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> No
 
 
 def test_figures_of_a_bag_name_the_run_and_draw_measured_phi(tmp_path: Path) -> None:
-    from hsa_core import plotting
+    from hsa_core.analysis import plotting
 
     bag = write_full_bag(tmp_path / "pid_run", controller="pid")
     result = analysis.analyze(bag, tmp_path / "out")

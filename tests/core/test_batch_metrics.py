@@ -1,5 +1,5 @@
-"""The batched JAX metrics (hsa_core.batch_metrics) against their Python reference: closed_loop.evaluate
-(hsa_core.metrics), robustness.classify and tune.effort, run by run on the same logs, to 1e-9 relative."""
+"""The batched JAX metrics (hsa_core.analysis.batch_metrics) against their Python reference: closed_loop.evaluate
+(hsa_core.analysis.metrics), robustness.classify and tune.effort, run by run on the same logs, to 1e-9 relative."""
 
 from __future__ import annotations
 
@@ -7,11 +7,13 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import batch_metrics, closed_loop, robustness, tune
-from hsa_core.actuation import MotorMap
-from hsa_core.control import CollocatedGains, ControllerKind
-from hsa_core.experiment import ExperimentConfig
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.analysis import batch_metrics
+from hsa_core.apps import robustness, tune
+from hsa_core.sim import closed_loop
+from hsa_core.model.actuation import MotorMap
+from hsa_core.controller.control import CollocatedGains, ControllerKind
+from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 RTOL = 1e-9
 

@@ -1,4 +1,4 @@
-"""The world's calibration (hsa_core.calibrate): the fitter recovers a known world; the CLI's
+"""The world's calibration (hsa_core.apps.calibrate): the fitter recovers a known world; the CLI's
 outputs and refusals."""
 
 from __future__ import annotations
@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
-from hsa_core import calibrate, closed_loop, sim_to_real
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.analysis import sim_to_real
+from hsa_core.apps import calibrate
+from hsa_core.sim import closed_loop
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 
 def synthetic_run(truth: DisturbanceModel) -> calibrate.PreparedRun:

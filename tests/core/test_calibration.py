@@ -2,7 +2,7 @@
 that are not a rest at phi = 0 are refused.
 
 Ground truth by construction: the rest poses come from the static equilibrium of a plant whose sigma_a_eq is set
-(hsa_core.planning.static_equilibrium, an iterative solve of G + K - alpha = 0), or from a dynamic rollout; the
+(hsa_core.task.planning.static_equilibrium, an iterative solve of G + K - alpha = 0), or from a dynamic rollout; the
 calibration only sees the poses and a model with another (nominal) sigma_a_eq.
 """
 
@@ -12,10 +12,12 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import calibration, kinematics, planning, simulation
-from hsa_core.params import load_params
+from hsa_core.model import kinematics, simulation
+from hsa_core.sysid import calibration
+from hsa_core.task import planning
+from hsa_core.model.params import load_params
 
-NOISE = np.array([1e-4, 1e-4, 1e-3])  # mocap noise, m, m, rad (hsa_core.disturbance default)
+NOISE = np.array([1e-4, 1e-4, 1e-3])  # mocap noise, m, m, rad (hsa_core.sim.disturbance default)
 fk = jax.jit(kinematics.end_effector_pose)
 
 

@@ -26,7 +26,7 @@ REPO = Path(__file__).parents[2]
 def test_bad_arguments_are_refused_up_front_in_one_line(tmp_path, args: list[str], message: str) -> None:
     """No traceback, no run: the refusal names the argument, and nothing is written."""
     out = tmp_path / "out"
-    done = subprocess.run([sys.executable, "-m", "hsa_core.experiment", *args, "--out", str(out), "--quiet"],
+    done = subprocess.run([sys.executable, "-m", "hsa_core.sim.experiment", *args, "--out", str(out), "--quiet"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr[-2000:]
     assert done.stdout == "" and done.stderr.count("\n") == 1, done.stderr[-2000:]

@@ -1,4 +1,4 @@
-"""The JAX closed loop (hsa_core.closed_loop) against the offline experiment it must reproduce, and its batching."""
+"""The JAX closed loop (hsa_core.sim.closed_loop) against the offline experiment it must reproduce, and its batching."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import closed_loop, profiles, reference
-from hsa_core.control import CollocatedGains, default_gains
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.analysis import reference
+from hsa_core.sim import closed_loop, profiles
+from hsa_core.controller.control import CollocatedGains, default_gains
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 RTOL = 1e-6
 
@@ -156,9 +157,9 @@ import json, sys
 import jax, numpy as np
 from hsa_core.jaxsetup import configure_jax
 configure_jax()
-from hsa_core import closed_loop
-from hsa_core.experiment import ExperimentConfig
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.sim import closed_loop
+from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.task.trajectories import TimedReference, step_reference
 ref = step_reference("fpu")
 config = ExperimentConfig("fpu", "psatid", reference=TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 3.0))
 spec, inputs, constants = closed_loop.prepare(config)
@@ -184,7 +185,7 @@ def test_the_batch_is_split_over_every_device() -> None:
 
 
 def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> None:
-    """σ_a,eq calibrated before a run (hsa_core.reference conditions): the model's, and the plant's plus the offset."""
+    """σ_a,eq calibrated before a run (hsa_core.analysis.reference conditions): the model's, and the plant's plus the offset."""
     config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03))
     spec, inputs, constants = closed_loop.prepare(config)
     np.testing.assert_allclose(constants.model.sigma_a_eq, [1.02, 1.03])

@@ -10,10 +10,12 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import control, dynamics, kinematics, planning, simulation
-from hsa_core.control import CollocatedGains, Controller, EeIntegralGains, PidGains, default_gains
-from hsa_core.params import load_params
-from hsa_core.planning import Setpoint
+from hsa_core.controller import control
+from hsa_core.model import dynamics, kinematics, simulation
+from hsa_core.task import planning
+from hsa_core.controller.control import CollocatedGains, Controller, EeIntegralGains, PidGains, default_gains
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import Setpoint
 
 DT = 0.025
 # FPU worked example of planning_and_control.md §2.2, exact model (the spec's numbers, not planner output).

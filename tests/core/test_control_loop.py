@@ -1,4 +1,4 @@
-"""The supervised controller tick (hsa_core.control_loop) on a stand-in law: setpoint activation, track -> hold ->
+"""The supervised controller tick (hsa_core.controller.control_loop) on a stand-in law: setpoint activation, track -> hold ->
 stale -> track, E-stop, refused steps and states, counters; expected values from docs/nodes/hsa_controller_node.md."""
 
 from __future__ import annotations
@@ -9,13 +9,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hsa_core.control import ControllerState
-from hsa_core.control_loop import SETPOINT_CHECKS, SETPOINT_INTAKE, Activation, ControlLoop
-from hsa_core.params import load_params
-from hsa_core.planning import Setpoint
+from hsa_core.controller.control import ControllerState
+from hsa_core.controller.control_loop import SETPOINT_CHECKS, SETPOINT_INTAKE, Activation, ControlLoop
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import Setpoint
 from hsa_core.refusal import Refusal, StateRejection
-from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
-from hsa_core.validation import SetpointRejection
+from hsa_core.controller.supervision import Action, Mode, Supervisor, SupervisorConfig
+from hsa_core.controller.validation import SetpointRejection
 
 MS = 1_000_000  # ns
 Q, CHIEE, ZERO = np.zeros(3), np.array([0.0, 0.12, 0.0]), np.zeros(3)
@@ -23,7 +23,7 @@ SP_A, SP_B = (Setpoint(CHIEE, Q, np.full(2, v), 0.0) for v in (1.0, 2.0))
 
 
 class FakeLaw:
-    """Stands in for hsa_core.control.Controller: the n-th step commands φ = [n, n] and leaves e_int = [n, n]."""
+    """Stands in for hsa_core.controller.control.Controller: the n-th step commands φ = [n, n] and leaves e_int = [n, n]."""
 
     def __init__(self) -> None:
         self.params, self.dt = load_params("fpu"), 0.025

@@ -1,4 +1,4 @@
-"""Tests of hsa_core.servo_supervision's instant-wise goal-rate limiter and reboot admission (issues 11, 12), and of the
+"""Tests of hsa_core.driver.servo_supervision's instant-wise goal-rate limiter and reboot admission (issues 11, 12), and of the
 driver's goal pipeline (hsa_dynamixel_driver.goals); the supervisor state machine is in test_servo_supervision.py.
 
 Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by the code under
@@ -12,9 +12,9 @@ import random
 import numpy as np
 import pytest
 
-from hsa_core.actuation import MotorLimits, MotorMap
-from hsa_core.actuation import GoalRateLimiter
-from hsa_core.servo_supervision import reboot_refusal
+from hsa_core.model.actuation import MotorLimits, MotorMap
+from hsa_core.model.actuation import GoalRateLimiter
+from hsa_core.driver.servo_supervision import reboot_refusal
 from hsa_dynamixel_driver.goals import GoalPipeline
 
 TICKS_PER_RAD = 2048 / math.pi

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from tests.core.conftest import REFERENCE, assert_printed, params_for
 
-from hsa_core import dynamics as dyn
-from hsa_core import kinematics as kin
-from hsa_core.params import HsaParams, load_params
+from hsa_core.model import dynamics as dyn
+from hsa_core.model import kinematics as kin
+from hsa_core.model.params import HsaParams, load_params
 
 TERMS = ("M", "G", "K", "alpha", "A")
 PRINT_ATOL = 1e-17  # model.md §10: entries below 1e-17 are printed as 0

@@ -1,4 +1,4 @@
-"""Tests of hsa_core.estimation: Savitzky–Golay differentiation (spec §6.4) and the pose → q helper (spec §6.3)."""
+"""Tests of hsa_core.sensing.estimation: Savitzky–Golay differentiation (spec §6.4) and the pose → q helper (spec §6.3)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from hsa_core.estimation import (EstimateMode, SampleRejection, SavitzkyGolayDifferentiator,
+from hsa_core.sensing.estimation import (EstimateMode, SampleRejection, SavitzkyGolayDifferentiator,
                                  derivative_coefficients)
 
 T = 0.005  # 200 Hz mocap period
@@ -240,8 +240,8 @@ def _forward_kinematics(xi, l=0.059, l_pc=0.025, l_dc=0.014, h_p=0.012):
 
 @pytest.mark.parametrize("sigma_a_eq", [1.0, 1.02])
 def test_configuration_from_pose_inverts_forward_kinematics(sigma_a_eq):
-    from hsa_core.estimation import configuration_from_pose
-    from hsa_core.params import load_params
+    from hsa_core.sensing.estimation import configuration_from_pose
+    from hsa_core.model.params import load_params
 
     params = load_params("fpu").replace(sigma_a_eq=np.array([sigma_a_eq, sigma_a_eq]))
     for xi in ([-8.86, 0.0068, 1.298], [5.0, -0.05, 1.3], [0.3, 0.01, 1.1]):

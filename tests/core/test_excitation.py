@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hsa_core import excitation
+from hsa_core.sysid import excitation
 
 PHI_MAX = np.radians(200.0)
 

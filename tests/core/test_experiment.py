@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from hsa_core import plotting
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig, main, run_experiment
-from hsa_core.params import load_params
-from hsa_core.runlog import RunLog
-from hsa_core.trajectories import step_reference
+from hsa_core.analysis import plotting
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig, main, run_experiment
+from hsa_core.model.params import load_params
+from hsa_core.analysis.runlog import RunLog
+from hsa_core.task.trajectories import step_reference
 
 
 def make_log(n: int = 50) -> RunLog:

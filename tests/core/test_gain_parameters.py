@@ -1,5 +1,5 @@
 """Gains from controller_node's flat parameter values (hsa_controller_node.parameters: gains,
-ee_gains, tuning) as the typed objects hsa_core takes (hsa_core.control.Tuning, retune): the
+ee_gains, tuning) as the typed objects hsa_core takes (hsa_core.controller.control.Tuning, retune): the
 parameter names and meanings of docs/nodes/hsa_controller_node.md."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import pytest
 
 from hsa_common.parameters import ParameterValidationError, typed
 from hsa_controller_node.parameters import ee_gains, gains, tuning
-from hsa_core.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains, Tuning,
+from hsa_core.controller.control import (CollocatedGains, ControllerKind, EeIntegralGains, PidGains, Tuning,
                               default_gains, retune)
-from hsa_core.supervision import SupervisorConfig
+from hsa_core.controller.supervision import SupervisorConfig
 
 VALUES = {"kp": 0.2, "ki": 0.1, "kd": 0.01, "gamma": 50.0, "kp_pid": 8.0, "ki_pid": 90.0, "kd_pid": 0.3,
           "ee_ki": 0.25, "ee_e_on": 0.004, "ee_z_max": 0.02, "ee_reset_on_setpoint_change": True,

@@ -1,7 +1,7 @@
 """System identification (identification.md §3-4, §8 item 1): parameters used to simulate the data are identified back.
 
 Ground truth by construction: a "true" robot is the exp2023 FPU set with every identified constant scaled by a known
-factor and its own rest strains per record; settled poses are its static equilibria (hsa_core.planning's iterative
+factor and its own rest strains per record; settled poses are its static equilibria (hsa_core.task.planning's iterative
 solve of G + K - alpha = 0 including the payload), held for a few seconds at 200 Hz with or without mocap noise. The
 identification sees only poses, phi, payload labels and the exp2023 set (geometry and masses, constants as a wrong
 prior). Tolerances: noise-free <= 1e-6 relative (the spec asks 0.01 %); with 0.1 mm / 1 mrad noise, within 4 reported
@@ -14,9 +14,10 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, identification as ident, kinematics, simulation
-from hsa_core.params import load_params
-from hsa_core.workspace import equilibrium_poses
+from hsa_core.model import dynamics, kinematics, simulation
+from hsa_core.sysid import identification as ident
+from hsa_core.model.params import load_params
+from hsa_core.task.workspace import equilibrium_poses
 
 SCALE = {"C_eps": 1.08, "S_a_hat": 0.9, "C_S_a": 1.3, "S_b_hat": 1.15, "S_sh_hat": 0.85, "S_b_sh": 1.1,
          "C_S_b": 0.8, "C_S_sh": 1.2}
@@ -81,7 +82,7 @@ def noise_free(base, truth):
 
 
 def test_closed_form_equilibrium_residual_equals_the_model(base, truth):
-    """G + K - alpha of identification.py (per physical rod) equals hsa_core.dynamics for random states."""
+    """G + K - alpha of identification.py (per physical rod) equals hsa_core.model.dynamics for random states."""
     params = truth[1].replace(sigma_a_eq=np.array([1.02, 0.97]))
     per_rod = ident.per_rod_constants(params)
     rng = np.random.default_rng(3)
@@ -177,7 +178,7 @@ def test_missing_records_are_reported(noise_free, base):
 
 def test_written_parameter_file_loads_with_the_identified_values_and_keeps_the_rest(noise_free, base, tmp_path):
     _, result = noise_free
-    from hsa_core.params import CONFIG_DIR
+    from hsa_core.model.params import CONFIG_DIR
 
     out = ident.write_parameter_file(CONFIG_DIR / "fpu.yaml", tmp_path / "robot.yaml", ident.parameter_updates(result),
                                      header="identified in a test")

@@ -17,8 +17,10 @@ import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from hsa_core import excitation, identification as ident, kinematics, planning, simulation
-from hsa_core.params import load_params
+from hsa_core.model import kinematics, simulation
+from hsa_core.sysid import excitation, identification as ident
+from hsa_core.task import planning
+from hsa_core.model.params import load_params
 from hsa_identification import cli
 from hsa_identification.records import load_record, payload_series, read_bag, save_npz
 from tests.core.test_identification import RECORDS, SCALE, make_records

@@ -34,7 +34,7 @@ def snapshot():
 
 
 import hsa_core
-names = sorted(m.name for m in pkgutil.iter_modules(hsa_core.__path__, "hsa_core."))
+names = sorted(m.name for m in pkgutil.walk_packages(hsa_core.__path__, "hsa_core."))
 # what third-party packages do on their own import (scipy adds warning filters) is not hsa_core's
 for name in names:
     tree = ast.parse(open(importlib.util.find_spec(name).origin).read())
@@ -61,7 +61,7 @@ print(json.dumps({"modules": names, "changed": changed}))
 
 GAINS_READ = r"""
 import json, sys
-from hsa_core.control import GAINS_DIR
+from hsa_core.controller.control import GAINS_DIR
 
 opened = []
 
@@ -92,7 +92,7 @@ def test_importing_every_hsa_core_module_changes_no_global_state() -> None:
     """No backend chosen, no JAX flag, no signal handler, no environment variable, no numpy,
     logging or warnings setting."""
     result = _run(SNAPSHOT)
-    expected = {"hsa_core.plotting", "hsa_core.playback", "hsa_core.tune", "hsa_core.robustness"}
+    expected = {"hsa_core.analysis.plotting", "hsa_core.sim.playback", "hsa_core.apps.tune", "hsa_core.apps.robustness"}
     assert expected <= set(result["modules"])
     assert result["changed"] == {}
 

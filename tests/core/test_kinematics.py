@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from tests.core.conftest import REFERENCE, assert_printed, params_for
 
-from hsa_core import kinematics as kin
-from hsa_core.params import HsaParams
-from hsa_core.smooth import X_T, C, S, T, arc_functions, c
+from hsa_core.model import kinematics as kin
+from hsa_core.model.params import HsaParams
+from hsa_core.model.smooth import X_T, C, S, T, arc_functions, c
 
 # ---------------------------------------------------------------------------------------------------------------------
 # smooth entire functions (model.md §8.2)

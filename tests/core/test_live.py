@@ -1,4 +1,4 @@
-"""hsa_core.live: the scene throttle, the JSON payloads of the live view (no NaN, no null), the diagnostics table,
+"""hsa_core.analysis.live: the scene throttle, the JSON payloads of the live view (no NaN, no null), the diagnostics table,
 progress."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hsa_core import live
+from hsa_core.analysis import live
 
 
 def test_throttle_lets_one_event_per_period_through_and_restarts_after_a_clock_reset() -> None:

@@ -1,8 +1,8 @@
-"""The lockstep barrier's decisions (hsa_core.lockstep): start, settle, finish, late joiners, leavers."""
+"""The lockstep barrier's decisions (hsa_core.sim.lockstep): start, settle, finish, late joiners, leavers."""
 
 from __future__ import annotations
 
-from hsa_core.lockstep import Barrier, Report
+from hsa_core.sim.lockstep import Barrier, Report
 
 MS = 1_000_000
 

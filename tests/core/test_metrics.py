@@ -1,11 +1,11 @@
-"""Tests of hsa_core.metrics on signals whose metrics are known by construction (experiments.md §4)."""
+"""Tests of hsa_core.analysis.metrics on signals whose metrics are known by construction (experiments.md §4)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from hsa_core.metrics import (
+from hsa_core.analysis.metrics import (
     control_rate,
     evaluate_run,
     format_steps,

@@ -1,11 +1,11 @@
-"""Tests of hsa_core.mocap: world → {0} → SE(2) chain of spec §6.1–6.2, its inverse and the validity checks."""
+"""Tests of hsa_core.sensing.mocap: world → {0} → SE(2) chain of spec §6.1–6.2, its inverse and the validity checks."""
 
 import math
 
 import numpy as np
 import pytest
 
-from hsa_core.mocap import (
+from hsa_core.sensing.mocap import (
     MocapConfig,
     WorkspaceBox,
     jump_problem,

@@ -1,4 +1,4 @@
-"""Tests of hsa_core.mocap_gate: every rule of the bridge's check chain, recovery from one bad stamp (issue 10), the
+"""Tests of hsa_core.sensing.mocap_gate: every rule of the bridge's check chain, recovery from one bad stamp (issue 10), the
 base stream's checks and timeout (issue 22) and the silence of a stream in lockstep simulated time (issue 24)."""
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from hsa_core.mocap import MocapConfig, WorkspaceBox, planar_to_world
-from hsa_core.mocap_gate import (REASONS, BaseMode, GateConfig, Health, MocapGate, Rejection,
+from hsa_core.sensing.mocap import MocapConfig, WorkspaceBox, planar_to_world
+from hsa_core.sensing.mocap_gate import (REASONS, BaseMode, GateConfig, Health, MocapGate, Rejection,
                                  Sample)
 
 T0 = 1_700_000_000_000_000_000  # [ns] a realistic epoch stamp
@@ -196,7 +196,7 @@ def test_platform_health_by_silence():
 
 
 def test_lockstep_arrival_on_the_last_instant_is_no_gap():
-    """Lockstep simulated time (issue 24; hsa_core.sim_lockstep): /clock moves only at timer instants, every 25 ms;
+    """Lockstep simulated time (issue 24; hsa_core.sim.sim_lockstep): /clock moves only at timer instants, every 25 ms;
     a sample becomes available 6 ms after its stamp and is processed with the clock of the newest instant (hence
     max_future 0.06 s in clock_lockstep.yaml). A report at an instant, before that instant's samples, reads LIVE."""
     g = MocapGate(GateConfig(max_future=0.06))

@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hsa_core.experiment import ExperimentConfig, run_experiment
-from hsa_core.supervision import Action, Mode
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.sim.experiment import ExperimentConfig, run_experiment
+from hsa_core.controller.supervision import Action, Mode
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 MS = 1_000_000
 

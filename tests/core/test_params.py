@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hsa_core.params import CONFIG_DIR, HsaParams, ParameterError, load_params
+from hsa_core.model.params import CONFIG_DIR, HsaParams, ParameterError, load_params
 
 # model.md §5.3, per physical rod: (FPU, EPU)
 PER_ROD = {

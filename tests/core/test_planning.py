@@ -7,10 +7,11 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, kinematics, planning
-from hsa_core.params import load_params
-from hsa_core.planning import Planner, PlannerKind, PlanStatus
-from hsa_core.trajectories import STEP_LISTS
+from hsa_core.model import dynamics, kinematics
+from hsa_core.task import planning
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import Planner, PlannerKind, PlanStatus
+from hsa_core.task.trajectories import STEP_LISTS
 
 FPU_STEPS, EPU_STEPS = STEP_LISTS["fpu"], STEP_LISTS["epu"]  # experiments.md §2 (2023-09-25 and 2023-10-19)
 FPU_PHI_MAX, EPU_PHI_MAX = np.radians(200.0), np.radians(270.0)

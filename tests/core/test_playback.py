@@ -1,10 +1,10 @@
-"""Lockstep playback decisions (hsa_core.playback): start, instants from log times and timer dues, settle before the
+"""Lockstep playback decisions (hsa_core.sim.playback): start, instants from log times and timer dues, settle before the
 clock moves, finish before the next message, /clock resend, wall-clock timeouts."""
 
 from __future__ import annotations
 
-from hsa_core.lockstep import Barrier, Report
-from hsa_core.playback import Action, LockstepPlayback
+from hsa_core.sim.lockstep import Barrier, Report
+from hsa_core.sim.playback import Action, LockstepPlayback
 
 MS = 1_000_000
 T0 = 1_760_000_000 * 10**9  # a real bag's log times: ns since the epoch

@@ -1,4 +1,4 @@
-"""Run figures (hsa_core.plotting) and RunLog exports: what a paper figure must show, checked on the drawn artists.
+"""Run figures (hsa_core.analysis.plotting) and RunLog exports: what a paper figure must show, checked on the drawn artists.
 
 The runs are synthetic with known answers: the measured position is the reference plus a constant (3, −4) mm offset,
 so ‖e‖ = 5 mm at every tick and the RMSE is 5.00 mm; three setpoints 5 s apart at 40 Hz.
@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from hsa_core import plotting
-from hsa_core.runlog import RunLog
+from hsa_core.analysis import plotting
+from hsa_core.analysis.runlog import RunLog
 
 DT = 0.025
 TARGETS = [(0.0, 0.120), (0.005, 0.128), (-0.035, 0.122)]

@@ -1,4 +1,4 @@
-"""Run profiles (hsa_core.profiles) and replaying a paper run with its own conditions (hsa_core.experiment): the
+"""Run profiles (hsa_core.sim.profiles) and replaying a paper run with its own conditions (hsa_core.sim.experiment): the
 profiles hold the spec's values, ``lab`` is today's default exactly, a replay takes the run's logbook conditions and
 real step instants, and the September profile's rate, integrator step and estimator reach the run."""
 
@@ -10,12 +10,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hsa_core import experiment, profiles, reference
-from hsa_core.control import CollocatedGains, PidGains
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
-from hsa_core.profiles import VelocityEstimator
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.analysis import reference
+from hsa_core.sim import experiment, profiles
+from hsa_core.controller.control import CollocatedGains, PidGains
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
+from hsa_core.sim.profiles import VelocityEstimator
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 
 def _one_step(material: str = "fpu", seconds: float = 2.0) -> TimedReference:
@@ -136,7 +137,7 @@ def test_the_batched_loop_takes_the_profile_s_conditions() -> None:
     """Period, integrator step, estimator and payload reach the batched loop (its equality with
     run_experiment on a
     September replay: tests/core/test_closed_loop.py)."""
-    from hsa_core import closed_loop
+    from hsa_core.sim import closed_loop
 
     october = dataclasses.replace(replay_config(reference.load_run("20231019_143126")), reference=_one_step("epu"))
     spec, _, _ = closed_loop.prepare(october)

@@ -1,4 +1,4 @@
-"""hsa_core.reachability: the boundary walk of the phi box and the reachable polygon's tests
+"""hsa_core.task.reachability: the boundary walk of the phi box and the reachable polygon's tests
 (inside, distance, contains with margin), against hand-computed geometry."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hsa_core.reachability import ReachabilityRegion, boundary_phis
+from hsa_core.task.reachability import ReachabilityRegion, boundary_phis
 
 SQUARE = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
 L_SHAPE = [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (1.0, 1.0), (1.0, 2.0), (0.0, 2.0)]  # notch [1, 2]^2

@@ -1,4 +1,4 @@
-"""The packaged real-robot reference runs (hsa_core.reference): every run loads with its logbook conditions, the
+"""The packaged real-robot reference runs (hsa_core.analysis.reference): every run loads with its logbook conditions, the
 RMSE recomputed from its traces is the provenance README's, and the step instants are where the reference moves."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import datetime
 import numpy as np
 import pytest
 
-from hsa_core import reference
-from hsa_core.control import CollocatedGains, ControllerKind, PidGains
-from hsa_core.profiles import VelocityEstimator, load_profile
+from hsa_core.analysis import reference
+from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains
+from hsa_core.sim.profiles import VelocityEstimator, load_profile
 
 README_RMSE = {"20230925_092200": 5.92, "20230925_093236": 4.18, "20230925_094023": 4.23, "20231019_143126": 3.67}
 """[mm] "RMSE from these traces", as the source README (shared/realdata/README.md) states them."""

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from hsa_core import resultcache
-from hsa_core.params import load_params
-from hsa_core.planning import Planner
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import Planner
 
 
 class Counting:
@@ -83,9 +83,9 @@ def test_planner_region_is_the_same_from_the_cache(cache: Path, monkeypatch: pyt
 
 def test_world_starts_from_the_same_state_from_the_cache(cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The world's hanging-at-rest start state read from the cache is the one it computes without a cache."""
-    from hsa_core.disturbance import DisturbanceModel
-    from hsa_core.wiring import load_wiring
-    from hsa_core.world import World
+    from hsa_core.sim.disturbance import DisturbanceModel
+    from hsa_core.model.wiring import load_wiring
+    from hsa_core.sim.world import World
 
     params = load_params("fpu")
     motor_map = load_wiring().motor_map(params)

@@ -8,13 +8,15 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import batch_metrics, closed_loop, robustness
-from hsa_core.actuation import MotorMap
-from hsa_core.control import ControllerKind
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig
-from hsa_core.params import load_params
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.analysis import batch_metrics
+from hsa_core.apps import robustness
+from hsa_core.sim import closed_loop
+from hsa_core.model.actuation import MotorMap
+from hsa_core.controller.control import ControllerKind
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.model.params import load_params
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 PERIOD_MS = 25
 N = 800  # 20 s at 40 Hz: two steps of 10 s

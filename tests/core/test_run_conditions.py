@@ -1,4 +1,4 @@
-"""hsa_core.run_conditions: a profile's or a real run's conditions as the lockstep graph's launch arguments, a real
+"""hsa_core.sim.run_conditions: a profile's or a real run's conditions as the lockstep graph's launch arguments, a real
 run's schedule for the sequencer, and the September 2023 tick estimator (expected values from profiles.yaml,
 runs.yaml and a hand-built cubic, not from the code under test)."""
 
@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.params import load_params
-from hsa_core.profiles import load_profile
-from hsa_core.reference import load_run
-from hsa_core.run_conditions import (
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.model.params import load_params
+from hsa_core.sim.profiles import load_profile
+from hsa_core.analysis.reference import load_run
+from hsa_core.sim.run_conditions import (
     TickEstimator,
     graph_arguments,
     plant_params,

@@ -1,4 +1,4 @@
-"""hsa_core.sequencer_timing: the sequencer's first request falls on a supervision tick after the start delay.
+"""hsa_core.task.sequencer_timing: the sequencer's first request falls on a supervision tick after the start delay.
 
 Hand-derived from the sequencer's state machine: tick k fires at k · 50 ms; tick 1 finds the planner and sets
 start_at = 50 ms + start_delay; point 0 goes out at the first later tick k >= 2 with k · 50 ms >= start_at.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from hsa_core.sequencer_timing import SUPERVISION_PERIOD_NS, first_point_ns
+from hsa_core.task.sequencer_timing import SUPERVISION_PERIOD_NS, first_point_ns
 
 MS = 1_000_000  # ns per ms
 

@@ -1,4 +1,4 @@
-"""Tests of hsa_core.servo_supervision.ServoSupervisor: the dynamixel_driver's torque, watchdog, E-stop, link,
+"""Tests of hsa_core.driver.servo_supervision.ServoSupervisor: the dynamixel_driver's torque, watchdog, E-stop, link,
 hardware-error, start-up position and reboot decisions (docs/nodes/hsa_dynamixel_driver.md).
 
 Expected values come from the rules of that document: e.g. the sane range of motor 21 (sign +1, neutral 1000) is
@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from hsa_core.actuation import MotorMap
-from hsa_core.servo_supervision import (
+from hsa_core.model.actuation import MotorMap
+from hsa_core.driver.servo_supervision import (
     MULTI_TURN_NOTE,
     Alert,
     Answer,

@@ -1,11 +1,11 @@
-"""The simulator's lockstep decisions (hsa_core.sim_lockstep): start, samples between instants without /clock, a sync
+"""The simulator's lockstep decisions (hsa_core.sim.sim_lockstep): start, samples between instants without /clock, a sync
 instant every 50 ms, /clock only at timer dues, finish waits for the bus, resend, stop when a participant leaves,
 wall-clock timeouts."""
 
 from __future__ import annotations
 
-from hsa_core.lockstep import Barrier, Report
-from hsa_core.sim_lockstep import BUS_BUSY, SimLockstep
+from hsa_core.sim.lockstep import Barrier, Report
+from hsa_core.sim.sim_lockstep import BUS_BUSY, SimLockstep
 
 MS = 1_000_000
 MATCHED = {"/mocap": 1, "/clock": 1}  # the simulator's publishers: subscriptions matched

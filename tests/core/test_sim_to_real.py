@@ -1,4 +1,4 @@
-"""The sim-versus-real measures (hsa_core.sim_to_real) on synthetic step runs whose answers are known by
+"""The sim-versus-real measures (hsa_core.analysis.sim_to_real) on synthetic step runs whose answers are known by
 construction: first-order responses to 11 setpoints at irregular instants, with offsets, delays and ripples added."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hsa_core import sim_to_real
-from hsa_core.sim_to_real import StepRun
+from hsa_core.analysis import sim_to_real
+from hsa_core.analysis.sim_to_real import StepRun
 
 SETPOINTS = np.array([[0.0, 120.0], [4.8, 127.8], [-35.0, 122.0], [-7.8, 130.2], [8.2, 114.6], [-14.2, 123.9],
                       [0.0, 140.0], [25.2, 130.4], [-6.0, 139.9], [7.3, 114.8], [5.7, 127.1]]) * 1e-3  # [m]

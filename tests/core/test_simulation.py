@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from tests.core.conftest import assert_printed, params_for
 
-from hsa_core import dynamics as dyn
-from hsa_core import simulation as sim
-from hsa_core.params import HsaParams
+from hsa_core.model import dynamics as dyn
+from hsa_core.model import simulation as sim
+from hsa_core.model.params import HsaParams
 
 
 @pytest.mark.parametrize(

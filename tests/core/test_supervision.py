@@ -1,10 +1,10 @@
-"""Controller supervision state machine (hsa_core.supervision): every mode transition, with the time passed in."""
+"""Controller supervision state machine (hsa_core.controller.supervision): every mode transition, with the time passed in."""
 
 from __future__ import annotations
 
 import pytest
 
-from hsa_core.supervision import Action, Mode, Supervisor, SupervisorConfig
+from hsa_core.controller.supervision import Action, Mode, Supervisor, SupervisorConfig
 
 MS = 1_000_000  # ns
 STALE, HOLD, DRIVER = 100 * MS, 250 * MS, 250 * MS

@@ -1,4 +1,4 @@
-"""Tests of hsa_core.trajectories: step lists, image-contour and parametric references (experiments.md §2–§3)."""
+"""Tests of hsa_core.task.trajectories: step lists, image-contour and parametric references (experiments.md §2–§3)."""
 
 import math
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hsa_core.trajectories import (
+from hsa_core.task.trajectories import (
     R_MAX_SAFE,
     Direction,
     TimedReference,

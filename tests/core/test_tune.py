@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 import yaml
 
-from hsa_core import closed_loop, robustness, tune
-from hsa_core.control import CollocatedGains, ControllerKind, PidGains, default_gains
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig
-from hsa_core.params import load_params
-from hsa_core.trajectories import TimedReference, step_reference
+from hsa_core.apps import robustness, tune
+from hsa_core.sim import closed_loop
+from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains, default_gains
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.model.params import load_params
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 
 def test_the_gains_file_uses_the_controller_parameter_names() -> None:

@@ -1,4 +1,4 @@
-"""Input validation against the physics (hsa_core.validation) and the controller's integrator guard (issue 10)."""
+"""Input validation against the physics (hsa_core.controller.validation) and the controller's integrator guard (issue 10)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from hsa_core import control
-from hsa_core.control import Controller, ControllerKind
-from hsa_core.params import load_params
-from hsa_core.planning import Planner, Setpoint
+from hsa_core.controller import control
+from hsa_core.controller.control import Controller, ControllerKind
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import Planner, Setpoint
 from hsa_core.refusal import StateRejection
-from hsa_core.validation import (DelayGate, SetpointRejection, SetpointValidator, q_bounds,
+from hsa_core.controller.validation import (DelayGate, SetpointRejection, SetpointValidator, q_bounds,
                                  state_problem)
 
 # FPU worked example of planning_and_control.md §2.2 (the spec's numbers, rounded to 8 digits)

@@ -1,7 +1,7 @@
 """Model verification by replay (identification.md §6): the Dopri5 integrator, zero error against the model itself, the
 expected and ordered error against perturbed plants, and the time-lag estimate.
 
-Ground truth by construction: "measured" records are rollouts of hsa_core.simulation.simulate (RK4, another
+Ground truth by construction: "measured" records are rollouts of hsa_core.model.simulation.simulate (RK4, another
 integrator) of a known plant under a seeded GBN; the expected replay error against a perturbed plant is computed
 here from two such rollouts, not by the verification code.
 """
@@ -13,8 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_core import excitation, kinematics, planning, simulation, verification
-from hsa_core.params import load_params
+from hsa_core.model import kinematics, simulation
+from hsa_core.sysid import excitation, verification
+from hsa_core.task import planning
+from hsa_core.model.params import load_params
 
 DT_MOCAP = 0.005
 DURATION = 2.0

@@ -1,4 +1,4 @@
-"""Marker geometry (hsa_core.visual): polylines against the model's kinematics (model.md §6.1–6.2) and against closed
+"""Marker geometry (hsa_core.model.visual): polylines against the model's kinematics (model.md §6.1–6.2) and against closed
 forms written out here (the circular-arc backbone of §6.1, rod offsets of §6.2, arc lengths from the strains)."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core import kinematics as kin
-from hsa_core import visual
-from hsa_core.params import HsaParams, load_params
+from hsa_core.model import kinematics as kin
+from hsa_core.model import visual
+from hsa_core.model.params import HsaParams, load_params
 
 N = 16
 GEOMETRY = jax.jit(visual.robot_geometry, static_argnames="n_points")

@@ -1,4 +1,4 @@
-"""hsa_core.wiring: the robot's wiring file (planning_and_control.md §7) and the motor map built from it."""
+"""hsa_core.model.wiring: the robot's wiring file (planning_and_control.md §7) and the motor map built from it."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_core import control
-from hsa_core.params import load_params
-from hsa_core.wiring import WiringError, load_wiring
+from hsa_core.controller import control
+from hsa_core.model.params import load_params
+from hsa_core.model.wiring import WiringError, load_wiring
 
 
 def test_packaged_lab_robot_is_the_spec_wiring() -> None:

@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hsa_core import dynamics, kinematics, planning, workspace
-from hsa_core.params import load_params
-from hsa_core.planning import REACH_MARGIN, Planner
+from hsa_core.model import dynamics, kinematics
+from hsa_core.task import planning, workspace
+from hsa_core.model.params import load_params
+from hsa_core.task.planning import REACH_MARGIN, Planner
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The simulated world (hsa_core.world): servo speed and latency, mocap timing and noise, torque, the payload, and that
+"""The simulated world (hsa_core.sim.world): servo speed and latency, mocap timing and noise, torque, the payload, and that
 the state does not depend on how a caller chops time into calls (the offline experiment and the simulator chop it
 differently)."""
 
@@ -11,12 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_core.actuation import TICKS_PER_RAD, MotorMap, ServoModel
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.params import load_params
-from hsa_core import kinematics
-from hsa_core.planning import static_equilibrium
-from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, World, hanging_at_rest, interval_fn, mocap_sample,
+from hsa_core.model.actuation import TICKS_PER_RAD, MotorMap, ServoModel
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.model.params import load_params
+from hsa_core.model import kinematics
+from hsa_core.task.planning import static_equilibrium
+from hsa_core.sim.world import (GRID_NS, MOCAP_PERIOD_NS, World, hanging_at_rest, interval_fn, mocap_sample,
                             payload_schedule, servo_speed, to_grid)
 
 MS = 1_000_000
@@ -114,7 +114,7 @@ def test_the_state_does_not_depend_on_how_time_is_chopped(model) -> None:
 
 
 def test_the_world_runs_its_pure_interval(model) -> None:
-    """One definition of a world interval (hsa_core.world.interval_fn, which the batched loop calls too): stepping it
+    """One definition of a world interval (hsa_core.sim.world.interval_fn, which the batched loop calls too): stepping it
     by hand from the world's start with the World's parameters gives the World's state."""
     w = world(model)
     goal = np.asarray(NEUTRAL, dtype=float) + [700, -300, 1500, 20]

@@ -17,7 +17,7 @@ from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core import mocap
+from hsa_core.sensing import mocap
 from tests.ros.conftest import CollectedProcess, start_process
 from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until

@@ -19,7 +19,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_core import mocap
+from hsa_core.sensing import mocap
 from hsa_msgs.msg import ControllerInfo, PlanarPoseStamped, PlanarState, Setpoint
 from hsa_msgs.srv import PlanSetpoint
 from tests.ros.faults import (BEST_EFFORT, OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault,

@@ -5,7 +5,7 @@ Run 1: bag_player plays a synthetic 200 Hz ee_pose bag (regular mocap stamps, lo
 in /hsa while bag_recorder records /hsa/ee_pose and /hsa/state. Run 2: bag_player plays only the recorded ee_pose,
 remapped to /replay/ee_pose, into a second kinematics_node (fresh estimator) in /replay, and a second recorder records
 /replay/state. Every node runs with ``use_sim_time`` and ``lockstep``; the player owns /clock and publishes a sample
-only when the participants have taken everything before it (hsa_core.playback). So nothing is lost: run 1 records all
+only when the participants have taken everything before it (hsa_core.sim.playback). So nothing is lost: run 1 records all
 N samples and N states, each at the simulated instant of its sample, and run 2 regenerates all N states with every
 field bit-identical (the estimator sees the same samples with the same stamps in the same order).
 """

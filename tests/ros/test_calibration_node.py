@@ -18,7 +18,7 @@ import pytest
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core.params import CONFIG_DIR, load_params
+from hsa_core.model.params import CONFIG_DIR, load_params
 from hsa_msgs.msg import PlanarActuation
 from hsa_msgs.srv import CalibrateRestStrain
 

@@ -21,7 +21,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 
 from hsa_common import qos
-from hsa_core.params import CONFIG_DIR
+from hsa_core.model.params import CONFIG_DIR
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator

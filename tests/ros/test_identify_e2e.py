@@ -5,10 +5,10 @@ clock:=lockstep, disturbance:=default): three short staircases (elongation, rod1
 through the real driver, payloads hung by hsa_sim_node's `payload_schedule` while the motors hold. The three graphs
 run at the same time, each in its own ROS domain; lockstep makes every bag a deterministic function of its
 arguments whatever the load. hsa_identify fits the bags; the written YAML is run in the offline closed-loop step
-experiment (hsa_core.experiment.run_experiment) against the simulator's plant, next to the packaged set.
+experiment (hsa_core.sim.experiment.run_experiment) against the simulator's plant, next to the packaged set.
 
 Expected values come from the declarations, not from the code under test: the simulator's plant is the packaged FPU
-set with the declared mismatch of hsa_core.disturbance (S_b_hat, S_sh_hat, S_a_hat, S_b_sh x 1.05, C_eps x 0.97,
+set with the declared mismatch of hsa_core.sim.disturbance (S_b_hat, S_sh_hat, S_a_hat, S_b_sh x 1.05, C_eps x 0.97,
 C_S_* unchanged). RTOL bounds the identification error of this campaign under the declared mocap noise (0.1 mm,
 0.1 mm, 1 mrad at 200 Hz): the same holds (levels, payloads, 1 s windows at the plant's static equilibria) identified
 with 60 noise seeds gave at most C_eps 0.06 %, S_a_hat 2.5 %, C_S_a 18 %, S_b_hat 4.4 %, S_sh_hat 2.4 %, S_b_sh 1.9 %,
@@ -32,11 +32,11 @@ import yaml
 
 from hsa_bag.bagio import Bag
 from hsa_common import rosenv
-from hsa_core import identification
-from hsa_core.disturbance import DisturbanceModel
-from hsa_core.experiment import ExperimentConfig, ExperimentResult, run_experiment
-from hsa_core.params import HsaParams, load_params
-from hsa_core.trajectories import step_reference
+from hsa_core.sysid import identification
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.experiment import ExperimentConfig, ExperimentResult, run_experiment
+from hsa_core.model.params import HsaParams, load_params
+from hsa_core.task.trajectories import step_reference
 from hsa_identification.cli import identify_main
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, stop_process
 

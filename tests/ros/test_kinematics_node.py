@@ -17,9 +17,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_core import mocap
-from hsa_core.kinematics import end_effector_jacobian, end_effector_pose
-from hsa_core.params import HsaParams, load_params
+from hsa_core.sensing import mocap
+from hsa_core.model.kinematics import end_effector_jacobian, end_effector_pose
+from hsa_core.model.params import HsaParams, load_params
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
 
 from tests.ros.conftest import (ParameterClient, assert_refused_at_start, start_node, stop_process,

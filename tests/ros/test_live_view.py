@@ -4,7 +4,7 @@ Real publishers of the graph's topics (state 200 Hz, controller_info 40 Hz, phi_
 status latched, /diagnostics 1 Hz) feed the node; the client (``websockets``) connects to 127.0.0.1, reads the
 advertised channels, subscribes to all of them and decodes what arrives: the scene with the protobuf schema the
 server advertises (as the Foxglove app does), the plots as JSON. Expected values are computed here from
-hsa_core.kinematics and the published numbers, not from hsa_core.visual or hsa_core.live. What arrived is then handed
+hsa_core.model.kinematics and the published numbers, not from hsa_core.model.visual or hsa_core.analysis.live. What arrived is then handed
 to a real viewer's own code (tools/viewer_check: the open-source Foxglove Studio's schema parser and message-path
 code, from npm), which must parse every channel and find data at every message path of the shipped layout.
 """
@@ -40,8 +40,8 @@ from std_msgs.msg import String
 
 from hsa_common import qos
 from hsa_common.launcher import LaunchFile, find_executable, package_share
-from hsa_core import kinematics as kin
-from hsa_core.params import load_params
+from hsa_core.model import kinematics as kin
+from hsa_core.model.params import load_params
 from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, ParameterClient, start_process, stop_process, wait_for_line
 

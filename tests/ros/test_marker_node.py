@@ -1,5 +1,5 @@
 """marker_node as a real process: PlanarState and Setpoint in, MarkerArray out. The expected geometry is computed here
-from hsa_core.kinematics (FK, backbone pose, rod positions), not from hsa_core.visual."""
+from hsa_core.model.kinematics (FK, backbone pose, rod positions), not from hsa_core.model.visual."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core import kinematics as kin
-from hsa_core.params import load_params
+from hsa_core.model import kinematics as kin
+from hsa_core.model.params import load_params
 from hsa_msgs.msg import CsConfiguration, PlanarPose, PlanarState, Setpoint
 from tests.ros.conftest import ParameterClient, start_process, stop_process, wait_for_line
 

@@ -17,7 +17,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 
 from hsa_common import qos
-from hsa_core import mocap
+from hsa_core.sensing import mocap
 from hsa_msgs.msg import PlanarPoseStamped
 
 from tests.ros.conftest import (ParameterClient, assert_refused_at_start, start_node, stop_process,

@@ -15,7 +15,7 @@ from std_msgs.msg import String
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core.trajectories import FPU_STEPS_20230925
+from hsa_core.task.trajectories import FPU_STEPS_20230925
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
 

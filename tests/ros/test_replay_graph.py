@@ -22,7 +22,7 @@ import yaml
 from rclpy.serialization import deserialize_message
 
 from hsa_bag.bagio import Bag
-from hsa_core.trajectories import step_reference
+from hsa_core.task.trajectories import step_reference
 from geometry_msgs.msg import PoseStamped
 from hsa_msgs.msg import ControllerInfo, PlanarState
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process

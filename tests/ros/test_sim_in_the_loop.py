@@ -20,9 +20,9 @@ import pytest
 import yaml
 from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
-from hsa_core import metrics
-from hsa_core.experiment import ExperimentConfig, run_experiment
-from hsa_core.trajectories import step_reference
+from hsa_core.analysis import metrics
+from hsa_core.sim.experiment import ExperimentConfig, run_experiment
+from hsa_core.task.trajectories import step_reference
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

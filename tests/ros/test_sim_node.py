@@ -12,7 +12,7 @@ from geometry_msgs.msg import PoseStamped
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core.mocap import world_to_planar
+from hsa_core.sensing.mocap import world_to_planar
 from hsa_msgs.msg import PlanarActuation
 
 from tests.ros.conftest import start_process, stop_process, wait_for_line

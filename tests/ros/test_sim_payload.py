@@ -12,7 +12,7 @@ from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_common.launcher import find_executable
-from hsa_core.mocap import world_to_planar
+from hsa_core.sensing.mocap import world_to_planar
 
 from tests.ros.conftest import start_process, stop_process, wait_for_line
 from tests.ros.faults import DiagnosticsLog

@@ -1,6 +1,6 @@
 """The lockstep graph under a run profile: launch_scripts/sim.launch.yaml with the September 2023 conditions
 (36 ms control period, integrators at the nominal 25 ms, the 16-tick stand-in velocity estimator at the controller,
-hsa_core.run_conditions.graph_arguments) equals the offline experiment under the same profile tick by tick, on a
+hsa_core.sim.run_conditions.graph_arguments) equals the offline experiment under the same profile tick by tick, on a
 short FPU P-satI-D step schedule, as tests/ros/test_sim_in_the_loop.py checks for the lab default."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 from hsa_bag.analysis import runlog_from_bag
-from hsa_core.experiment import profile_config, run_experiment
-from hsa_core.profiles import load_profile
-from hsa_core.run_conditions import graph_arguments
-from hsa_core.trajectories import step_reference
+from hsa_core.sim.experiment import profile_config, run_experiment
+from hsa_core.sim.profiles import load_profile
+from hsa_core.sim.run_conditions import graph_arguments
+from hsa_core.task.trajectories import step_reference
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -1,7 +1,7 @@
 """Where RTOL of tests/ros/test_identify_e2e.py comes from: the campaign's holds, identified under the declared noise.
 
 Each hold of campaign.yaml (same levels and payloads, in the same order) is the simulated plant's static equilibrium
-(packaged FPU set with the declared mismatch of hsa_core.disturbance), observed for one 1 s window at 200 Hz with the
+(packaged FPU set with the declared mismatch of hsa_core.sim.disturbance), observed for one 1 s window at 200 Hz with the
 declared mocap noise; the script prints the largest relative error of every constant over N seeds (default 60).
 Run: .venv/bin/python tests/ros/data/identify_sim/rtol_study.py [N]
 """
@@ -15,10 +15,10 @@ import numpy as np
 from hsa_core.jaxsetup import configure_jax
 
 configure_jax()
-from hsa_core import identification as ident  # noqa: E402
-from hsa_core.disturbance import DisturbanceModel  # noqa: E402
-from hsa_core.params import load_params  # noqa: E402
-from hsa_core.workspace import equilibrium_poses  # noqa: E402
+from hsa_core.sysid import identification as ident  # noqa: E402
+from hsa_core.sim.disturbance import DisturbanceModel  # noqa: E402
+from hsa_core.model.params import load_params  # noqa: E402
+from hsa_core.task.workspace import equilibrium_poses  # noqa: E402
 
 RATE, WINDOW = 200.0, 1.0
 RECORDS = [  # name, role, phi per level as fractions of phi_max, payload [kg] of the first half of level 0

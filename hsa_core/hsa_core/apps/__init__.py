@@ -1,0 +1,1 @@
+"""Whole applications on the batched loop and their shared argument parsing: tune, robustness, calibrate."""

@@ -1,0 +1,77 @@
+"""Command-line parsing shared by the hsa-ros CLIs: a bad argument is refused up front, in one line, with exit 2."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    from hsa_core.sim.profiles import RunProfile
+    from hsa_core.analysis.reference import ReferenceRun
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse.ArgumentParser whose errors are one line (``prog: error: ... (see --help)``) and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print the one-line refusal and exit 2 (argparse would print the whole usage first)."""
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def positive(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = float(text)
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    value = float(text)
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def sigma_a_eq(text: str) -> tuple[float, float]:
+    """argparse type of --sigma-a-eq: A (both rods) or A,B (rod 1, rod 2), each finite and > 0."""
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if (len(parts) not in (1, 2) or len(values) != len(parts)
+            or not all(0.0 < v < math.inf for v in values)):
+        raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
+    return values[0], values[-1]
+
+
+def run_profile(text: str) -> RunProfile:
+    """argparse type of --profile: a packaged run profile (hsa_core.sim.profiles)."""
+    from hsa_core.sim.profiles import load_profile
+
+    try:
+        return load_profile(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def reference_run(text: str) -> ReferenceRun:
+    """argparse type of --run: a packaged real run of the paper (hsa_core.analysis.reference, imported on
+    use: it loads JAX)."""
+    from hsa_core.analysis.reference import load_run
+
+    try:
+        return load_run(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -1,0 +1,1 @@
+"""The controller: control laws, the supervised tick, its supervision and input validation."""

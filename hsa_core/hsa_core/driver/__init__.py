@@ -1,0 +1,1 @@
+"""The servo driver's supervision as a pure state machine."""

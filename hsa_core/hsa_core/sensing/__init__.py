@@ -1,0 +1,1 @@
+"""Motion capture in: poses to the end effector, the bridge's check chain, differentiation."""

@@ -1,0 +1,1 @@
+"""System identification: excitation, constants, rest strains and open-loop verification."""

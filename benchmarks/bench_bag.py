@@ -1,19 +1,20 @@
 """Benchmark of bag record and replay: recorder throughput through DDS and replay timing error.
 
-Writes benchmarks/results/bag.json. A synthetic bag holds the run's two main streams: 200 Hz hsa_msgs/PlanarState
-(offered best effort, as the kinematics node publishes it) and 40 Hz hsa_msgs/ControllerInfo (reliable), fully
-populated, ``--seconds`` long.
+Writes benchmarks/results/bag.json. A synthetic bag holds the run's two main streams: 200 Hz
+hsa_msgs/PlanarState (offered best effort, as the kinematics node publishes it) and 40 Hz
+hsa_msgs/ControllerInfo (reliable), fully populated, ``--seconds`` long.
 
-* **Replay timing**: bag_player plays the bag at rate 1 into a subscriber in this process; per topic, the error of
-  each inter-arrival time against the bag's inter-message time (median, p99, max in ms), the whole-span error, and
-  the largest lag of a message behind its schedule.
-* **Record throughput**: bag_recorder records both topics while bag_player publishes the bag at rate factors 1
-  (the nominal 240 msg/s), 5 and 20. Per factor: messages published and recorded, recorded msgs/s and MB/s (message
-  bytes over the recorded receive-time span), bag size, and the recorder's CPU time (utime + stime from /proc, from
-  its 'ready' to the end of the replay, so including its idle timers) per recorded message.
+* **Replay timing**: bag_player plays the bag at rate 1 into a subscriber in this process; per
+  topic, the error of each inter-arrival time against the bag's inter-message time (median, p99, max
+  in ms), the whole-span error, and the largest lag of a message behind its schedule.
+* **Record throughput**: bag_recorder records both topics while bag_player publishes the bag at rate
+  factors 1 (the nominal 240 msg/s), 5 and 20. Per factor: messages published and recorded, recorded
+  msgs/s and MB/s (message bytes over the recorded receive-time span), bag size, and the recorder's
+  CPU time (utime + stime from /proc, from its 'ready' to the end of the replay, so including its
+  idle timers) per recorded message.
 
-The machine has 2 cores shared with other work: the 1-minute load average is recorded at start and end.
-Usage: .venv/bin/python benchmarks/bench_bag.py [--seconds S]
+The machine has 2 cores shared with other work: the 1-minute load average is recorded at start and
+end. Usage: .venv/bin/python benchmarks/bench_bag.py [--seconds S]
 """
 
 from __future__ import annotations
@@ -43,9 +44,17 @@ RATE_FACTORS = (1.0, 5.0, 20.0)
 
 
 def make_bag(path: Path, seconds: float) -> dict[str, int]:
-    """Write the synthetic bag (index in PlanarState.window_samples / ControllerInfo.setpoint.trajectory_index)."""
+    """Write the synthetic bag (index in PlanarState.window_samples /
+    ControllerInfo.setpoint.trajectory_index)."""
     from rclpy.serialization import serialize_message
-    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
 
     from hsa_bag.msgtypes import TypeRegistry
     from hsa_bag.storage import SplitBagWriter
@@ -54,8 +63,17 @@ def make_bag(path: Path, seconds: float) -> dict[str, int]:
     infinite = QosTime(9223372036, 854775807)
 
     def offer(reliability: QosReliability) -> Qos:
-        return Qos(QosHistory.UNKNOWN, 0, reliability, QosDurability.VOLATILE, infinite, infinite,
-                   QosLiveliness.AUTOMATIC, infinite, False)  # fmt: skip
+        return Qos(
+            QosHistory.UNKNOWN,
+            0,
+            reliability,
+            QosDurability.VOLATILE,
+            infinite,
+            infinite,
+            QosLiveliness.AUTOMATIC,
+            infinite,
+            False,
+        )
 
     registry = TypeRegistry()
     for msgtype in ("hsa_msgs/msg/PlanarState", "hsa_msgs/msg/ControllerInfo"):
@@ -63,8 +81,12 @@ def make_bag(path: Path, seconds: float) -> dict[str, int]:
     writer = SplitBagWriter(path, registry.store)
     writer.open()
     handles = {
-        STATE: writer.add_topic(STATE, "hsa_msgs/msg/PlanarState", [offer(QosReliability.BEST_EFFORT)]),
-        INFO: writer.add_topic(INFO, "hsa_msgs/msg/ControllerInfo", [offer(QosReliability.RELIABLE)]),
+        STATE: writer.add_topic(
+            STATE, "hsa_msgs/msg/PlanarState", [offer(QosReliability.BEST_EFFORT)]
+        ),
+        INFO: writer.add_topic(
+            INFO, "hsa_msgs/msg/ControllerInfo", [offer(QosReliability.RELIABLE)]
+        ),
     }
     t0 = time.time_ns()
     events = []
@@ -81,10 +103,16 @@ def make_bag(path: Path, seconds: float) -> dict[str, int]:
             msg.header.frame_id = "hsa_base"
             msg.q.kappa_be, msg.q.sigma_sh, msg.q.sigma_ax = rng.normal(size=3).tolist()
         else:
-            msg = ControllerInfo(controller="psatid", state=ControllerInfo.STATE_TRACKING, saturated=bool(i % 7 == 0))
+            msg = ControllerInfo(
+                controller="psatid", state=ControllerInfo.STATE_TRACKING, saturated=bool(i % 7 == 0)
+            )
             msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
             msg.setpoint.trajectory_index = i
-            msg.varphi, msg.varphi_des, msg.e_int = rng.normal(size=3), rng.normal(size=3), rng.normal(size=2)
+            msg.varphi, msg.varphi_des, msg.e_int = (
+                rng.normal(size=3),
+                rng.normal(size=3),
+                rng.normal(size=2),
+            )
             msg.phi_des_unsat, msg.phi_des_sat = rng.normal(size=2), rng.random(2)
             msg.motor_goal_angles = rng.normal(size=4)
         data = serialize_message(msg)
@@ -95,12 +123,26 @@ def make_bag(path: Path, seconds: float) -> dict[str, int]:
 
 
 def play(bag: Path, *args: str) -> tuple[float, int]:
-    """Run bag_player to completion; return (player wall time [s], messages published) from its summary line."""
+    """Run bag_player to completion; return (player wall time [s], messages published) from its
+    summary line."""
     proc = subprocess.run(
-        [str(BIN / "bag_player"), str(bag), "--wait-for-subscribers", "30", "--delay", "0.5", *args],
-        env=rosenv.ros_environment(), capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    match = re.search(r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stderr)  # its logger
+        [
+            str(BIN / "bag_player"),
+            str(bag),
+            "--wait-for-subscribers",
+            "30",
+            "--delay",
+            "0.5",
+            *args,
+        ],
+        env=rosenv.ros_environment(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    match = re.search(
+        r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stderr
+    )  # its logger
     if proc.returncode != 0 or match is None:
         raise RuntimeError(f"bag_player failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return float(match.group(2)), int(match.group(1))
@@ -133,7 +175,10 @@ def replay_timing(bag: Path, seconds: float) -> dict[str, object]:
         PlanarState, STATE, lambda m: got[STATE].append((time.monotonic(), m.window_samples)), deep
     )
     node.create_subscription(
-        ControllerInfo, INFO, lambda m: got[INFO].append((time.monotonic(), m.setpoint.trajectory_index)), qos.INFO
+        ControllerInfo,
+        INFO,
+        lambda m: got[INFO].append((time.monotonic(), m.setpoint.trajectory_index)),
+        qos.INFO,
     )
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -155,9 +200,11 @@ def replay_timing(bag: Path, seconds: float) -> dict[str, object]:
         gaps = np.diff(arr[:, 0]) - np.diff(arr[:, 1]) * period * 1e-9
         span_error = (arr[-1, 0] - arr[0, 0]) - (arr[-1, 1] - arr[0, 1]) * period * 1e-9
         result[topic] = {
-            "received": int(arr.shape[0]), "expected": expected, **stats_ms(gaps),
+            "received": int(arr.shape[0]),
+            "expected": expected,
+            **stats_ms(gaps),
             "span_error_ms": round(span_error * 1e3, 3),
-        }  # fmt: skip
+        }
         schedule += [(a, i * period * 1e-9) for a, i in arr]
     lag = np.array([a - b for a, b in schedule])
     result["schedule_lag_max_ms"] = round(float((lag - lag.min()).max()) * 1e3, 3)
@@ -170,16 +217,28 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def record_throughput(bag: Path, work: Path, factor: float, sizes: dict[str, int]) -> dict[str, object]:
+def record_throughput(
+    bag: Path, work: Path, factor: float, sizes: dict[str, int]
+) -> dict[str, object]:
     """Record both topics while the bag is played at ``factor``; counts, rates and recorder CPU."""
     from hsa_bag.bagio import Bag
 
     out = work / f"recorded_x{factor:g}"
     recorder = subprocess.Popen(
-        [str(BIN / "bag_recorder"), "--ros-args", "-p", f"output:={out}", "-p", f"topics:=[{STATE}, {INFO}]"],
-        env=rosenv.ros_environment(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        [
+            str(BIN / "bag_recorder"),
+            "--ros-args",
+            "-p",
+            f"output:={out}",
+            "-p",
+            f"topics:=[{STATE}, {INFO}]",
+        ],
+        env=rosenv.ros_environment(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
         start_new_session=True,
-    )  # fmt: skip
+    )
     assert recorder.stdout is not None
     for line in recorder.stdout:
         if "ready" in line:
@@ -224,13 +283,16 @@ def main() -> None:
         throughput = [record_throughput(bag, work, factor, sizes) for factor in RATE_FACTORS]
     results = {
         "machine": {
-            "platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-            "loadavg_1min_at_start": round(load_start, 2), "loadavg_1min_at_end": round(os.getloadavg()[0], 2),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+            "loadavg_1min_at_start": round(load_start, 2),
+            "loadavg_1min_at_end": round(os.getloadavg()[0], 2),
         },
         "bag": {"seconds": seconds, "rates_hz": {STATE: 200, INFO: 40}, "message_bytes": sizes},
         "replay_timing_rate_1": timing,
         "record_throughput": throughput,
-    }  # fmt: skip
+    }
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps(results, indent=2))

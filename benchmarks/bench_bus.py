@@ -1,14 +1,16 @@
-"""Benchmark of one control-cycle bus exchange: Sync Write of 4 goals + Sync Read of 4 present positions.
+"""Benchmark of one control-cycle bus exchange: Sync Write of 4 goals + Sync Read of 4 present
+positions.
 
-Writes benchmarks/results/bus.json. The 4 servos are the pseudo-terminal MX-28(2.0) emulator in this process (Return
-Delay Time 0 after configure, 4 Mbps line setting, which a pty ignores), so the figures measure software overhead:
-SDK, driver, pty and emulator, not wire time (≈ 0.5 ms at 4 Mbps, ecosystem.md §3.1). Two clients are timed on the
-same bus: ``driver`` (DynamixelBus, which waits in select()) and ``sdk_busy_poll`` (the stock SDK PortHandler and
-GroupSyncWrite/GroupSyncRead.txRxPacket, which spins). Figures are per-cycle wall-time median and p99 in ms, plus CPU
-time of the whole process (emulator thread included) per cycle; the 1-minute load average is recorded because other
-processes on the 2-core machine inflate them. Reference: toolchain.md §7 measured the stock SDK at median 0.15 ms,
-p99 3.2 ms.
-Usage: .venv/bin/python benchmarks/bench_bus.py [--cycles N]
+Writes benchmarks/results/bus.json. The 4 servos are the pseudo-terminal MX-28(2.0) emulator in this
+process (Return Delay Time 0 after configure, 4 Mbps line setting, which a pty ignores), so the
+figures measure software overhead: SDK, driver, pty and emulator, not wire time (≈ 0.5 ms at 4 Mbps,
+ecosystem.md §3.1). Two clients are timed on the same bus: ``driver`` (DynamixelBus, which waits in
+select()) and ``sdk_busy_poll`` (the stock SDK PortHandler and
+GroupSyncWrite/GroupSyncRead.txRxPacket, which spins). Figures are per-cycle wall-time median and
+p99 in ms, plus CPU time of the whole process (emulator thread included) per cycle; the 1-minute
+load average is recorded because other processes on the 2-core machine inflate them. Reference:
+toolchain.md §7 measured the stock SDK at median 0.15 ms, p99 3.2 ms. Usage: .venv/bin/python
+benchmarks/bench_bus.py [--cycles N]
 """
 
 from __future__ import annotations
@@ -36,8 +38,9 @@ REFERENCE_MS = {"toolchain_sdk_median": 0.15, "toolchain_sdk_p99": 3.2}
 
 
 def time_cycles(cycle: Callable[[int], None], n: int) -> dict[str, float]:
-    """Median/p99/max wall time (ms) of n calls cycle(k) after WARMUP untimed ones, the lowest median of ROUNDS
-    consecutive chunks, and process CPU ms (all threads, emulator included) per call."""
+    """Median/p99/max wall time (ms) of n calls cycle(k) after WARMUP untimed ones, the lowest
+    median of ROUNDS consecutive chunks, and process CPU ms (all threads, emulator included) per
+    call."""
     for k in range(WARMUP):
         cycle(k)
     durations = np.empty(n, dtype=np.int64)
@@ -51,7 +54,9 @@ def time_cycles(cycle: Callable[[int], None], n: int) -> dict[str, float]:
         "median_ms": round(float(np.median(durations)) / 1e6, 4),
         "p99_ms": round(float(np.percentile(durations, 99)) / 1e6, 4),
         "max_ms": round(float(durations.max()) / 1e6, 4),
-        "best_round_median_ms": round(min(float(np.median(r)) for r in np.array_split(durations, ROUNDS)) / 1e6, 4),
+        "best_round_median_ms": round(
+            min(float(np.median(r)) for r in np.array_split(durations, ROUNDS)) / 1e6, 4
+        ),
         "cpu_ms_per_cycle": round(cpu_ms, 4),
         "n": n,
     }
@@ -112,7 +117,12 @@ def main() -> None:
             "loadavg_1min_at_start": round(load_start, 2),
             "loadavg_1min_at_end": round(os.getloadavg()[0], 2),
         },
-        "setup": {"servos": len(IDS), "baudrate": BAUD, "return_delay_2us": 0, "emulator": "same process, pty"},
+        "setup": {
+            "servos": len(IDS),
+            "baudrate": BAUD,
+            "return_delay_2us": 0,
+            "emulator": "same process, pty",
+        },
         "reference_ms": REFERENCE_MS,
         "cycle_sync_write_plus_sync_read": results,
         "emulator_counters": {"crc_errors": stats.crc_errors, "sync_writes": stats.sync_writes},

@@ -1,10 +1,12 @@
-"""Benchmark of per-sample signal processing: Savitzky–Golay updates and the φ/ticks, mocap and pose → q mappings.
+"""Benchmark of per-sample signal processing: Savitzky–Golay updates and the φ/ticks, mocap and pose
+→ q mappings.
 
-Writes benchmarks/results/estimation.json. Each figure is the median and 99th percentile of single-call wall times
-(perf_counter_ns around one call, warm), in µs, plus the lowest median of 5 consecutive chunks; the 1-minute load
-average is recorded because other processes on the 2-core machine inflate the figures. Reference figures of the original implementation are from
-spec reference_performance.md (scipy savgol_filter per call 273 µs; the original node's compute_q_d 1215 µs).
-Usage: .venv/bin/python benchmarks/bench_estimation.py [--samples N]
+Writes benchmarks/results/estimation.json. Each figure is the median and 99th percentile of
+single-call wall times (perf_counter_ns around one call, warm), in µs, plus the lowest median of 5
+consecutive chunks; the 1-minute load average is recorded because other processes on the 2-core
+machine inflate the figures. Reference figures of the original implementation are from spec
+reference_performance.md (scipy savgol_filter per call 273 µs; the original node's compute_q_d 1215
+µs). Usage: .venv/bin/python benchmarks/bench_estimation.py [--samples N]
 """
 
 from __future__ import annotations
@@ -21,12 +23,12 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
+from hsa_core.jaxsetup import configure_jax
 from hsa_core.model.actuation import MotorLimits, MotorMap, limit_goal_rate
+from hsa_core.model.params import load_params
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.sensing.mocap import planar_to_world, world_to_planar
-from hsa_core.model.params import load_params
 from hsa_core.task.trajectories import step_reference
-from hsa_core.jaxsetup import configure_jax
 
 RESULTS = Path(__file__).resolve().parent / "results" / "estimation.json"
 TARGET_SG_US = 5.0
@@ -37,7 +39,8 @@ ROUNDS = 5
 
 
 def stats(durations_ns: np.ndarray) -> dict[str, float]:
-    """Median and p99 in µs of per-call durations in ns, and the lowest median of ROUNDS consecutive chunks."""
+    """Median and p99 in µs of per-call durations in ns, and the lowest median of ROUNDS consecutive
+    chunks."""
     rounds = np.array_split(durations_ns, ROUNDS)
     return {
         "median_us": round(float(np.median(durations_ns)) / 1e3, 3),
@@ -51,7 +54,8 @@ WARMUP = 200
 
 
 def time_calls(fn: Callable[[int], object], n: int) -> dict[str, float]:
-    """Time n single calls fn(i), i = WARMUP … WARMUP + n − 1, after WARMUP untimed calls i = 0 … WARMUP − 1."""
+    """Time n single calls fn(i), i = WARMUP … WARMUP + n − 1, after WARMUP untimed calls i = 0 …
+    WARMUP − 1."""
     for i in range(WARMUP):
         fn(i)
     out = np.empty(n, dtype=np.int64)
@@ -64,7 +68,8 @@ def time_calls(fn: Callable[[int], object], n: int) -> dict[str, float]:
 
 
 def bench_sg(n: int, dim: int, stamps: np.ndarray) -> dict[str, object]:
-    """Per-sample update cost of the differentiator over n stamps (the window is full after the warm-up)."""
+    """Per-sample update cost of the differentiator over n stamps (the window is full after the
+    warm-up)."""
     rng = np.random.default_rng(0)
     x = rng.normal(size=(stamps.size, dim))
     est = SavitzkyGolayDifferentiator(dim=dim)
@@ -81,7 +86,9 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=100_000, help="timed calls per SG case")
     n = parser.parse_args().samples
     period = 0.005
-    regular = 1000.0 + period * np.arange(n)  # stamps relative to a recent origin (see the estimation docstring)
+    regular = 1000.0 + period * np.arange(
+        n
+    )  # stamps relative to a recent origin (see the estimation docstring)
     jitter = regular + np.random.default_rng(1).uniform(-0.05, 0.05, n) * period
     results: dict[str, object] = {
         "machine": {
@@ -100,11 +107,14 @@ def main() -> None:
     }
     window = np.random.default_rng(2).normal(size=(20, 6))
     sg["scipy_savgol_filter_dim6_per_call"] = time_calls(
-        lambda i: savgol_filter(window, 20, 3, deriv=1, delta=period, axis=0, mode="interp")[-1], 5_000
+        lambda i: savgol_filter(window, 20, 3, deriv=1, delta=period, axis=0, mode="interp")[-1],
+        5_000,
     )
     median = sg["regular_dim6"]["median_us"]
     sg["meets_target"] = median <= TARGET_SG_US
-    sg["speedup_vs_scipy_here"] = round(sg["scipy_savgol_filter_dim6_per_call"]["median_us"] / median, 1)
+    sg["speedup_vs_scipy_here"] = round(
+        sg["scipy_savgol_filter_dim6_per_call"]["median_us"] / median, 1
+    )
     sg["speedup_vs_scipy_reference"] = round(REFERENCE_US["scipy_savgol_per_call"] / median, 1)
     sg["speedup_vs_original_node"] = round(REFERENCE_US["original_node_compute_q_d"] / median, 1)
     results["savitzky_golay"] = sg
@@ -122,8 +132,12 @@ def main() -> None:
         "phi_to_goal_ticks": time_calls(lambda i: motor_map.goal_ticks(phis[i % 10_000]), m),
         "ticks_to_phi": time_calls(lambda i: motor_map.present_twists(ticks[i % 10_000]), m),
         "clamp_goal_ticks": time_calls(lambda i: limits.clamp(ticks[i % 10_000]), m),
-        "rate_limit_goal_ticks": time_calls(lambda i: limit_goal_rate(ticks[i % 10_000], ticks[0], 0.025, 6.28), m),
-        "mocap_world_to_planar": time_calls(lambda i: world_to_planar(base, position, quaternion), m),
+        "rate_limit_goal_ticks": time_calls(
+            lambda i: limit_goal_rate(ticks[i % 10_000], ticks[0], 0.025, 6.28), m
+        ),
+        "mocap_world_to_planar": time_calls(
+            lambda i: world_to_planar(base, position, quaternion), m
+        ),
         "mocap_planar_to_world": time_calls(lambda i: planar_to_world(chiee, base), m),
         "reference_sample": time_calls(lambda i: ref.sample(0.011 * i), m),
     }
@@ -131,7 +145,9 @@ def main() -> None:
     start = time.perf_counter()
     configuration_from_pose(params, chiee)
     compile_s = time.perf_counter() - start
-    mappings["configuration_from_pose_warm"] = time_calls(lambda i: configuration_from_pose(params, chiee), m)
+    mappings["configuration_from_pose_warm"] = time_calls(
+        lambda i: configuration_from_pose(params, chiee), m
+    )
     mappings["configuration_from_pose_first_call_s"] = round(compile_s, 3)
     results["mappings"] = mappings
     results["machine"]["loadavg_1min_at_end"] = round(os.getloadavg()[0], 2)

@@ -1,20 +1,25 @@
-"""Live-graph benchmark: the sim launch graph (wall clock) on a short FPU step schedule at 40 Hz and 200 Hz control.
+"""Live-graph benchmark: the sim launch graph (wall clock) on a short FPU step schedule at 40 Hz and
+200 Hz control.
 
 Measured from the recorded bag and from the processes while they run:
 * latency: mocap sample stamp → the sync write of the goal it produced leaving the driver
-  (``motor_goal_stamp``: header.stamp = after the write, source_stamp = the mocap stamp), p50/p99; it includes the
-  age of the newest state when the controller's timer fires (up to one mocap period plus transport);
+  (``motor_goal_stamp``: header.stamp = after the write, source_stamp = the mocap stamp), p50/p99;
+  it includes the age of the newest state when the controller's timer fires (up to one mocap period
+  plus transport);
 * compute path: controller tick (phi_cmd header stamp) → that goal leaving the driver, p50/p99;
-* controller loop: tick period jitter (controller_info header stamps) and deadline misses (a tick later than 1.5
-  nominal periods after the previous one), over the ticks while tracking;
-* stage ages: the recorder's receive time minus the mocap stamp for the pose, ee_pose and state streams (an upper
-  bound of each stage's output time: it includes the recorder's own delivery delay), p50/p99;
-* CPU per node (psutil, user+system over the tracking window, in % of one core).
-With ``--repeat N`` every rate runs N times; the headline figures are per-key medians, the runs are kept under
-``runs`` (this 2-core VM varies from run to run). Writes benchmarks/results/graph.json. Targets (node-suite issue): latency p99 ≤ 5 ms; < 1 % deadline misses at
-200 Hz with the whole graph on 2 cores.
+* controller loop: tick period jitter (controller_info header stamps) and deadline misses (a tick
+  later than 1.5 nominal periods after the previous one), over the ticks while tracking;
+* stage ages: the recorder's receive time minus the mocap stamp for the pose, ee_pose and state
+  streams (an upper bound of each stage's output time: it includes the recorder's own delivery
+  delay), p50/p99;
+* CPU per node (psutil, user+system over the tracking window, in % of one core). With ``--repeat N``
+  every rate runs N times; the headline figures are per-key medians, the runs are kept under
+``runs`` (this 2-core VM varies from run to run). Writes benchmarks/results/graph.json. Targets
+(node-suite issue): latency p99 ≤ 5 ms; < 1 % deadline misses at 200 Hz with the whole graph on 2
+cores.
 
-    .venv/bin/python benchmarks/bench_graph.py [--steps 3] [--step-period 5] [--repeat 1] [--rates 40 200]
+    .venv/bin/python benchmarks/bench_graph.py [--steps 3] [--step-period 5] [--repeat 1] [--rates
+    40 200]
 """
 
 from __future__ import annotations
@@ -37,25 +42,51 @@ from rosbags.rosbag2 import Reader
 
 from hsa_bag.msgtypes import TypeRegistry
 from hsa_common import rosenv
-from hsa_core.task.trajectories import step_reference
 from hsa_core.jaxsetup import configure_jax
+from hsa_core.task.trajectories import step_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"
 STAGES = ("/mocap/platform/pose", "/hsa/ee_pose", "/hsa/state")
 
 
-def run_graph(rate: float, steps: int, step_period: float, work: Path) -> tuple[Path, dict[str, float]]:
-    """Run the graph once; return its bag and the CPU use per node [% of one core] while the sequencer ran."""
+def run_graph(
+    rate: float, steps: int, step_period: float, work: Path
+) -> tuple[Path, dict[str, float]]:
+    """Run the graph once; return its bag and the CPU use per node [% of one core] while the
+    sequencer ran."""
     bag = work / f"bag_{int(rate)}hz"
     config = work / f"sequencer_{int(rate)}.yaml"
-    config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
-        "trajectory": "steps", "points": [float(v) for v in step_reference("fpu").p_des[:steps].ravel()],
-        "exit_on_finish": True, "finish_hold": 1.0}}}))
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": [float(v) for v in step_reference("fpu").p_des[:steps].ravel()],
+                        "exit_on_finish": True,
+                        "finish_hold": 1.0,
+                    }
+                }
+            }
+        )
+    )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hsa_common.launcher", str(GRAPH), f"rate:={rate}", f"bag_dir:={bag}",
-         f"setpoint_rate:={1.0 / step_period}", f"sequencer_config:={config}", "clock:=wall"],
-        env=rosenv.ros_environment(), start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        [
+            sys.executable,
+            "-m",
+            "hsa_common.launcher",
+            str(GRAPH),
+            f"rate:={rate}",
+            f"bag_dir:={bag}",
+            f"setpoint_rate:={1.0 / step_period}",
+            f"sequencer_config:={config}",
+            "clock:=wall",
+        ],
+        env=rosenv.ros_environment(),
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
         text=True,
     )
     cpu: dict[str, float] = {}
@@ -64,7 +95,9 @@ def run_graph(rate: float, steps: int, step_period: float, work: Path) -> tuple[
     assert proc.stdout is not None
     for line in proc.stdout:
         if not start and "[hsa.controller_node]" in line and "-> tracking" in line:
-            t_start = time.monotonic()  # CPU window: from the first controller output to the end of the schedule
+            t_start = (
+                time.monotonic()
+            )  # CPU window: from the first controller output to the end of the schedule
             for child in psutil.Process(proc.pid).children():
                 times = child.cpu_times()
                 start[child.pid] = (Path(child.cmdline()[1]).name, child, times.user + times.system)
@@ -125,13 +158,18 @@ def analyse(bag: Path, rate: float) -> dict[str, float]:
         "period_dev_ms_p99": round(float(np.percentile(np.abs(periods - nominal), 99) * 1e3), 3),
         "deadline_misses": int(np.sum(periods > 1.5 * nominal)),
         "deadline_miss_fraction": round(float(np.mean(periods > 1.5 * nominal)), 4),
-        **{f"recorder_rx_minus_mocap_stamp_ms_p50_p99 {topic}": [
-            round(float(np.percentile(ages, p) * 1e3), 3) for p in (50, 99)] for topic, ages in stages.items()},
+        **{
+            f"recorder_rx_minus_mocap_stamp_ms_p50_p99 {topic}": [
+                round(float(np.percentile(ages, p) * 1e3), 3) for p in (50, 99)
+            ]
+            for topic, ages in stages.items()
+        },
     }
 
 
 def median_of(runs: list[dict]) -> dict:
-    """Per-key median over runs (nested dicts, e.g. CPU per node, key by key; lists element-wise)."""
+    """Per-key median over runs (nested dicts, e.g. CPU per node, key by key; lists
+    element-wise)."""
     first = runs[0]
     out: dict = {}
     for key, value in first.items():
@@ -148,15 +186,20 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3)
     parser.add_argument("--step-period", type=float, default=5.0)
-    parser.add_argument("--repeat", type=int, default=1, help="runs per rate; the headline figures are medians")
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="runs per rate; the headline figures are medians"
+    )
     parser.add_argument("--rates", type=float, nargs="+", default=[40.0, 200.0])
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "graph.json")
     args = parser.parse_args()
     rosenv.apply()
     results: dict[str, object] = {
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "executor": os.environ.get("HSA_EXECUTOR", "events"),
-                    "load_avg_at_start": os.getloadavg()},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "executor": os.environ.get("HSA_EXECUTOR", "events"),
+            "load_avg_at_start": os.getloadavg(),
+        },
         "targets": {"latency_ms_p99": 5.0, "deadline_miss_fraction_200hz": 0.01},
         "method": __doc__.split("\n\n")[1],
     }

@@ -1,22 +1,26 @@
-"""How far today's simulator is from the real robot: the paper's four reference runs against the offline experiment.
+"""How far today's simulator is from the real robot: the paper's four reference runs against the
+offline experiment.
 
-For each packaged real run (hsa_core.analysis.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU P-satI-D) this runs
-``hsa_core.sim.experiment.run_experiment`` (what ``hsa_experiment`` runs) with the run's material, law and the paper's
-gains on the default world (seed 0), and compares the measured end-effector position with the robot's
-(hsa_core.analysis.sim_to_real, each step aligned at its own instant: the real one for the robot, the simulated one for the
-sim; steps 1–10, first 9.3 s, 100 Hz): D, x peak-to-peak over the last 2 s of a step (max over steps), ‖e‖ over the
-last 2 s (median over steps), median relative rise-time (10-90 %) and response-time differences, RMSE. Variants
-(``--variants``):
+For each packaged real run (hsa_core.analysis.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU
+P-satI-D) this runs ``hsa_core.sim.experiment.run_experiment`` (what ``hsa_experiment`` runs) with
+the run's material, law and the paper's gains on the default world (seed 0), and compares the
+measured end-effector position with the robot's (hsa_core.analysis.sim_to_real, each step aligned at
+its own instant: the real one for the robot, the simulated one for the sim; steps 1–10, first 9.3 s,
+100 Hz): D, x peak-to-peak over the last 2 s of a step (max over steps), ‖e‖ over the last 2 s
+(median over steps), median relative rise-time (10-90 %) and response-time differences, RMSE.
+Variants (``--variants``):
 
-* ``default``: the experiment as ``hsa_experiment --material M --controller LAW`` runs it (σ_a,eq nominal);
+* ``default``: the experiment as ``hsa_experiment --material M --controller LAW`` runs it (σ_a,eq
+  nominal);
 * ``logbook_sigma``: the same with the run's σ_a,eq from the logbook (controller model and plant);
 * ``own_profile`` (added by ``--profiles``): the run replayed with its own conditions, as
-  ``hsa_experiment --run BAG`` does (hsa_core.sim.experiment.replay_config: the run's profile of hsa_core.sim.profiles, law,
-  gains, σ_a,eq and real step instants), on the same default world;
-* ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook σ_a,eq has a
-  setpoint the planner refuses, so it is compared only this way);
-* ``own_rate_only`` / ``own_estimator_only``: ``own_profile_nominal_sigma`` with the lab profile's velocity
-  estimator, or with the lab profile's control period and integrator step (which of the two conditions does what).
+  ``hsa_experiment --run BAG`` does (hsa_core.sim.experiment.replay_config: the run's profile of
+  hsa_core.sim.profiles, law, gains, σ_a,eq and real step instants), on the same default world;
+* ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook
+  σ_a,eq has a setpoint the planner refuses, so it is compared only this way);
+* ``own_rate_only`` / ``own_estimator_only``: ``own_profile_nominal_sigma`` with the lab profile's
+  velocity estimator, or with the lab profile's control period and integrator step (which of the two
+  conditions does what).
 
 The world is the default one in every variant: only the conditions of the run change. Writes
 benchmarks/results/sim_to_real.json.
@@ -34,12 +38,11 @@ import platform
 import time
 from pathlib import Path
 
-import numpy as np
-
 from hsa_core.jaxsetup import configure_jax
 
 ROOT = Path(__file__).resolve().parents[1]
-ISSUE_TABLE = {  # issue 20, commit 12bcf5d: D [mm], x p2p sim / robot [mm], ‖e‖ sim / robot [mm], rise difference
+# issue 20, commit 12bcf5d: D [mm], x p2p sim / robot [mm], ‖e‖ sim / robot [mm], rise difference
+ISSUE_TABLE = {
     "20230925_092200": {"D": 5.01, "x_p2p": [17.5, 0.52], "end_error": [3.74, 0.05], "rise": 0.44},
     "20230925_093236": {"D": 3.52, "x_p2p": [17.3, 0.27], "end_error": [2.90, 0.71], "rise": 0.17},
     "20230925_094023": {"D": 3.34, "x_p2p": [17.5, 0.25], "end_error": [1.43, 0.80], "rise": 0.18},
@@ -48,10 +51,13 @@ ISSUE_TABLE = {  # issue 20, commit 12bcf5d: D [mm], x p2p sim / robot [mm], ‖
 
 
 def _default(real):
-    """hsa_experiment --material M --controller LAW with the paper's gains: the lab profile, nominal σ_a,eq."""
+    """hsa_experiment --material M --controller LAW with the paper's gains: the lab profile, nominal
+    σ_a,eq."""
     from hsa_core.sim.experiment import ExperimentConfig
 
-    return ExperimentConfig(real.conditions.material, real.conditions.law.value, gains=real.conditions.gains)
+    return ExperimentConfig(
+        real.conditions.material, real.conditions.law.value, gains=real.conditions.gains
+    )
 
 
 def _logbook_sigma(real):
@@ -76,7 +82,9 @@ def _own_rate_only(real):
     from hsa_core.sim.profiles import load_profile
 
     lab = load_profile("lab")
-    return dataclasses.replace(_own_profile_nominal_sigma(real), velocity_estimator=lab.velocity_estimator)
+    return dataclasses.replace(
+        _own_profile_nominal_sigma(real), velocity_estimator=lab.velocity_estimator
+    )
 
 
 def _own_estimator_only(real):
@@ -84,26 +92,41 @@ def _own_estimator_only(real):
     from hsa_core.sim.profiles import load_profile
 
     lab = load_profile("lab")
-    return dataclasses.replace(_own_profile_nominal_sigma(real), rate=lab.rate, integrator_dt=lab.integrator_dt)
+    return dataclasses.replace(
+        _own_profile_nominal_sigma(real), rate=lab.rate, integrator_dt=lab.integrator_dt
+    )
 
 
-VARIANTS = {"default": _default, "logbook_sigma": _logbook_sigma, "own_profile": _own_profile,
-            "own_profile_nominal_sigma": _own_profile_nominal_sigma, "own_rate_only": _own_rate_only,
-            "own_estimator_only": _own_estimator_only}
+VARIANTS = {
+    "default": _default,
+    "logbook_sigma": _logbook_sigma,
+    "own_profile": _own_profile,
+    "own_profile_nominal_sigma": _own_profile_nominal_sigma,
+    "own_rate_only": _own_rate_only,
+    "own_estimator_only": _own_estimator_only,
+}
 """Variant → the ExperimentConfig of a reference run (module doc)."""
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variants", nargs="+", default=["default", "logbook_sigma"], choices=list(VARIANTS))
-    parser.add_argument("--profiles", action="store_true", help="also run each reference run with its own profile")
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "sim_to_real.json")
+    parser.add_argument(
+        "--variants", nargs="+", default=["default", "logbook_sigma"], choices=list(VARIANTS)
+    )
+    parser.add_argument(
+        "--profiles", action="store_true", help="also run each reference run with its own profile"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=ROOT / "benchmarks" / "results" / "sim_to_real.json"
+    )
     args = parser.parse_args()
     configure_jax()
     from hsa_core.analysis import reference, sim_to_real
     from hsa_core.sim.experiment import run_experiment
 
-    variants = args.variants + (["own_profile"] if args.profiles and "own_profile" not in args.variants else [])
+    variants = args.variants + (
+        ["own_profile"] if args.profiles and "own_profile" not in args.variants else []
+    )
     rows = []
     for variant in variants:
         for bag in reference.run_names():
@@ -119,38 +142,84 @@ def main() -> int:
             failures = [f"t = {t:.2f} s: {f.status.name}" for t, f in result.plan_failures]
             try:
                 c = sim_to_real.compare(sim, robot)
-            except ValueError as err:  # a setpoint the planner refused is held: fewer steps than the robot's
-                rows.append({"variant": variant, "bag": bag, "not_compared": str(err), "plan_failures": failures})
-                print(f"{variant:<14} {bag} not compared: {err}; planning failed at {failures}", flush=True)
+            except (
+                ValueError
+            ) as err:  # a setpoint the planner refused is held: fewer steps than the robot's
+                rows.append(
+                    {
+                        "variant": variant,
+                        "bag": bag,
+                        "not_compared": str(err),
+                        "plan_failures": failures,
+                    }
+                )
+                print(
+                    f"{variant:<14} {bag} not compared: {err}; planning failed at {failures}",
+                    flush=True,
+                )
                 continue
-            row = {"variant": variant, "bag": bag, "material": cond.material, "law": cond.law.value,
-                   "profile": config.profile, "control_period_ms": round(1e3 / config.rate, 3),
-                   "integrator_dt_s": config.integrator_dt, "velocity_estimator": config.velocity_estimator.value,
-                   "sigma_a_eq": config.sigma_a_eq, "plan_failures": failures,
-                   "D_mm": round(c.deviation * 1e3, 3),
-                   "x_p2p_last2s_max_mm": {"sim": round(c.x_peak_to_peak[0] * 1e3, 3),
-                                           "robot": round(c.x_peak_to_peak[1] * 1e3, 3)},
-                   "end_error_last2s_median_mm": {"sim": round(c.end_error[0] * 1e3, 3),
-                                                  "robot": round(c.end_error[1] * 1e3, 3)},
-                   "rise_time_median_relative_difference": round(c.rise_time_difference, 3),
-                   "response_time_median_relative_difference": round(c.response_time_difference, 3),
-                   "rmse_mm": {"sim": round(c.rmse[0] * 1e3, 3), "robot": round(c.rmse[1] * 1e3, 3),
-                               "sim_experiment_metrics": round(result.metrics.rmse * 1e3, 3)},
-                   "issue_12bcf5d": ISSUE_TABLE[bag], "wall_s": round(wall, 1)}
+            row = {
+                "variant": variant,
+                "bag": bag,
+                "material": cond.material,
+                "law": cond.law.value,
+                "profile": config.profile,
+                "control_period_ms": round(1e3 / config.rate, 3),
+                "integrator_dt_s": config.integrator_dt,
+                "velocity_estimator": config.velocity_estimator.value,
+                "sigma_a_eq": config.sigma_a_eq,
+                "plan_failures": failures,
+                "D_mm": round(c.deviation * 1e3, 3),
+                "x_p2p_last2s_max_mm": {
+                    "sim": round(c.x_peak_to_peak[0] * 1e3, 3),
+                    "robot": round(c.x_peak_to_peak[1] * 1e3, 3),
+                },
+                "end_error_last2s_median_mm": {
+                    "sim": round(c.end_error[0] * 1e3, 3),
+                    "robot": round(c.end_error[1] * 1e3, 3),
+                },
+                "rise_time_median_relative_difference": round(c.rise_time_difference, 3),
+                "response_time_median_relative_difference": round(c.response_time_difference, 3),
+                "rmse_mm": {
+                    "sim": round(c.rmse[0] * 1e3, 3),
+                    "robot": round(c.rmse[1] * 1e3, 3),
+                    "sim_experiment_metrics": round(result.metrics.rmse * 1e3, 3),
+                },
+                "issue_12bcf5d": ISSUE_TABLE[bag],
+                "wall_s": round(wall, 1),
+            }
             rows.append(row)
-            print(f"{variant:<14} {bag} {cond.material} {cond.law.value:<10} D {row['D_mm']:6.2f} mm   "
-                  f"x p2p {row['x_p2p_last2s_max_mm']['sim']:6.2f} / {row['x_p2p_last2s_max_mm']['robot']:5.2f}   "
-                  f"|e| {row['end_error_last2s_median_mm']['sim']:5.2f} / "
-                  f"{row['end_error_last2s_median_mm']['robot']:5.2f}   "
-                  f"rise {c.rise_time_difference * 100:4.0f} %   t_r {c.response_time_difference * 100:4.0f} %   "
-                  f"RMSE {row['rmse_mm']['sim']:5.2f} / {row['rmse_mm']['robot']:5.2f}   ({wall:.0f} s)", flush=True)
+            print(
+                f"{variant:<14} {bag} {cond.material} {cond.law.value:<10} D {row['D_mm']:6.2f} mm "
+                "  "
+                f"x p2p {row['x_p2p_last2s_max_mm']['sim']:6.2f} / "
+                f"{row['x_p2p_last2s_max_mm']['robot']:5.2f}   "
+                f"|e| {row['end_error_last2s_median_mm']['sim']:5.2f} / "
+                f"{row['end_error_last2s_median_mm']['robot']:5.2f}   "
+                f"rise {c.rise_time_difference * 100:4.0f} %   t_r "
+                f"{c.response_time_difference * 100:4.0f} %   "
+                f"RMSE {row['rmse_mm']['sim']:5.2f} / {row['rmse_mm']['robot']:5.2f}   "
+                f"({wall:.0f} s)",
+                flush=True,
+            )
     result_doc = {
-        "what": "sim (offline experiment, paper's gains, default world, seed 0) against the real runs; "
-                "hsa_core.analysis.sim_to_real, steps 1-10 each aligned at its own instant, first 9.3 s, 100 Hz; "
-                "variants: the bench's docstring",
-        "targets": {"D_mm": 1.0, "x_p2p_last2s_max_mm": 0.5, "rise_time_relative": 0.25, "rmse_relative": 0.10},
+        "what": (
+            "sim (offline experiment, paper's gains, default world, seed 0) against the real runs; "
+            "hsa_core.analysis.sim_to_real, steps 1-10 each aligned at its own instant, "
+            "first 9.3 s, 100 Hz; variants: the bench's docstring"
+        ),
+        "targets": {
+            "D_mm": 1.0,
+            "x_p2p_last2s_max_mm": 0.5,
+            "rise_time_relative": 0.25,
+            "rmse_relative": 0.10,
+        },
         "rows": rows,
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]},
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "load_1min": os.getloadavg()[0],
+        },
     }
     args.out.write_text(json.dumps(result_doc, indent=1) + "\n")
     print(f"wrote {args.out}")

@@ -1,16 +1,18 @@
-"""Start-up benchmark (issue "the lab's first day"): seconds from a node's start to its "ready" line.
+"""Start-up benchmark (issue "the lab's first day"): seconds from a node's start to its "ready"
+line.
 
-Every process of the sim graph (``launch_scripts/sim.launch.yaml``, wall clock, its default parameter files), from
-its installed ``lib/<package>/<executable>``:
+Every process of the sim graph (``launch_scripts/sim.launch.yaml``, wall clock, its default
+parameter files), from its installed ``lib/<package>/<executable>``:
 
-* **alone** — one node at a time, nothing else starting beside it (the sim node first and kept running, so the
-  driver finds its bus and the sequencer its planner: the planner stays up too);
-* **fresh** — JAX's persistent compilation cache empty (a machine that never ran the graph; ``HSA_JAX_CACHE_DIR`` set
-  to a new directory). The operating system's file cache is not dropped: imports come from memory, as on any
-  machine that has just installed the packages;
-* **warm** — the same nodes started again with the cache the fresh starts filled (a machine that has run them before);
-* **graph** — the whole graph started at once (all processes competing for the 2 cores), fresh and warm: the time
-  until the last node is ready.
+* **alone** — one node at a time, nothing else starting beside it (the sim node first and kept
+  running, so the driver finds its bus and the sequencer its planner: the planner stays up too);
+* **fresh** — JAX's persistent compilation cache empty (a machine that never ran the graph;
+  ``HSA_JAX_CACHE_DIR`` set to a new directory). The operating system's file cache is not dropped:
+  imports come from memory, as on any machine that has just installed the packages;
+* **warm** — the same nodes started again with the cache the fresh starts filled (a machine that has
+  run them before);
+* **graph** — the whole graph started at once (all processes competing for the 2 cores), fresh and
+  warm: the time until the last node is ready.
 
 Targets: every node ready ≤ 10 s fresh and ≤ 3 s warm. Writes benchmarks/results/startup.json.
 
@@ -46,8 +48,14 @@ class Started:
 
     def __init__(self, cmd: list[str], env: dict[str, str]) -> None:
         self.t0 = time.monotonic()
-        self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            cmd,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         self.lines: list[tuple[float, str]] = []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -84,7 +92,8 @@ class Started:
 
 
 def environment(cache: Path) -> dict[str, str]:
-    """The ROS environment of a run (localhost, run-specific domain) with its own JAX cache directory."""
+    """The ROS environment of a run (localhost, run-specific domain) with its own JAX cache
+    directory."""
     env = rosenv.ros_environment()
     env["HSA_JAX_CACHE_DIR"] = str(cache)
     return env
@@ -113,8 +122,16 @@ def alone(cache: Path) -> dict[str, float]:
 def graph(cache: Path) -> dict[str, float]:
     """The whole graph started at once by hsa_launch; seconds to each node's ready line."""
     names = [p.name for p in LaunchFile(GRAPH, ARGS).processes()]
-    run = Started([sys.executable, "-m", "hsa_common.launcher", str(GRAPH), *(f"{k}:={v}" for k, v in ARGS.items())],
-                  environment(cache))
+    run = Started(
+        [
+            sys.executable,
+            "-m",
+            "hsa_common.launcher",
+            str(GRAPH),
+            *(f"{k}:={v}" for k, v in ARGS.items()),
+        ],
+        environment(cache),
+    )
     try:
         return run.wait_ready(names)
     finally:
@@ -122,20 +139,28 @@ def graph(cache: Path) -> dict[str, float]:
 
 
 def main() -> int:
-    rosenv.apply()  # the user's ROS_DOMAIN_ID or a reserved one, for every graph below; a bad one is refused here
+    # the user's ROS_DOMAIN_ID or a reserved one, for every graph below; a bad one is refused here
+    rosenv.apply()
     work = Path(tempfile.mkdtemp(prefix="bench_startup_"))
-    result: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
-                    "targets_s": {"fresh": 10.0, "warm": 3.0}, "graph_args": ARGS}
+    result: dict = {
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "targets_s": {"fresh": 10.0, "warm": 3.0},
+        "graph_args": ARGS,
+    }
     result["alone_fresh"] = alone(work / "cache_alone")
     result["alone_warm"] = alone(work / "cache_alone")
     result["graph_fresh"] = graph(work / "cache_graph")
     result["graph_warm"] = graph(work / "cache_graph")
-    result["slowest"] = {k: max(result[k].items(), key=lambda kv: kv[1])
-                         for k in ("alone_fresh", "alone_warm", "graph_fresh", "graph_warm")}
-    result["targets_met"] = {"fresh_alone": max(result["alone_fresh"].values()) <= 10.0,
-                             "warm_alone": max(result["alone_warm"].values()) <= 3.0,
-                             "fresh_graph": max(result["graph_fresh"].values()) <= 10.0,
-                             "warm_graph": max(result["graph_warm"].values()) <= 3.0}
+    result["slowest"] = {
+        k: max(result[k].items(), key=lambda kv: kv[1])
+        for k in ("alone_fresh", "alone_warm", "graph_fresh", "graph_warm")
+    }
+    result["targets_met"] = {
+        "fresh_alone": max(result["alone_fresh"].values()) <= 10.0,
+        "warm_alone": max(result["alone_warm"].values()) <= 3.0,
+        "fresh_graph": max(result["graph_fresh"].values()) <= 10.0,
+        "warm_graph": max(result["graph_warm"].values()) <= 3.0,
+    }
     out = ROOT / "benchmarks" / "results" / "startup.json"
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

@@ -1,19 +1,23 @@
-"""Why the simulated task-space PID limit-cycles (and P-satI-D overshoots): one world factor switched off at a time.
+"""Why the simulated task-space PID limit-cycles (and P-satI-D overshoots): one world factor
+switched off at a time.
 
-Runs the offline experiment (hsa_core.sim.experiment.run_experiment, the reference the lockstep ROS graph reproduces) on
-the FPU step list, truncated to ``--duration`` seconds, with the paper's gains, the default disturbance (seed 0) and
-one factor changed per row: measurement noise, measurement latency, actuation latency, the servo speed cap, the
-plant/model mismatch, K_d, the 40 Hz control rate, the Savitzky–Golay derivative (replaced by the plant's exact
-velocity) or given a 0.4 s window, all of the disturbance, the speed cap alone, and the plant's hand-tuned damping x3;
-for P-satI-D also the paper's K_d = 0.01. Per run it reports RMSE, e_ss (measured, mean over the
-steps after the first), overshoot, the peak-to-peak of the true x over the last 2 s of each step after the first
-(mean and max), the dominant frequency of x − x_des over the last 4 s of those steps (averaged Hann periodograms) and
-the range φ covers over the last 2 s. ``--full`` adds the full 110 s runs of ``--full-rows`` (default world, and the
-September-estimator stand-in). ``linear_analysis`` adds the linearised PID x-loop (bending mode, SG response, margins,
-the amplitude the servo speed cap allows). Findings: docs/simulation.md (PID limit cycle).
-Writes benchmarks/results/pid_limit_cycle.json (after every run, so an interrupted run keeps what it measured).
-Usage: python benchmarks/pid_limit_cycle.py --full  (all rows, both laws, 40 s, plus the 110 s runs; ~20 min on 2
-loaded cores); [--laws pid] [--rows default,no_speed_cap] [--append] add to the existing JSON.
+Runs the offline experiment (hsa_core.sim.experiment.run_experiment, the reference the lockstep ROS
+graph reproduces) on the FPU step list, truncated to ``--duration`` seconds, with the paper's gains,
+the default disturbance (seed 0) and one factor changed per row: measurement noise, measurement
+latency, actuation latency, the servo speed cap, the plant/model mismatch, K_d, the 40 Hz control
+rate, the Savitzky–Golay derivative (replaced by the plant's exact velocity) or given a 0.4 s
+window, all of the disturbance, the speed cap alone, and the plant's hand-tuned damping x3; for
+P-satI-D also the paper's K_d = 0.01. Per run it reports RMSE, e_ss (measured, mean over the steps
+after the first), overshoot, the peak-to-peak of the true x over the last 2 s of each step after the
+first (mean and max), the dominant frequency of x − x_des over the last 4 s of those steps (averaged
+Hann periodograms) and the range φ covers over the last 2 s. ``--full`` adds the full 110 s runs of
+``--full-rows`` (default world, and the September-estimator stand-in). ``linear_analysis`` adds the
+linearised PID x-loop (bending mode, SG response, margins, the amplitude the servo speed cap
+allows). Findings: docs/simulation.md (PID limit cycle). Writes
+benchmarks/results/pid_limit_cycle.json (after every run, so an interrupted run keeps what it
+measured). Usage: python benchmarks/pid_limit_cycle.py --full  (all rows, both laws, 40 s, plus the
+110 s runs; ~20 min on 2 loaded cores); [--laws pid] [--rows default,no_speed_cap] [--append] add to
+the existing JSON.
 """
 
 from __future__ import annotations
@@ -34,34 +38,37 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_core.model import kinematics, simulation
-from hsa_core.sim import experiment
 from hsa_core.controller.control import default_gains
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.model.dynamics import forward_dynamics_fn
-from hsa_core.sensing.estimation import Estimate, derivative_coefficients
 from hsa_core.jaxsetup import configure_jax
+from hsa_core.model import kinematics, simulation
+from hsa_core.model.dynamics import forward_dynamics_fn
 from hsa_core.model.params import HsaParams, load_params
+from hsa_core.sensing.estimation import Estimate, derivative_coefficients
+from hsa_core.sim import experiment
+from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, ExperimentResult, run_experiment
-from hsa_core.task.trajectories import TimedReference, step_reference
 from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World
+from hsa_core.task.trajectories import TimedReference, step_reference
 
 ESTIMATOR_WINDOW = experiment.ESTIMATOR_WINDOW
 """The kinematics node's Savitzky–Golay window (samples), restored after every run."""
 RESULTS = Path(__file__).resolve().parent / "results" / "pid_limit_cycle.json"
 STEADY_WINDOW = 2.0
-"""[s] window at the end of each step for the peak-to-peak and φ range (the e_ss window of experiments.md §4)."""
+"""[s] window at the end of each step for the peak-to-peak and φ range (the e_ss window of
+experiments.md §4)."""
 SPECTRUM_WINDOW = 4.0
 """[s] window at the end of each step for the spectrum of x − x_des (0.25 Hz resolution)."""
 MOCAP_PERIOD = MOCAP_PERIOD_NS * 1e-9
 """[s] motion-capture period (200 Hz)."""
 MIN_FREQUENCY = 0.5
-"""[Hz] lowest frequency considered for the dominant peak (below it: the step's slow convergence)."""
+"""[Hz] lowest frequency considered for the dominant peak (below it: the step's slow
+convergence)."""
 
 
 @dataclass(frozen=True)
 class Row:
-    """One factor setting: label, what it changes, and how (disturbance, gains, rate, exact derivative)."""
+    """One factor setting: label, what it changes, and how (disturbance, gains, rate, exact
+    derivative)."""
 
     name: str
     change: str
@@ -74,7 +81,8 @@ class Row:
 
 @dataclass(frozen=True)
 class _DampedPlant(DisturbanceModel):
-    """The default disturbance with the plant's damping constants (ζ_b, ζ_sh, ζ_a) scaled: they were hand-tuned."""
+    """The default disturbance with the plant's damping constants (ζ_b, ζ_sh, ζ_a) scaled: they were
+    hand-tuned."""
 
     damping_scale: float = 1.0
 
@@ -82,31 +90,81 @@ class _DampedPlant(DisturbanceModel):
         """The declared plant with every damping constant times ``damping_scale``."""
         plant = super().plant_params(model)
         k = self.damping_scale
-        return plant.replace(zeta_b=np.asarray(plant.zeta_b) * k, zeta_sh=np.asarray(plant.zeta_sh) * k,
-                             zeta_a=np.asarray(plant.zeta_a) * k)
+        return plant.replace(
+            zeta_b=np.asarray(plant.zeta_b) * k,
+            zeta_sh=np.asarray(plant.zeta_sh) * k,
+            zeta_a=np.asarray(plant.zeta_a) * k,
+        )
 
 
 DEFAULT = DisturbanceModel()
 ROWS = (
-    Row("default", "the declared world (noise, 6 ms mocap and 2 ms actuation latency, mismatch, 5.76 rad/s cap)"),
-    Row("no_noise", "pose noise sigma = 0", dataclasses.replace(DEFAULT, pose_noise_std=(0.0, 0.0, 0.0))),
-    Row("no_meas_latency", "mocap latency 6 ms -> 0", dataclasses.replace(DEFAULT, measurement_latency=0.0)),
-    Row("no_act_latency", "actuation latency 2 ms -> 0", dataclasses.replace(DEFAULT, actuation_latency=0.0)),
-    Row("no_speed_cap", "servo speed cap 5.76 rad/s -> none", dataclasses.replace(DEFAULT, servo_max_speed=math.inf)),
-    Row("no_mismatch", "plant = model (stiffness 1, C_eps 1, sigma_a_eq offset 0)",
-        dataclasses.replace(DEFAULT, stiffness_scale=1.0, elongation_scale=1.0, rest_strain_offset=0.0)),
+    Row(
+        "default",
+        "the declared world (noise, 6 ms mocap and 2 ms actuation latency, mismatch, 5.76 rad/s "
+        "cap)",
+    ),
+    Row(
+        "no_noise",
+        "pose noise sigma = 0",
+        dataclasses.replace(DEFAULT, pose_noise_std=(0.0, 0.0, 0.0)),
+    ),
+    Row(
+        "no_meas_latency",
+        "mocap latency 6 ms -> 0",
+        dataclasses.replace(DEFAULT, measurement_latency=0.0),
+    ),
+    Row(
+        "no_act_latency",
+        "actuation latency 2 ms -> 0",
+        dataclasses.replace(DEFAULT, actuation_latency=0.0),
+    ),
+    Row(
+        "no_speed_cap",
+        "servo speed cap 5.76 rad/s -> none",
+        dataclasses.replace(DEFAULT, servo_max_speed=math.inf),
+    ),
+    Row(
+        "no_mismatch",
+        "plant = model (stiffness 1, C_eps 1, sigma_a_eq offset 0)",
+        dataclasses.replace(
+            DEFAULT, stiffness_scale=1.0, elongation_scale=1.0, rest_strain_offset=0.0
+        ),
+    ),
     Row("kd_zero", "K_d = 0 (P-I only)", kd=0.0),
-    Row("kd_0.01", "K_d = 0.01 (P-satI-D only: the paper's own remedy of 2023-10-19 against D-term oscillations)",
-        kd=0.01),
+    Row(
+        "kd_0.01",
+        "K_d = 0.01 (P-satI-D only: the paper's own remedy of 2023-10-19 against D-term "
+        "oscillations)",
+        kd=0.01,
+    ),
     Row("rate_200", "control rate 40 Hz -> 200 Hz (integrator dt follows)", rate=200.0),
-    Row("exact_derivative", "SG derivative -> plant's exact velocity (no lag, no noise)", exact_derivative=True),
-    Row("all_off", "DisturbanceModel.none(): no noise, latency, mismatch or cap", DisturbanceModel.none()),
-    Row("cap_only", "DisturbanceModel.none() plus the 5.76 rad/s cap",
-        dataclasses.replace(DisturbanceModel.none(), servo_max_speed=DEFAULT.servo_max_speed)),
-    Row("sg_window_80", "SG window 20 -> 80 samples (0.4 s: the span of the September runs' 16-sample fit at "
-        "40 Hz; a stand-in for that smoothing spline)", estimator_window=80),
-    Row("damping_x3", "plant damping constants x3 (hand-tuned in the paper, not identified)",
-        _DampedPlant(damping_scale=3.0)),
+    Row(
+        "exact_derivative",
+        "SG derivative -> plant's exact velocity (no lag, no noise)",
+        exact_derivative=True,
+    ),
+    Row(
+        "all_off",
+        "DisturbanceModel.none(): no noise, latency, mismatch or cap",
+        DisturbanceModel.none(),
+    ),
+    Row(
+        "cap_only",
+        "DisturbanceModel.none() plus the 5.76 rad/s cap",
+        dataclasses.replace(DisturbanceModel.none(), servo_max_speed=DEFAULT.servo_max_speed),
+    ),
+    Row(
+        "sg_window_80",
+        "SG window 20 -> 80 samples (0.4 s: the span of the September runs' 16-sample fit at "
+        "40 Hz; a stand-in for that smoothing spline)",
+        estimator_window=80,
+    ),
+    Row(
+        "damping_x3",
+        "plant damping constants x3 (hand-tuned in the paper, not identified)",
+        _DampedPlant(damping_scale=3.0),
+    ),
 )
 
 
@@ -114,7 +172,8 @@ _ee_velocity = jax.jit(lambda plant, q, q_dot: kinematics.end_effector_jacobian(
 
 
 class _ExactDerivative:
-    """Stand-in for the Savitzky–Golay estimator: the plant's exact [q_dot, chiee_dot] now (no lag, no noise)."""
+    """Stand-in for the Savitzky–Golay estimator: the plant's exact [q_dot, chiee_dot] now (no lag,
+    no noise)."""
 
     world: World | None = None
 
@@ -126,16 +185,20 @@ class _ExactDerivative:
         world = _ExactDerivative.world
         q, q_dot = world.x[:3], world.x[3:]
         chiee_dot = _ee_velocity(world.plant, q, q_dot)
-        return Estimate(np.asarray(x), np.concatenate([np.asarray(q_dot), np.asarray(chiee_dot)]), True, "exact")
+        return Estimate(
+            np.asarray(x), np.concatenate([np.asarray(q_dot), np.asarray(chiee_dot)]), True, "exact"
+        )
 
 
 class _World(World):
-    """World that registers itself for _ExactDerivative and, with zero mocap latency, hands a tick its own sample.
+    """World that registers itself for _ExactDerivative and, with zero mocap latency, hands a tick
+    its own sample.
 
     hsa_core.sim.world.World draws the sample stamped t when it starts the interval after t, so with
-    ``measurement_latency = 0`` run_experiment asks again and again for instant t and never advances (it hangs; reported
-    to the lead). Here a sample due at the instant the world stops at is drawn there (the pose at t, available at t);
-    the World's own draw for that stamp is dropped. Without zero latency nothing changes."""
+    ``measurement_latency = 0`` run_experiment asks again and again for instant t and never advances
+    (it hangs; reported to the lead). Here a sample due at the instant the world stops at is drawn
+    there (the pose at t, available at t); the World's own draw for that stamp is dropped. Without
+    zero latency nothing changes."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)
@@ -143,7 +206,8 @@ class _World(World):
         _ExactDerivative.world = self
 
     def advance_to(self, t_ns: int) -> None:
-        """Advance as World does, then draw the sample due now (zero latency only); drop duplicate stamps."""
+        """Advance as World does, then draw the sample due now (zero latency only); drop duplicate
+        stamps."""
         super().advance_to(t_ns)
         if self._sample_latency_ns == 0:
             self._samples = deque(s for s in self._samples if s.stamp_ns > self._drawn_ns)
@@ -173,11 +237,14 @@ def _exact_derivative() -> Iterator[None]:
 def truncated(reference: TimedReference, duration: float) -> TimedReference:
     """The reference cut to its first ``duration`` seconds (as hsa_experiment --duration does)."""
     keep = reference.t < duration
-    return TimedReference(reference.t[keep], reference.p_des[keep], reference.name, min(duration, reference.duration))
+    return TimedReference(
+        reference.t[keep], reference.p_des[keep], reference.name, min(duration, reference.duration)
+    )
 
 
 def oscillation(result: ExperimentResult) -> dict[str, float]:
-    """Peak-to-peak of true x and φ range over the last 2 s, dominant frequency of x − x_des (steps ≥ 2)."""
+    """Peak-to-peak of true x and φ range over the last 2 s, dominant frequency of x − x_des (steps
+    ≥ 2)."""
     log = result.log
     x_true = result.true_chiee[:, 0]
     err = log.chiee_des[:, 0] - log.chiee[:, 0]
@@ -208,10 +275,12 @@ def oscillation(result: ExperimentResult) -> dict[str, float]:
 
 
 def linear_analysis() -> dict[str, object]:
-    """Linearised x-loop of the PID at φ = φ_max/2 on the default plant: mode, SG response, margins, rate-limit bound.
+    """Linearised x-loop of the PID at φ = φ_max/2 on the default plant: mode, SG response, margins,
+    rate-limit bound.
 
-    Approximate (continuous-time equivalent of the 40 Hz loop: zero-order hold as (1 − e^(−jωT))/(jωT), the newest
-    mocap sample 10 ms old at a tick (stamp on the 5 ms grid, 6 ms latency), 2 ms actuation latency, x-loop alone)."""
+    Approximate (continuous-time equivalent of the 40 Hz loop: zero-order hold as (1 −
+    e^(−jωT))/(jωT), the newest mocap sample 10 ms old at a tick (stamp on the 5 ms grid, 6 ms
+    latency), 2 ms actuation latency, x-loop alone)."""
     model = load_params("fpu")
     plant = DEFAULT.plant_params(model)
     phi0 = jnp.full(2, float(np.min(np.asarray(model.phi_max))) / 2.0)
@@ -219,7 +288,9 @@ def linear_analysis() -> dict[str, object]:
     x0 = jnp.asarray(simulation.steady_state_rollout(plant, phi0)).at[3:].set(0.0)
     rhs = lambda x, phi: jnp.concatenate([x[3:], q_ddot(x[:3], x[3:], phi)])  # noqa: E731
     a = np.asarray(jax.jacfwd(rhs, 0)(x0, phi0))
-    b = np.asarray(jax.jacfwd(rhs, 1)(x0, phi0)) @ np.array([[1.0, 1.0], [-1.0, 1.0]])  # u = (u_x, u_y) -> φ
+    b = np.asarray(jax.jacfwd(rhs, 1)(x0, phi0)) @ np.array(
+        [[1.0, 1.0], [-1.0, 1.0]]
+    )  # u = (u_x, u_y) -> φ
     c = np.asarray(jax.jacfwd(lambda x: kinematics.end_effector_pose(plant, x[:3]))(x0))[:2]
     eig = np.linalg.eigvals(a)
     mode = eig[np.argmin(np.where(eig.imag > 0, np.abs(eig), np.inf))]
@@ -236,37 +307,59 @@ def linear_analysis() -> dict[str, object]:
         w = 2.0 * math.pi * f
         derivative = 1j * w * np.exp(-1j * w * 0.004) if exact else sg(w) * np.exp(-1j * w * 0.010)
         law = (gains.kp + gains.ki / (1j * w)) * np.exp(-1j * w * 0.010) + kd * derivative
-        hold = (1.0 - np.exp(-1j * w * period)) / (1j * w * period) * np.exp(-1j * w * DEFAULT.actuation_latency)
+        hold = (
+            (1.0 - np.exp(-1j * w * period))
+            / (1j * w * period)
+            * np.exp(-1j * w * DEFAULT.actuation_latency)
+        )
         return p_x(w) * law * hold
 
     freqs = np.linspace(1.0, 19.9, 1891)
     cases = {}
-    for name, exact, kd in (("sg_derivative", False, gains.kd), ("exact_derivative", True, gains.kd),
-                            ("kd_zero", False, 0.0)):
+    for name, exact, kd in (
+        ("sg_derivative", False, gains.kd),
+        ("exact_derivative", True, gains.kd),
+        ("kd_zero", False, 0.0),
+    ):
         values = np.array([loop(f, exact, kd) for f in freqs])
         phase = np.degrees(np.unwrap(np.angle(values)))
         crossing = np.where(np.diff(np.sign(phase + 180.0)))[0]
         k = int(crossing[0]) if len(crossing) else -1
-        cases[name] = {"f_phase_180_hz": float(freqs[k]) if k >= 0 else None,
-                       "gain_at_phase_180": float(abs(values[k])) if k >= 0 else None,
-                       "gain_at_10hz": float(abs(loop(10.0, exact, kd))),
-                       "phase_at_10hz_deg": float(np.degrees(np.angle(loop(10.0, exact, kd))))}
+        cases[name] = {
+            "f_phase_180_hz": float(freqs[k]) if k >= 0 else None,
+            "gain_at_phase_180": float(abs(values[k])) if k >= 0 else None,
+            "gain_at_10hz": float(abs(loop(10.0, exact, kd))),
+            "phase_at_10hz_deg": float(np.degrees(np.angle(loop(10.0, exact, kd)))),
+        }
     f_lc = 10.13
-    triangle = DEFAULT.servo_max_speed / (4.0 * f_lc)  # amplitude of a full-speed triangle at f_lc [rad]
+    triangle = DEFAULT.servo_max_speed / (
+        4.0 * f_lc
+    )  # amplitude of a full-speed triangle at f_lc [rad]
     return {
         "operating_point": "FPU plant (default mismatch), phi = phi_max/2 on both rods, at rest",
         "bending_mode_hz": float(abs(mode) / (2.0 * math.pi)),
         "bending_mode_damping_ratio": float(-mode.real / abs(mode)),
         "static_dx_dux_mm_per_rad": 1e3 * float(p_x(1e-6).real),
         "plant_gain_ratio_at_10hz": float(abs(p_x(2.0 * math.pi * 10.0)) / abs(p_x(1e-6))),
-        "sg_gain_vs_ideal": {f"{f:g}_hz": float(abs(sg(2 * math.pi * f) / (2j * math.pi * f))) for f in (2, 5, 10, 12)},
-        "sg_phase_vs_ideal_deg": {f"{f:g}_hz": float(np.degrees(np.angle(sg(2 * math.pi * f) / (2j * math.pi * f))))
-                                  for f in (2, 5, 10, 12)},
+        "sg_gain_vs_ideal": {
+            f"{f:g}_hz": float(abs(sg(2 * math.pi * f) / (2j * math.pi * f)))
+            for f in (2, 5, 10, 12)
+        },
+        "sg_phase_vs_ideal_deg": {
+            f"{f:g}_hz": float(np.degrees(np.angle(sg(2 * math.pi * f) / (2j * math.pi * f))))
+            for f in (2, 5, 10, 12)
+        },
         "loop": cases,
         "rate_limit_bound": {
-            "f_hz": f_lc, "max_sinusoid_amplitude_rad": DEFAULT.servo_max_speed / (2.0 * math.pi * f_lc),
+            "f_hz": f_lc,
+            "max_sinusoid_amplitude_rad": DEFAULT.servo_max_speed / (2.0 * math.pi * f_lc),
             "triangle_amplitude_rad": triangle,
-            "x_p2p_predicted_mm": 1e3 * 2.0 * abs(p_x(2.0 * math.pi * f_lc)) * 8.0 / math.pi ** 2 * triangle,
+            "x_p2p_predicted_mm": 1e3
+            * 2.0
+            * abs(p_x(2.0 * math.pi * f_lc))
+            * 8.0
+            / math.pi**2
+            * triangle,
         },
     }
 
@@ -276,7 +369,9 @@ def run_row(row: Row, law: str, reference: TimedReference) -> dict[str, object]:
     gains = default_gains(law, "fpu")
     if row.kd is not None:
         gains = dataclasses.replace(gains, kd=row.kd)
-    config = ExperimentConfig("fpu", law, reference=reference, rate=row.rate, disturbance=row.disturbance, gains=gains)
+    config = ExperimentConfig(
+        "fpu", law, reference=reference, rate=row.rate, disturbance=row.disturbance, gains=gains
+    )
     experiment.World, experiment.ESTIMATOR_WINDOW = _World, row.estimator_window
     try:
         with _exact_derivative() if row.exact_derivative else contextlib.nullcontext():
@@ -285,24 +380,38 @@ def run_row(row: Row, law: str, reference: TimedReference) -> dict[str, object]:
         experiment.World, experiment.ESTIMATOR_WINDOW = World, ESTIMATOR_WINDOW
     m = result.metrics
     return {
-        "row": row.name, "law": law, "change": row.change, "duration_s": reference.duration,
-        "rmse_mm": 1e3 * m.rmse, "e_ss_mm": 1e3 * m.steady_state_error_mean,
-        "e_ss_true_mm": 1e3 * result.true_steady_state_error(), "overshoot_percent": m.overshoot_percent_mean,
-        "t_r_s": m.response_time_mean, "saturated_fraction": m.saturated_fraction, **oscillation(result),
+        "row": row.name,
+        "law": law,
+        "change": row.change,
+        "duration_s": reference.duration,
+        "rmse_mm": 1e3 * m.rmse,
+        "e_ss_mm": 1e3 * m.steady_state_error_mean,
+        "e_ss_true_mm": 1e3 * result.true_steady_state_error(),
+        "overshoot_percent": m.overshoot_percent_mean,
+        "t_r_s": m.response_time_mean,
+        "saturated_fraction": m.saturated_fraction,
+        **oscillation(result),
         "wall_s": result.wall_time,
     }
 
 
 def _table(records: list[dict[str, object]]) -> str:
     """Markdown table of the records."""
-    lines = ["| law | row | RMSE [mm] | e_ss [mm] | overshoot [%] | p2p x mean / max [mm] | f [Hz] | φ last 2 s [rad] "
-             "| sat. |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| law | row | RMSE [mm] | e_ss [mm] | overshoot [%] | p2p x mean / max [mm] | f [Hz] | φ "
+        "last 2 s [rad] "
+        "| sat. |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in records:
         lines.append(
-            f"| {r['law']} | {r['row']} | {r['rmse_mm']:.2f} | {r['e_ss_mm']:.2f} | {r['overshoot_percent']:.1f} "
-            f"| {r['p2p_x_mean_mm']:.2f} / {r['p2p_x_max_mm']:.2f} | {r['dominant_frequency_hz']:.2f} "
+            f"| {r['law']} | {r['row']} | {r['rmse_mm']:.2f} | {r['e_ss_mm']:.2f} | "
+            f"{r['overshoot_percent']:.1f} "
+            f"| {r['p2p_x_mean_mm']:.2f} / {r['p2p_x_max_mm']:.2f} | "
+            f"{r['dominant_frequency_hz']:.2f} "
             f"| {r['phi_min_last2s_rad']:.2f}–{r['phi_max_last2s_rad']:.2f} "
-            f"| {100 * r['saturated_fraction']:.0f} % |")
+            f"| {100 * r['saturated_fraction']:.0f} % |"
+        )
     return "\n".join(lines)
 
 
@@ -310,15 +419,24 @@ def main() -> None:
     """Run the selected rows for the selected laws, print a markdown table and write the JSON."""
     configure_jax()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=40.0, help="truncate the FPU step list [s] (110 = all)")
+    parser.add_argument(
+        "--duration", type=float, default=40.0, help="truncate the FPU step list [s] (110 = all)"
+    )
     parser.add_argument("--laws", default="pid,psatid")
     parser.add_argument("--rows", default=",".join(r.name for r in ROWS))
-    parser.add_argument("--full", action="store_true", help="also run the full 110 s experiment for --full-rows")
-    parser.add_argument("--full-rows", default="default,sg_window_80", help="rows run at full length with --full")
+    parser.add_argument(
+        "--full", action="store_true", help="also run the full 110 s experiment for --full-rows"
+    )
+    parser.add_argument(
+        "--full-rows", default="default,sg_window_80", help="rows run at full length with --full"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--append", action="store_true", help="add the runs to the existing JSON")
-    parser.add_argument("--analysis-only", action="store_true",
-                        help="only (re)compute the linear analysis into the existing JSON")
+    parser.add_argument(
+        "--analysis-only",
+        action="store_true",
+        help="only (re)compute the linear analysis into the existing JSON",
+    )
     args = parser.parse_args()
     if args.analysis_only:
         doc = json.loads(args.out.read_text())
@@ -331,11 +449,16 @@ def main() -> None:
     laws = args.laws.split(",")
     reference = truncated(step_reference("fpu"), args.duration)
     doc: dict[str, object] = {
-        "what": __doc__.splitlines()[0], "machine": platform.node(), "date_utc": time.strftime("%Y-%m-%dT%H:%MZ",
-                                                                                                   time.gmtime()),
-        "material": "fpu", "seed": DEFAULT.seed, "duration_s": reference.duration,
+        "what": __doc__.splitlines()[0],
+        "machine": platform.node(),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime()),
+        "material": "fpu",
+        "seed": DEFAULT.seed,
+        "duration_s": reference.duration,
         "gains": {law: dataclasses.asdict(default_gains(law, "fpu")) for law in laws},
-        "linear_analysis": linear_analysis(), "runs": [], "full_runs": [],
+        "linear_analysis": linear_analysis(),
+        "runs": [],
+        "full_runs": [],
     }
     if args.append:
         doc = json.loads(args.out.read_text())

@@ -16,8 +16,15 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="ROS 2 glue shared by the hsa-ros nodes, and the venv launcher for launch_scripts/*.launch.yaml.",
+    description=(
+        "ROS 2 glue shared by the hsa-ros nodes, and the venv launcher for "
+        "launch_scripts/*.launch.yaml."
+    ),
     license="Apache-2.0",
-    entry_points={"console_scripts": ["hsa_launch = hsa_common.launcher:main",
-                                      "hsa_compose = hsa_common.compose:main"]},
+    entry_points={
+        "console_scripts": [
+            "hsa_launch = hsa_common.launcher:main",
+            "hsa_compose = hsa_common.compose:main",
+        ]
+    },
 )

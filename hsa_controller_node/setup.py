@@ -19,7 +19,12 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Controller node: P-satI-D, P-satI-D + gravity cancellation and the task-space PID baseline at a fixed rate.",
+    description=(
+        "Controller node: P-satI-D, P-satI-D + gravity cancellation and the task-space PID "
+        "baseline at a fixed rate."
+    ),
     license="Apache-2.0",
-    entry_points={"console_scripts": ["controller_node = hsa_controller_node.controller_node:main"]},
+    entry_points={
+        "console_scripts": ["controller_node = hsa_controller_node.controller_node:main"]
+    },
 )

@@ -10,9 +10,17 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={PACKAGE: ["config/*.yaml", "config/robots/*.yaml", "config/gains/*.yaml",
-                            "config/realdata/*.csv", "config/realdata/*.yaml", "config/realdata/*.md",
-                            "config/world/*.yaml"]},
+    package_data={
+        PACKAGE: [
+            "config/*.yaml",
+            "config/robots/*.yaml",
+            "config/gains/*.yaml",
+            "config/realdata/*.csv",
+            "config/realdata/*.yaml",
+            "config/realdata/*.md",
+            "config/world/*.yaml",
+        ]
+    },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -24,10 +32,16 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports).",
+    description=(
+        "Model, planning, control, estimation and simulation of planar HSA robots (no ROS imports)."
+    ),
     license="Apache-2.0",
-    entry_points={"console_scripts": ["hsa_experiment = hsa_core.sim.experiment:main",
-                                      "hsa_robustness = hsa_core.apps.robustness:main",
-                                      "hsa_tune = hsa_core.apps.tune:main",
-                                      "hsa_calibrate = hsa_core.apps.calibrate:main"]},
+    entry_points={
+        "console_scripts": [
+            "hsa_experiment = hsa_core.sim.experiment:main",
+            "hsa_robustness = hsa_core.apps.robustness:main",
+            "hsa_tune = hsa_core.apps.tune:main",
+            "hsa_calibrate = hsa_core.apps.calibrate:main",
+        ]
+    },
 )

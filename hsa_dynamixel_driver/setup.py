@@ -19,7 +19,10 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Dynamixel driver: 4 MX-28 servos over Protocol 2.0 with one sync read and one sync write per cycle, limits and torque safety.",
+    description=(
+        "Dynamixel driver: 4 MX-28 servos over Protocol 2.0 with one sync read and one sync write "
+        "per cycle, limits and torque safety."
+    ),
     license="Apache-2.0",
     entry_points={"console_scripts": ["dynamixel_driver = hsa_dynamixel_driver.node:main"]},
 )

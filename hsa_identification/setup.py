@@ -19,7 +19,10 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Excitation (steps, staircases, GBN), rest-strain calibration, least-squares identification, model verification and the workspace map.",
+    description=(
+        "Excitation (steps, staircases, GBN), rest-strain calibration, least-squares "
+        "identification, model verification and the workspace map."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -19,11 +19,16 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap "
-                "sample; marker node: RViz/Foxglove markers of the robot and the setpoint.",
+    description=(
+        "Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation "
+        "per mocap "
+        "sample; marker node: RViz/Foxglove markers of the robot and the setpoint."
+    ),
     license="Apache-2.0",
-    entry_points={"console_scripts": [
-        "kinematics_node = hsa_kinematics_node.node:main",
-        "marker_node = hsa_kinematics_node.marker_node:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "kinematics_node = hsa_kinematics_node.node:main",
+            "marker_node = hsa_kinematics_node.marker_node:main",
+        ]
+    },
 )

@@ -19,7 +19,10 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Motion-capture bridge: PoseStamped of the platform (and base) rigid bodies -> validated planar end-effector pose in the base frame.",
+    description=(
+        "Motion-capture bridge: PoseStamped of the platform (and base) rigid bodies -> validated "
+        "planar end-effector pose in the base frame."
+    ),
     license="Apache-2.0",
     entry_points={"console_scripts": ["mocap_bridge = hsa_mocap_bridge.node:main"]},
 )

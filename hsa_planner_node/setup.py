@@ -19,7 +19,10 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Planner node: steady-state setpoint planning service and a setpoint sequencer for step and contour trajectories.",
+    description=(
+        "Planner node: steady-state setpoint planning service and a setpoint sequencer for step "
+        "and contour trajectories."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -19,7 +19,10 @@ setup(
     zip_safe=True,
     maintainer="hsa-ros developers",
     maintainer_email="hsa-ros@example.org",
-    description="Simulator node replacing the hardware: emulated MX-28 bus on a pseudo-terminal and mocap poses from the JAX model.",
+    description=(
+        "Simulator node replacing the hardware: emulated MX-28 bus on a pseudo-terminal and mocap "
+        "poses from the JAX model."
+    ),
     license="Apache-2.0",
     entry_points={"console_scripts": ["sim_node = hsa_sim_node.node:main"]},
 )

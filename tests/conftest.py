@@ -1,4 +1,5 @@
-"""Session-wide test set-up: the project ROS environment is applied before rclpy is imported or anything spawned."""
+"""Session-wide test set-up: the project ROS environment is applied before rclpy is imported or
+anything spawned."""
 
 import os
 import signal
@@ -6,13 +7,18 @@ import signal
 from hsa_common import rosenv
 from hsa_core.jaxsetup import configure_jax
 
-# Tests run every generated message setter with its type/size checks (off by default in Jazzy for speed), so a
-# node that fills a field wrongly fails here instead of on the robot. Child processes inherit it.
+# Tests run every generated message setter with its type/size checks (off by default in Jazzy for
+# speed), so a node that fills a field wrongly fails here instead of on the robot. Child processes
+# inherit it.
 os.environ["ROS_PYTHON_CHECK_FIELDS"] = "1"
-# The tests model a terminal session: a SIGHUP ignored by whoever started the run (nohup, a CI runner) would be
-# inherited by every process they start and make each node behave as started with nohup (not tied to its parent,
-# deaf to a closed terminal), so the session starts its processes with SIGHUP's default action.
+# The tests model a terminal session: a SIGHUP ignored by whoever started the run (nohup, a CI
+# runner) would be inherited by every process they start and make each node behave as started with
+# nohup (not tied to its parent, deaf to a closed terminal), so the session starts its processes
+# with SIGHUP's default action.
 if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
     signal.signal(signal.SIGHUP, signal.SIG_DFL)
-ROS_DOMAIN_ID = rosenv.apply(rosenv.reserve_domain_id())  # run-specific: a test session never takes the user's domain
-configure_jax()  # the test process is an entry point like any other (hsa_core's import sets nothing)
+ROS_DOMAIN_ID = rosenv.apply(
+    rosenv.reserve_domain_id()
+)  # run-specific: a test session never takes the user's domain
+# the test process is an entry point like any other (hsa_core's import sets nothing)
+configure_jax()

@@ -1,11 +1,13 @@
-"""Message definitions for writing bags: the rosbags Jazzy typestore plus interface packages installed on the system.
+"""Message definitions for writing bags: the rosbags Jazzy typestore plus interface packages
+installed on the system.
 
-A type that the Jazzy store lacks (``hsa_msgs/msg/ControllerInfo``) is registered from the ``.msg`` text its package
-installs (ament index: ``<prefix>/share/<pkg>/msg/*.msg``; without AMENT_PREFIX_PATH, the running Python's prefix,
-which is the ROS install prefix of the project venv). All messages of the package are registered together,
-and packages referenced by nested fields are registered in turn, so the schema rosbags writes into the bag is
-complete. The resulting RIHS01 hashes equal the rosidl ones (toolchain.md §6). :func:`message_class` imports the
-generated Python class of a type for (raw) subscriptions and publishers.
+A type that the Jazzy store lacks (``hsa_msgs/msg/ControllerInfo``) is registered from the ``.msg``
+text its package installs (ament index: ``<prefix>/share/<pkg>/msg/*.msg``; without
+AMENT_PREFIX_PATH, the running Python's prefix, which is the ROS install prefix of the project
+venv). All messages of the package are registered together, and packages referenced by nested fields
+are registered in turn, so the schema rosbags writes into the bag is complete. The resulting RIHS01
+hashes equal the rosidl ones (toolchain.md §6). :func:`message_class` imports the generated Python
+class of a type for (raw) subscriptions and publishers.
 """
 
 from __future__ import annotations
@@ -22,11 +24,13 @@ from rosbags.typesys.store import Typestore
 
 
 class UnknownTypeError(LookupError):
-    """A message type is neither a standard Jazzy type nor defined by an installed package's .msg files."""
+    """A message type is neither a standard Jazzy type nor defined by an installed package's .msg
+    files."""
 
 
 def _named_types(field: tuple[Nodetype, object]) -> Iterator[str]:
-    """Names of the message types a rosbags field definition refers to (through arrays and sequences)."""
+    """Names of the message types a rosbags field definition refers to (through arrays and
+    sequences)."""
     kind, detail = field
     if kind == Nodetype.NAME:
         yield str(detail)
@@ -44,7 +48,8 @@ def _share_directory(package: str) -> Path | None:
 
 
 def message_class(msgtype: str) -> type:
-    """The generated Python class of ``pkg/msg/Type`` (ImportError/AttributeError if it is not installed)."""
+    """The generated Python class of ``pkg/msg/Type`` (ImportError/AttributeError if it is not
+    installed)."""
     package, kind, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
@@ -57,7 +62,8 @@ class TypeRegistry:
         self._packages: set[str] = set()
 
     def ensure(self, msgtype: str) -> None:
-        """Make ``msgtype`` (``pkg/msg/Type``) and every type it nests known; raise UnknownTypeError naming the gap."""
+        """Make ``msgtype`` (``pkg/msg/Type``) and every type it nests known; raise UnknownTypeError
+        naming the gap."""
         pending = [msgtype]
         seen: set[str] = set()
         while pending:
@@ -68,7 +74,9 @@ class TypeRegistry:
             if name not in self.store.fielddefs:
                 self._register_package(name)
             if name not in self.store.fielddefs:
-                raise UnknownTypeError(f"type {name} is not defined by the package's installed .msg files")
+                raise UnknownTypeError(
+                    f"type {name} is not defined by the package's installed .msg files"
+                )
             _, fields = self.store.fielddefs[name]
             pending += [nested for _, field in fields for nested in _named_types(field)]
 
@@ -80,10 +88,13 @@ class TypeRegistry:
         share = _share_directory(package)
         if share is None:
             raise UnknownTypeError(
-                f"type {msgtype} is not a standard Jazzy type and package {package} is not installed"
+                f"type {msgtype} is not a standard Jazzy type and package {package} is not "
+                "installed"
             )
         types = {}
         for path in sorted((share / "msg").glob("*.msg")):
-            types.update(get_types_from_msg(path.read_text(encoding="utf8"), f"{package}/msg/{path.stem}"))
+            types.update(
+                get_types_from_msg(path.read_text(encoding="utf8"), f"{package}/msg/{path.stem}")
+            )
         self.store.register(types)
         self._packages.add(package)

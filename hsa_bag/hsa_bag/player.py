@@ -1,39 +1,44 @@
 """bag_player: publish a bag into the live graph with the recorded timing.
 
-``bag_player BAG [--topics T ...] [--remap FROM:=TO ...] [--rate R] [--start-offset S] [--loop [N]] [--clock [HZ]]
-[--delay S] [--wait-for-subscribers [TIMEOUT]] [--wait-topics T ...] [--busy-wait-ms MS] [--ros-args ...]``
+``bag_player BAG [--topics T ...] [--remap FROM:=TO ...] [--rate R] [--start-offset S] [--loop [N]]
+[--clock [HZ]] [--delay S] [--wait-for-subscribers [TIMEOUT]] [--wait-topics T ...] [--busy-wait-ms
+MS] [--ros-args ...]``
 
-* **Order and timing.** Messages are published in timestamp order across all files of the bag (:mod:`hsa_bag.bagio`),
-  whatever the order of files and chunks. Message i of pass k is due at monotonic time
-  ``t0 + (t_i + k·loop_span − t_first) / rate``, where ``t_first = bag start + start offset``; the player sleeps
-  until ``busy_wait`` before that and busy-waits the rest (the OS wakes sleepers up to a scheduler tick late), and
-  pacing uses ``time.monotonic`` only, so wall-clock jumps do not matter.
-* **Loop.** ``--loop`` repeats forever, ``--loop N`` plays N passes. Pass k is shifted by ``k·loop_span`` with
-  ``loop_span`` = played span + one mean message period, so playback time and /clock never go backwards. Message
-  contents (header stamps included) are published as recorded.
-* **/clock.** With ``--clock [HZ]`` (default 40 Hz, as ``ros2 bag play --clock``) rosgraph_msgs/Clock carries the
-  playback time, first at the start time, then every 1/HZ s of wall time, reliable keep-last 1 (compatible with
-  best-effort and reliable subscribers).
-* **Topics.** ``--topics`` selects by recorded name; ``--remap FROM:=TO`` publishes FROM under TO. Messages go out as
-  the recorded bytes; each type's class comes from ``importlib`` (``<pkg>.msg``) and the QoS from the offers stored in
-  the bag (:func:`hsa_bag.qos.publisher_profile`).
-* **Start.** ``--wait-for-subscribers`` first waits (bounded) for a subscriber on every played topic, or only on the
-  recorded names given to ``--wait-topics`` (e.g. the inputs of the nodes under test, not topics only a recorder or
-  viewer may take).
-* **Lockstep** (ROS parameter ``lockstep: true``, with ``use_sim_time``; the replay graph's default): the player owns
-  /clock and plays losslessly and deterministically, whatever the machine's load. It coordinates the barrier of
-  :mod:`hsa_core.sim.lockstep` (decisions in :mod:`hsa_core.sim.playback`): simulated time starts once the nodes named in the
-  parameter ``participants`` have reported and every topic the player publishes is matched by the participants that
-  take it; each message is published at the instant of its log time (timer dues of the participants in between are
-  instants of their own), after every message before it has been taken and the instant's timers have run. ``--rate``,
-  ``--clock HZ`` and ``--busy-wait-ms`` do not apply. An instant not finished within ``barrier_timeout`` s of wall
-  time (10× that for the start) is an ERROR naming what holds it, and the player exits 1.
-* **Output.** Progress goes through the node's logger (stderr, which ``ros2 launch`` shows on the screen; stdout
-  it sends to the log file only): ``ready`` once the publishers exist, then ``playing …`` and ``published …``.
-  Refusals before the node exists (bag, arguments) are one line ``bag_player: …`` on stderr.
-* **Exit code** 0 when done or stopped (SIGINT, SIGTERM, SIGHUP, SIGQUIT, or the end of the process that started
-  it: :mod:`hsa_common.parent_death`), 1 after a lockstep barrier timeout or when its launcher had already ended, 2
-  for a bad bag, argument or parameter.
+* **Order and timing.** Messages are published in timestamp order across all files of the bag
+  (:mod:`hsa_bag.bagio`), whatever the order of files and chunks. Message i of pass k is due at
+  monotonic time ``t0 + (t_i + k·loop_span − t_first) / rate``, where ``t_first = bag start + start
+  offset``; the player sleeps until ``busy_wait`` before that and busy-waits the rest (the OS wakes
+  sleepers up to a scheduler tick late), and pacing uses ``time.monotonic`` only, so wall-clock
+  jumps do not matter.
+* **Loop.** ``--loop`` repeats forever, ``--loop N`` plays N passes. Pass k is shifted by
+  ``k·loop_span`` with ``loop_span`` = played span + one mean message period, so playback time and
+  /clock never go backwards. Message contents (header stamps included) are published as recorded.
+* **/clock.** With ``--clock [HZ]`` (default 40 Hz, as ``ros2 bag play --clock``)
+  rosgraph_msgs/Clock carries the playback time, first at the start time, then every 1/HZ s of wall
+  time, reliable keep-last 1 (compatible with best-effort and reliable subscribers).
+* **Topics.** ``--topics`` selects by recorded name; ``--remap FROM:=TO`` publishes FROM under TO.
+  Messages go out as the recorded bytes; each type's class comes from ``importlib`` (``<pkg>.msg``)
+  and the QoS from the offers stored in the bag (:func:`hsa_bag.qos.publisher_profile`).
+* **Start.** ``--wait-for-subscribers`` first waits (bounded) for a subscriber on every played
+  topic, or only on the recorded names given to ``--wait-topics`` (e.g. the inputs of the nodes
+  under test, not topics only a recorder or viewer may take).
+* **Lockstep** (ROS parameter ``lockstep: true``, with ``use_sim_time``; the replay graph's
+  default): the player owns /clock and plays losslessly and deterministically, whatever the
+  machine's load. It coordinates the barrier of :mod:`hsa_core.sim.lockstep` (decisions in
+  :mod:`hsa_core.sim.playback`): simulated time starts once the nodes named in the parameter
+  ``participants`` have reported and every topic the player publishes is matched by the participants
+  that take it; each message is published at the instant of its log time (timer dues of the
+  participants in between are instants of their own), after every message before it has been taken
+  and the instant's timers have run. ``--rate``, ``--clock HZ`` and ``--busy-wait-ms`` do not apply.
+  An instant not finished within ``barrier_timeout`` s of wall time (10× that for the start) is an
+  ERROR naming what holds it, and the player exits 1.
+* **Output.** Progress goes through the node's logger (stderr, which ``ros2 launch`` shows on the
+  screen; stdout it sends to the log file only): ``ready`` once the publishers exist, then ``playing
+  …`` and ``published …``. Refusals before the node exists (bag, arguments) are one line
+  ``bag_player: …`` on stderr.
+* **Exit code** 0 when done or stopped (SIGINT, SIGTERM, SIGHUP, SIGQUIT, or the end of the process
+  that started it: :mod:`hsa_common.parent_death`), 1 after a lockstep barrier timeout or when its
+  launcher had already ended, 2 for a bad bag, argument or parameter.
 """
 
 from __future__ import annotations
@@ -69,17 +74,30 @@ ACK_TIMEOUT = Duration(seconds=5.0)
 LOCKSTEP_SPIN = 0.01  # [s] longest wait for a participant's report while the barrier holds
 
 SPECS = (
-    ParamSpec("participants", [""], "lockstep: fully qualified names of the nodes simulated time waits for before "
-              "it starts (others join when they first report)", read_only=True),
-    ParamSpec("barrier_timeout", 30.0, "lockstep: [s] of wall time an instant may take before the run fails (the "
-              "start: 10x)", low=0.1, high=3600.0, read_only=True),
+    ParamSpec(
+        "participants",
+        [""],
+        "lockstep: fully qualified names of the nodes simulated time waits for before "
+        "it starts (others join when they first report)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "barrier_timeout",
+        30.0,
+        "lockstep: [s] of wall time an instant may take before the run fails (the start: 10x)",
+        low=0.1,
+        high=3600.0,
+        read_only=True,
+    ),
 )
-"""ROS parameters of the player (besides ``lockstep`` and ``use_sim_time``); the playback options are arguments."""
+"""ROS parameters of the player (besides ``lockstep`` and ``use_sim_time``); the playback options
+are arguments."""
 
 
 @dataclass(frozen=True)
 class Result:
-    """What a play run did: messages published, passes completed, wall time and the worst lateness [s]."""
+    """What a play run did: messages published, passes completed, wall time and the worst lateness
+    [s]."""
 
     published: int
     passes: int
@@ -89,7 +107,8 @@ class Result:
 
 
 def message_classes(bag: Bag, options: Options) -> dict[str, type]:
-    """The message class of every topic to play; BagError naming a topic not in the bag or a type not installed."""
+    """The message class of every topic to play; BagError naming a topic not in the bag or a type
+    not installed."""
     topics = list(options.topics) or sorted(bag.topics)
     for name in [*topics, *options.remap]:
         bag.topic(name)
@@ -107,10 +126,16 @@ def message_classes(bag: Bag, options: Options) -> dict[str, type]:
 
 
 class Player:
-    """Publishes one bag through one node; :meth:`play` returns when done or when ``stop`` is set."""
+    """Publishes one bag through one node; :meth:`play` returns when done or when ``stop`` is
+    set."""
 
     def __init__(
-        self, bag: Bag, options: Options, classes: dict[str, type], node: Node, stop: threading.Event,
+        self,
+        bag: Bag,
+        options: Options,
+        classes: dict[str, type],
+        node: Node,
+        stop: threading.Event,
         playback: LockstepPlayback | None = None,
     ) -> None:
         self.bag = bag
@@ -120,13 +145,19 @@ class Player:
         self.stop = stop
         self.topics = list(classes)
         self.publishers: dict[str, Publisher] = {
-            name: node.create_publisher(cls, options.remap.get(name, name), self._profile(bag, name))
+            name: node.create_publisher(
+                cls, options.remap.get(name, name), self._profile(bag, name)
+            )
             for name, cls in classes.items()
         }
         self.clock: Publisher | None = None
         if options.clock_hz > 0 or playback is not None:
             self.clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
-        self.lead = None if playback is None else node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
+        self.lead = (
+            None
+            if playback is None
+            else node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
+        )
         self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
         mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
         self.loop_span = max(bag.end - self.first, 0) + mean_period
@@ -134,8 +165,9 @@ class Player:
         self._next_clock = 0.0
 
     def _profile(self, bag: Bag, topic: str) -> QoSProfile:
-        """The recorded offers' profile; reliable in lockstep: a subscription matched just before time starts (a
-        recorder that subscribes on discovery) may not know the player yet, and only a reliable writer resends."""
+        """The recorded offers' profile; reliable in lockstep: a subscription matched just before
+        time starts (a recorder that subscribes on discovery) may not know the player yet, and only
+        a reliable writer resends."""
         profile = publisher_profile(bag.topics[topic].qos)
         if self.playback is not None:
             profile.reliability = ReliabilityPolicy.RELIABLE
@@ -146,7 +178,8 @@ class Player:
         return self.first + round((when - self._t0) * self.options.rate * 1e9)
 
     def _wait(self, target: float) -> bool:
-        """Sleep until ``busy_wait`` before monotonic time ``target``, then busy-wait; False if stopped."""
+        """Sleep until ``busy_wait`` before monotonic time ``target``, then busy-wait; False if
+        stopped."""
         remaining = target - time.monotonic() - self.options.busy_wait
         if remaining > 0 and self.stop.wait(remaining):
             return False
@@ -169,9 +202,13 @@ class Player:
         return self._wait(due)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait (bounded) until every awaited topic has a matched subscription; report the ones that have none."""
-        awaited = {n: p for n, p in self.publishers.items()
-                   if not self.options.wait_topics or n in self.options.wait_topics}
+        """Wait (bounded) until every awaited topic has a matched subscription; report the ones that
+        have none."""
+        awaited = {
+            n: p
+            for n, p in self.publishers.items()
+            if not self.options.wait_topics or n in self.options.wait_topics
+        }
         deadline = time.monotonic() + self.options.wait_for_subscribers
         while time.monotonic() < deadline and not self.stop.is_set():
             if all(p.get_subscription_count() > 0 for p in awaited.values()):
@@ -179,7 +216,9 @@ class Player:
             self.stop.wait(0.05)
         missing = [n for n, p in awaited.items() if p.get_subscription_count() == 0]
         if missing:
-            self.node.get_logger().warning(f"no subscriber for {', '.join(missing)}; playing anyway")
+            self.node.get_logger().warning(
+                f"no subscriber for {', '.join(missing)}; playing anyway"
+            )
 
     def play(self) -> Result:
         """Publish the selected messages, pass after pass; return counts and timing."""
@@ -212,13 +251,15 @@ class Player:
         return Result(published, passes, elapsed, max_late)
 
     def _wait_for_acks(self) -> None:
-        """Wait (bounded) until reliable subscribers have acknowledged every message (the last /clock too)."""
+        """Wait (bounded) until reliable subscribers have acknowledged every message (the last
+        /clock too)."""
         for pub in [*self.publishers.values(), *([self.clock] if self.clock is not None else [])]:
             if pub.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
                 pub.wait_for_all_acked(ACK_TIMEOUT)
 
     def _timeline(self, passes: list[int]) -> Iterator[tuple[str, int, bytes]]:
-        """(topic, playback time [ns], data) of every message to play, pass after pass; counts passes in ``passes``."""
+        """(topic, playback time [ns], data) of every message to play, pass after pass; counts
+        passes in ``passes``."""
         while self.options.loops == 0 or passes[0] < self.options.loops:
             shift = passes[0] * self.loop_span
             played = False
@@ -230,7 +271,8 @@ class Player:
                 return  # nothing after the start offset: another pass would spin
 
     def _play_lockstep(self, playback: LockstepPlayback) -> Result:
-        """Lockstep: publish each message at the instant of its log time, as the barrier allows (module docstring)."""
+        """Lockstep: publish each message at the instant of its log time, as the barrier allows
+        (module docstring)."""
         assert self.clock is not None
         executor = SingleThreadedExecutor()
         executor.add_node(self.node)
@@ -243,10 +285,17 @@ class Player:
         logger = self.node.get_logger()
         while not self.stop.is_set():
             started = playback.barrier.started
-            matched = lockstep.matched_of(self.node) if not started else {}  # graph queries only before the start
-            step = playback.step(None if upcoming is None else upcoming[1], matched, time.monotonic())
+            matched = (
+                lockstep.matched_of(self.node) if not started else {}
+            )  # graph queries only before the start
+            step = playback.step(
+                None if upcoming is None else upcoming[1], matched, time.monotonic()
+            )
             if playback.barrier.started and not started:
-                logger.info(f"lockstep: simulated time starts ({len(playback.barrier.reports)} participants)")
+                logger.info(
+                    f"lockstep: simulated time starts ({len(playback.barrier.reports)} "
+                    "participants)"
+                )
             if step.action is Action.PUBLISH:
                 assert upcoming is not None
                 self.publishers[upcoming[0]].publish(upcoming[2])
@@ -264,7 +313,10 @@ class Player:
                 break
             else:
                 if not playback.barrier.started:
-                    logger.info(f"lockstep: simulated time has not started: {step.reason}", throttle_duration_sec=5.0)
+                    logger.info(
+                        f"lockstep: simulated time has not started: {step.reason}",
+                        throttle_duration_sec=5.0,
+                    )
                 executor.spin_once(timeout_sec=LOCKSTEP_SPIN)
         executor.remove_node(self.node)
         executor.shutdown(timeout_sec=1.0)
@@ -289,12 +341,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bag_player: {exc}", file=sys.stderr)
         return 2
     rosenv.ensure_for_node()  # after the argument and bag checks: a refusal stays one line
-    if parent_death.tie_to_parent(signal.SIGTERM) is parent_death.Tie.ORPHANED:  # before the SIGHUP handler (nohup)
-        print("bag_player: not starting: the launcher that started it has already ended", file=sys.stderr)
+    if (
+        parent_death.tie_to_parent(signal.SIGTERM) is parent_death.Tie.ORPHANED
+    ):  # before the SIGHUP handler (nohup)
+        print(
+            "bag_player: not starting: the launcher that started it has already ended",
+            file=sys.stderr,
+        )
         return 1
     stop = threading.Event()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    parent_death.on_stop_signals(lambda *_: stop.set())  # as every node: a closed terminal or Ctrl-\ stops it
+    parent_death.on_stop_signals(
+        lambda *_: stop.set()
+    )  # as every node: a closed terminal or Ctrl-\ stops it
     node = rclpy.create_node("bag_player")
     try:
         try:
@@ -308,19 +367,38 @@ def main(argv: list[str] | None = None) -> int:
             playback = LockstepPlayback(barrier, params["barrier_timeout"])
         player = Player(bag, options, classes, node, stop, playback)
         if playback is not None:
-            barrier.own = lockstep.Participant(node, publish_acks=False).published  # live: its messages count at once
-            node.create_subscription(LockstepAck, lockstep.ACK_TOPIC, lambda m: barrier.report(lockstep.from_msg(m)),
-                                     lockstep.ACK_READER_QOS)
+            barrier.own = lockstep.Participant(
+                node, publish_acks=False
+            ).published  # live: its messages count at once
+            node.create_subscription(
+                LockstepAck,
+                lockstep.ACK_TOPIC,
+                lambda m: barrier.report(lockstep.from_msg(m)),
+                lockstep.ACK_READER_QOS,
+            )
         span = (bag.end - player.first) / 1e9
         topics = ", ".join(player.topics)
-        pace = f"in lockstep with {list(barrier.expected)}" if playback is not None else f"at rate {options.rate}"
+        pace = (
+            f"in lockstep with {list(barrier.expected)}"
+            if playback is not None
+            else f"at rate {options.rate}"
+        )
         logger = node.get_logger()
-        logger.info("ready")  # publishers and lockstep subscriptions exist, as every node's runner logs it
+        logger.info(
+            "ready"
+        )  # publishers and lockstep subscriptions exist, as every node's runner logs it
         logger.info(f"playing {path}: {topics}; {span:.3f} s of bag time {pace}")
         result = player.play()
-        summary = "lockstep" if playback is not None else f"latest {result.max_late * 1e3:.2f} ms behind schedule"
-        logger.info(f"published {result.published} messages in {result.passes} pass(es), {result.elapsed:.3f} s; "
-                    f"{summary}")
+        summary = (
+            "lockstep"
+            if playback is not None
+            else f"latest {result.max_late * 1e3:.2f} ms behind schedule"
+        )
+        logger.info(
+            f"published {result.published} messages in {result.passes} pass(es), "
+            f"{result.elapsed:.3f} s; "
+            f"{summary}"
+        )
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -1,30 +1,33 @@
-"""bag_recorder: record topics of the live graph into a rosbag2 MCAP bag (rosbags Writer, metadata version 9).
+"""bag_recorder: record topics of the live graph into a rosbag2 MCAP bag (rosbags Writer, metadata
+version 9).
 
-Every selected topic is subscribed with ``raw=True`` as soon as it has a publisher, and the serialized bytes go
-straight into the bag. The graph is searched again every ``discovery_period`` so late publishers are caught. The
-subscription QoS is adapted to the publishers' offers and the offers are stored in the bag (see
-:mod:`hsa_bag.qos`); a publisher that appears later with a weaker offer (best effort, volatile) gets the topic
-re-subscribed so it is not silently missed (discovery runs on the steady clock, also under simulated time). /clock
-is not recorded by default. In a lockstep graph the recorder is a barrier participant: with a ``topics`` list,
-simulated time does not start before every listed topic is subscribed, and the barrier then guarantees that every
-message published on them is in the bag. Types come from the Jazzy typestore and from the ``.msg`` files that
-interface packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
+Every selected topic is subscribed with ``raw=True`` as soon as it has a publisher, and the
+serialized bytes go straight into the bag. The graph is searched again every ``discovery_period`` so
+late publishers are caught. The subscription QoS is adapted to the publishers' offers and the offers
+are stored in the bag (see :mod:`hsa_bag.qos`); a publisher that appears later with a weaker offer
+(best effort, volatile) gets the topic re-subscribed so it is not silently missed (discovery runs on
+the steady clock, also under simulated time). /clock is not recorded by default. In a lockstep graph
+the recorder is a barrier participant: with a ``topics`` list, simulated time does not start before
+every listed topic is subscribed, and the barrier then guarantees that every message published on
+them is in the bag. Types come from the Jazzy typestore and from the ``.msg`` files that interface
+packages install (:mod:`hsa_bag.msgtypes`); a topic whose type is unknown is reported and skipped.
 
-**Only what decodes is recorded.** Raw bytes are not decoded by the middleware, so malformed CDR (truncated,
-garbage, a string that is not UTF-8) would reach the bag and break its readers. Each message is decoded with the very
-definition written into the bag (the rosbags typestore) before it is written; one that does not decode is left out
-and counted per topic: on /diagnostics (``undecodable <topic>``, WARN), in a WARN line at most every
-``UNDECODABLE_LOG_PERIOD``, in the final summary line and in the bag's ``custom_data`` (``hsa_bag.undecodable``).
+**Only what decodes is recorded.** Raw bytes are not decoded by the middleware, so malformed CDR
+(truncated, garbage, a string that is not UTF-8) would reach the bag and break its readers. Each
+message is decoded with the very definition written into the bag (the rosbags typestore) before it
+is written; one that does not decode is left out and counted per topic: on /diagnostics
+(``undecodable <topic>``, WARN), in a WARN line at most every ``UNDECODABLE_LOG_PERIOD``, in the
+final summary line and in the bag's ``custom_data`` (``hsa_bag.undecodable``).
 
-**Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with ``use_sim_time``)
-read in the subscription callback, in ns; in lockstep the lead clock's instant where that is ahead
-(:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before /clock). Header stamps inside the
-messages are untouched.
+**Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with
+``use_sim_time``) read in the subscription callback, in ns; in lockstep the lead clock's instant
+where that is ahead (:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before
+/clock). Header stamps inside the messages are untouched.
 
-Files, splitting and crash safety: :mod:`hsa_bag.storage`. The pending chunk is flushed at ``chunk_size`` bytes and
-every ``flush_period`` s, so a SIGKILL loses at most the last ``flush_period`` (``bag_recover`` then completes the
-unfinished split). SIGINT/SIGTERM close the bag cleanly (runner ``on_shutdown`` hook). The bag directory is logged
-at start and at the end.
+Files, splitting and crash safety: :mod:`hsa_bag.storage`. The pending chunk is flushed at
+``chunk_size`` bytes and every ``flush_period`` s, so a SIGKILL loses at most the last
+``flush_period`` (``bag_recover`` then completes the unfinished split). SIGINT/SIGTERM close the bag
+cleanly (runner ``on_shutdown`` hook). The bag directory is logged at start and at the end.
 """
 
 from __future__ import annotations
@@ -51,35 +54,78 @@ from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, 
 
 EXCLUDED = frozenset({"/rosout", "/parameter_events", "/clock"})
 UNDECODABLE_LOG_PERIOD = 5.0  # [s] steady time between two WARN lines about undecodable messages
-UNDECODABLE_KEY = "hsa_bag.undecodable"  # custom_data key: "<topic>: <count>, ..." of the messages left out
+UNDECODABLE_KEY = (
+    "hsa_bag.undecodable"  # custom_data key: "<topic>: <count>, ..." of the messages left out
+)
 
 SPECS = (
-    ParamSpec("topics", Parameter.Type.STRING_ARRAY,
-              "topics to record (relative names resolve in the node namespace); unset or empty = every topic on "
-              "the graph except /rosout, /parameter_events and hidden topics", read_only=True),
-    ParamSpec("output", "", "bag directory to create (an existing one is refused); ending in '/': a new "
-              "<YYYYmmdd-HHMMSS> directory inside it (_2, _3, ... if taken), so every start gets its own bag; "
-              "empty = out/bags/ (relative to the working directory)", read_only=True),
-    ParamSpec("max_bag_size", 0, "[bytes] start a new split before a file would exceed this; 0 = never",
-              low=0, high=2**62, read_only=True),
-    ParamSpec("max_bag_duration", 0.0, "[s] start a new split after this much receive time; 0 = never",
-              low=0.0, high=1e9, read_only=True),
-    ParamSpec("chunk_size", 64 * 1024, "[bytes] MCAP chunk size; a full chunk is written and flushed at once",
-              low=1024, high=MAX_CHUNK_SIZE, read_only=True),
-    ParamSpec("flush_period", 1.0, "[s] flush the pending chunk this often (bounds what a killed recorder loses)",
-              low=0.05, high=60.0, read_only=True),
-    ParamSpec("discovery_period", 1.0, "[s] search the graph for new topics and publishers this often",
-              low=0.05, high=60.0, read_only=True),
-)  # fmt: skip
+    ParamSpec(
+        "topics",
+        Parameter.Type.STRING_ARRAY,
+        "topics to record (relative names resolve in the node namespace); unset or empty = every "
+        "topic on "
+        "the graph except /rosout, /parameter_events and hidden topics",
+        read_only=True,
+    ),
+    ParamSpec(
+        "output",
+        "",
+        "bag directory to create (an existing one is refused); ending in '/': a new "
+        "<YYYYmmdd-HHMMSS> directory inside it (_2, _3, ... if taken), so every start gets its own "
+        "bag; "
+        "empty = out/bags/ (relative to the working directory)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_bag_size",
+        0,
+        "[bytes] start a new split before a file would exceed this; 0 = never",
+        low=0,
+        high=2**62,
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_bag_duration",
+        0.0,
+        "[s] start a new split after this much receive time; 0 = never",
+        low=0.0,
+        high=1e9,
+        read_only=True,
+    ),
+    ParamSpec(
+        "chunk_size",
+        64 * 1024,
+        "[bytes] MCAP chunk size; a full chunk is written and flushed at once",
+        low=1024,
+        high=MAX_CHUNK_SIZE,
+        read_only=True,
+    ),
+    ParamSpec(
+        "flush_period",
+        1.0,
+        "[s] flush the pending chunk this often (bounds what a killed recorder loses)",
+        low=0.05,
+        high=60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "discovery_period",
+        1.0,
+        "[s] search the graph for new topics and publishers this often",
+        low=0.05,
+        high=60.0,
+        read_only=True,
+    ),
+)
 
 
 DEFAULT_OUTPUT = "out/bags/"
 
 
 def output_path(output: str, stamp: str | None = None) -> Path:
-    """The bag directory that parameter ``output`` names: the path itself; for a value ending in '/' (or empty:
-    ``DEFAULT_OUTPUT``) a directory ``<stamp>`` inside it (default: the local date-time), or ``<stamp>_2``, ... if
-    that is taken."""
+    """The bag directory that parameter ``output`` names: the path itself; for a value ending in '/'
+    (or empty: ``DEFAULT_OUTPUT``) a directory ``<stamp>`` inside it (default: the local date-time),
+    or ``<stamp>_2``, ... if that is taken."""
     if output and not output.endswith("/"):
         return Path(output)
     parent = Path(output or DEFAULT_OUTPUT)
@@ -91,13 +137,15 @@ def output_path(output: str, stamp: str | None = None) -> Path:
 
 
 def is_hidden(topic: str) -> bool:
-    """Hidden topics have a name token starting with an underscore (e.g. action internals), as in rosbag2."""
+    """Hidden topics have a name token starting with an underscore (e.g. action internals), as in
+    rosbag2."""
     return any(token.startswith("_") for token in topic.split("/"))
 
 
 @dataclass
 class Recording:
-    """A topic being recorded: bag handle, message class, subscription and the publishers (gids) its QoS suits."""
+    """A topic being recorded: bag handle, message class, subscription and the publishers (gids) its
+    QoS suits."""
 
     handle: int
     msgtype: str
@@ -133,22 +181,32 @@ class BagRecorder(Node):
             self._bag.open()
         except FileExistsError as exc:
             raise ParameterValidationError(
-                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it (a new path, or "
+                f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it (a "
+                "new path, or "
                 f"'{self._bag.path}/' for a new date-time bag inside it)"
             ) from exc
-        self.lockstep_clock = lockstep.LeadClock(self)  # log times; lockstep instants wait until it is there
+        self.lockstep_clock = lockstep.LeadClock(
+            self
+        )  # log times; lockstep instants wait until it is there
         self._recording: dict[str, Recording] = {}
         self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
-        self._undecodable: dict[str, int] = {}  # topic -> messages left out because they do not decode
-        self._undecodable_logged = -UNDECODABLE_LOG_PERIOD  # steady time [s] of the last WARN about them
-        lockstep.wall_timer(self, params["discovery_period"], self._discover)  # discovery is a wall-clock matter
+        self._undecodable: dict[
+            str, int
+        ] = {}  # topic -> messages left out because they do not decode
+        self._undecodable_logged = (
+            -UNDECODABLE_LOG_PERIOD
+        )  # steady time [s] of the last WARN about them
+        lockstep.wall_timer(
+            self, params["discovery_period"], self._discover
+        )  # discovery is a wall-clock matter
         self.create_timer(params["flush_period"], self._bag.flush)
         Diagnostics(self).add("recording", self._report)
         self.get_logger().info(f"recording to {self._bag.path.resolve()}")
         self._discover()
 
     def lockstep_ready(self) -> bool:
-        """Lockstep: simulated time may start once every listed topic is subscribed (nothing published is lost)."""
+        """Lockstep: simulated time may start once every listed topic is subscribed (nothing
+        published is lost)."""
         if self.get_clock().now().nanoseconds > 0:
             return True  # time has started: readiness no longer matters
         self._discover()
@@ -161,7 +219,8 @@ class BagRecorder(Node):
         return topic not in EXCLUDED and not is_hidden(topic)
 
     def _discover(self) -> None:
-        """Subscribe to selected topics that have publishers now; re-adapt QoS where publishers changed."""
+        """Subscribe to selected topics that have publishers now; re-adapt QoS where publishers
+        changed."""
         for topic, types in self.get_topic_names_and_types():
             if not self._selected(topic) or topic in self._skipped:
                 continue
@@ -197,10 +256,13 @@ class BagRecorder(Node):
         self._recording[topic] = Recording(
             handle, msgtype, cls, profile, sub, frozenset(bytes(o.endpoint_gid) for o in offers)
         )
-        self.get_logger().info(f"recording {topic} [{msgtype}] ({describe(profile)}; {len(offers)} publisher(s))")
+        self.get_logger().info(
+            f"recording {topic} [{msgtype}] ({describe(profile)}; {len(offers)} publisher(s))"
+        )
 
     def _adapt(self, topic: str, offers: list[TopicEndpointInfo]) -> None:
-        """Store the current offers for the next split; re-subscribe if a publisher cannot reach the subscription."""
+        """Store the current offers for the next split; re-subscribe if a publisher cannot reach the
+        subscription."""
         rec = self._recording[topic]
         publishers = frozenset(bytes(o.endpoint_gid) for o in offers)
         if publishers == rec.publishers:
@@ -215,11 +277,14 @@ class BagRecorder(Node):
         rec.subscription = self.create_subscription(
             rec.message_class, topic, partial(self._write, topic), rec.profile, raw=True
         )
-        self.get_logger().warning(f"re-subscribed {topic} ({describe(rec.profile)}): a new publisher offers less")
+        self.get_logger().warning(
+            f"re-subscribed {topic} ({describe(rec.profile)}): a new publisher offers less"
+        )
 
     def _write(self, topic: str, data: bytes) -> None:
-        """Subscription callback: the serialized message goes into the bag, stamped with the receive time, if it
-        decodes with the bag's definition; otherwise it is counted (see the module docstring)."""
+        """Subscription callback: the serialized message goes into the bag, stamped with the receive
+        time, if it decodes with the bag's definition; otherwise it is counted (see the module
+        docstring)."""
         rec = self._recording[topic]
         try:
             self._types.store.deserialize_cdr(data, rec.msgtype)
@@ -229,14 +294,16 @@ class BagRecorder(Node):
         self._bag.write(rec.handle, self.lockstep_clock.now_ns(), data)
 
     def _left_out(self, topic: str, exc: SerdeError) -> None:
-        """Count an undecodable message of ``topic``, note the counts in the bag and warn (throttled)."""
+        """Count an undecodable message of ``topic``, note the counts in the bag and warn
+        (throttled)."""
         self._undecodable[topic] = self._undecodable.get(topic, 0) + 1
         self._bag.set_custom_data(UNDECODABLE_KEY, self._undecodable_summary())
         now = time.monotonic()
         if now - self._undecodable_logged >= UNDECODABLE_LOG_PERIOD:
             self._undecodable_logged = now
             self.get_logger().warning(
-                f"not recording undecodable messages ({self._undecodable_summary()} so far); last on {topic}: {exc}"
+                f"not recording undecodable messages ({self._undecodable_summary()} so far); last "
+                f"on {topic}: {exc}"
             )
 
     def _undecodable_summary(self) -> str:
@@ -260,14 +327,24 @@ class BagRecorder(Node):
             problems.append(f"{len(self._skipped)} topic(s) not recorded")
         if self._undecodable:
             problems.append(f"{sum(self._undecodable.values())} undecodable message(s) left out")
-        return Report(WARN, "; ".join(problems), values) if problems else Report(OK, "recording", values)
+        return (
+            Report(WARN, "; ".join(problems), values)
+            if problems
+            else Report(OK, "recording", values)
+        )
 
     def on_shutdown(self) -> None:
         """Close the bag (summary, footer, final metadata.yaml) and say where it is."""
         self._bag.close()
         files = ", ".join(p.name for p in self._bag.files) if self._bag.info else "no file"
-        left_out = f"; left out undecodable messages: {self._undecodable_summary()}" if self._undecodable else ""
-        rclpy.logging.get_logger("hsa_bag.recorder").info(  # not the node logger: its /rosout publisher is gone
+        left_out = (
+            f"; left out undecodable messages: {self._undecodable_summary()}"
+            if self._undecodable
+            else ""
+        )
+        rclpy.logging.get_logger(
+            "hsa_bag.recorder"
+        ).info(  # not the node logger: its /rosout publisher is gone
             f"wrote {self._bag.message_count} messages on {len(self._recording)} topic(s) to "
             f"{self._bag.path.resolve()} ({files}){left_out}"
         )

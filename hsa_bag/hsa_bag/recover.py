@@ -1,11 +1,13 @@
-"""Completing a bag whose recorder was killed, so that every flushed chunk of its unfinished split can be read.
+"""Completing a bag whose recorder was killed, so that every flushed chunk of its unfinished split
+can be read.
 
-After a SIGKILL a bag directory written by :class:`hsa_bag.storage.SplitBagWriter` holds the closed splits, listed in
-metadata.yaml, and one unfinished split: an MCAP file that ends after its last flushed chunk, without summary and
-footer, which indexed readers (rosbags, ``ros2 bag``) refuse. :func:`recover_bag` reads every unlisted ``.mcap``
-file record by record with the ``mcap`` package's stream reader up to the first incomplete record, writes the
-messages into a complete file of the same name (the original stays as ``<file>.truncated`` until the new file is
-closed) and lists it in metadata.yaml. Listed files are left alone.
+After a SIGKILL a bag directory written by :class:`hsa_bag.storage.SplitBagWriter` holds the closed
+splits, listed in metadata.yaml, and one unfinished split: an MCAP file that ends after its last
+flushed chunk, without summary and footer, which indexed readers (rosbags, ``ros2 bag``) refuse.
+:func:`recover_bag` reads every unlisted ``.mcap`` file record by record with the ``mcap`` package's
+stream reader up to the first incomplete record, writes the messages into a complete file of the
+same name (the original stays as ``<file>.truncated`` until the new file is closed) and lists it in
+metadata.yaml. Listed files are left alone.
 
 Command line: ``bag_recover BAG [BAG ...]``; exit code 2 if a path is not a bag directory.
 """
@@ -30,7 +32,8 @@ from hsa_bag.storage import METADATA, SplitFile, Topic, merge_info, read_metadat
 
 @dataclass(frozen=True)
 class Recovered:
-    """One completed file and the number of messages it holds (0: nothing was flushed; the file was removed)."""
+    """One completed file and the number of messages it holds (0: nothing was flushed; the file was
+    removed)."""
 
     file: Path
     messages: int
@@ -69,14 +72,19 @@ def _split_index(path: Path) -> tuple[int, str]:
 
 
 def _rewrite(found: Salvage, directory: Path, stem: str, custom_data: dict[str, str]) -> dict:
-    """Write the salvaged messages into a complete ``<directory>/<stem>.mcap``; return its bag information."""
+    """Write the salvaged messages into a complete ``<directory>/<stem>.mcap``; return its bag
+    information."""
     store = get_typestore(Stores.EMPTY)
     for schema in found.schemas.values():
         store.register(get_types_from_msg(schema.data.decode("utf8"), schema.name))
     split = SplitFile(directory, stem, custom_data)
     connections = {
         cid: split.add_connection(
-            Topic(ch.topic, found.schemas[ch.schema_id].name, parse_qos(ch.metadata.get("offered_qos_profiles", "[]"))),
+            Topic(
+                ch.topic,
+                found.schemas[ch.schema_id].name,
+                parse_qos(ch.metadata.get("offered_qos_profiles", "[]")),
+            ),
             store,
         )
         for cid, ch in found.channels.items()
@@ -87,7 +95,8 @@ def _rewrite(found: Salvage, directory: Path, stem: str, custom_data: dict[str, 
 
 
 def recover_bag(path: Path) -> list[Recovered]:
-    """Complete every unlisted MCAP file of bag directory ``path`` and list it in metadata.yaml (see module doc)."""
+    """Complete every unlisted MCAP file of bag directory ``path`` and list it in metadata.yaml (see
+    module doc)."""
     if not path.is_dir():
         raise BagError(f"{path}: not a bag directory")
     info = read_metadata(path) if (path / METADATA).is_file() else None
@@ -122,7 +131,11 @@ def main(argv: list[str] | None = None) -> int:
         if not results:
             print(f"{bag}: every file is complete and listed; nothing to do")
         for result in results:
-            what = f"completed with {result.messages} messages" if result.messages else "held no message; removed"
+            what = (
+                f"completed with {result.messages} messages"
+                if result.messages
+                else "held no message; removed"
+            )
             print(f"{result.file}: {what}")
     return status
 

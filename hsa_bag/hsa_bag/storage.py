@@ -1,21 +1,25 @@
-"""Writing rosbag2 bags (Jazzy layout, metadata version 9, MCAP storage) that split and survive a killed writer.
+"""Writing rosbag2 bags (Jazzy layout, metadata version 9, MCAP storage) that split and survive a
+killed writer.
 
-Layout, as rosbag2 Jazzy writes it: one directory ``<name>/`` holding ``<name>_0.mcap``, ``<name>_1.mcap``, … and one
-``metadata.yaml`` whose ``relative_file_paths`` and ``files`` list them. Every file is written by a rosbags
-``Writer`` (which owns a directory of its own): the writer is opened in a staging directory ``<name>/<name>_<k>/``,
-its freshly created file is moved up to ``<name>/<name>_<k>.mcap`` while open, and the staging directory removed.
-The file's own metadata (which rosbags also embeds in the MCAP) is merged into the bag's ``metadata.yaml``.
+Layout, as rosbag2 Jazzy writes it: one directory ``<name>/`` holding ``<name>_0.mcap``,
+``<name>_1.mcap``, … and one ``metadata.yaml`` whose ``relative_file_paths`` and ``files`` list
+them. Every file is written by a rosbags ``Writer`` (which owns a directory of its own): the writer
+is opened in a staging directory ``<name>/<name>_<k>/``, its freshly created file is moved up to
+``<name>/<name>_<k>.mcap`` while open, and the staging directory removed. The file's own metadata
+(which rosbags also embeds in the MCAP) is merged into the bag's ``metadata.yaml``.
 
-Crash safety: the pending MCAP chunk is closed and flushed to the operating system when it exceeds ``chunk_size``
-bytes and on :meth:`SplitBagWriter.flush` (the recorder calls it periodically), and ``metadata.yaml`` is rewritten
-atomically whenever a split is closed. After a SIGKILL the closed splits therefore form a complete, listed bag, and
-the open split holds every flushed chunk but no summary or footer; :mod:`hsa_bag.recover` completes it. (Flushing
-hands the bytes to the kernel, which survives a killed process; it does not fsync against power loss.)
+Crash safety: the pending MCAP chunk is closed and flushed to the operating system when it exceeds
+``chunk_size`` bytes and on :meth:`SplitBagWriter.flush` (the recorder calls it periodically), and
+``metadata.yaml`` is rewritten atomically whenever a split is closed. After a SIGKILL the closed
+splits therefore form a complete, listed bag, and the open split holds every flushed chunk but no
+summary or footer; :mod:`hsa_bag.recover` completes it. (Flushing hands the bytes to the kernel,
+which survives a killed process; it does not fsync against power loss.)
 
-Two McapWriter internals of rosbags 0.11.9 are used, in :class:`SplitFile` only: the pending ``chunk`` buffer with
-``close_chunk()`` (rosbags itself closes chunks at 1 MiB only) and the file object ``bio`` to flush; and its
-``close(version, metadata)`` is wrapped to record ``ros_distro: jazzy`` (rosbags writes its own name there) in the
-metadata embedded in the MCAP, as in ``metadata.yaml``.
+Two McapWriter internals of rosbags 0.11.9 are used, in :class:`SplitFile` only: the pending
+``chunk`` buffer with ``close_chunk()`` (rosbags itself closes chunks at 1 MiB only) and the file
+object ``bio`` to flush; and its ``close(version, metadata)`` is wrapped to record ``ros_distro:
+jazzy`` (rosbags writes its own name there) in the metadata embedded in the MCAP, as in
+``metadata.yaml``.
 """
 
 from __future__ import annotations
@@ -32,14 +36,16 @@ from rosbags.typesys.store import Typestore
 from ruamel.yaml import YAML
 
 VERSION = 9  # rosbag2 metadata version written by Jazzy
-ROS_DISTRO = "jazzy"  # the distribution whose bag layout and message definitions we write (rosbags writes "rosbags")
+# the distribution whose bag layout and message definitions we write (rosbags writes "rosbags")
+ROS_DISTRO = "jazzy"
 METADATA = "metadata.yaml"
 MAX_CHUNK_SIZE = 2**20  # rosbags closes chunks at 1 MiB by itself; smaller limits are ours
 Info = dict[str, Any]  # the content of ``rosbag2_bagfile_information``
 
 
 def _yaml() -> YAML:
-    """A YAML dumper/loader formatted like the rosbags (and rosbag2) metadata files, without folded long lines."""
+    """A YAML dumper/loader formatted like the rosbags (and rosbag2) metadata files, without folded
+    long lines."""
     yaml = YAML(typ="safe")
     yaml.default_flow_style = False
     yaml.width = 4096
@@ -62,7 +68,8 @@ def write_metadata(directory: Path, info: Info) -> None:
 
 
 def merge_info(total: Info | None, part: Info) -> Info:
-    """Bag information of ``total``'s files followed by the files of ``part`` (counts summed, span widened)."""
+    """Bag information of ``total``'s files followed by the files of ``part`` (counts summed, span
+    widened)."""
     if total is None:
         return part
     merged = dict(part)
@@ -73,7 +80,10 @@ def merge_info(total: Info | None, part: Info) -> Info:
     with_messages = [f for f in files if f["message_count"]]
     if with_messages:
         start = min(f["starting_time"]["nanoseconds_since_epoch"] for f in with_messages)
-        end = max(f["starting_time"]["nanoseconds_since_epoch"] + f["duration"]["nanoseconds"] for f in with_messages)
+        end = max(
+            f["starting_time"]["nanoseconds_since_epoch"] + f["duration"]["nanoseconds"]
+            for f in with_messages
+        )
     else:
         start = end = part["starting_time"]["nanoseconds_since_epoch"]
     merged["starting_time"] = {"nanoseconds_since_epoch": start}
@@ -83,14 +93,18 @@ def merge_info(total: Info | None, part: Info) -> Info:
         meta = entry["topic_metadata"]
         key = (meta["name"], meta["type"])
         count = topics[key]["message_count"] if key in topics else 0
-        topics[key] = {"topic_metadata": meta, "message_count": count + entry["message_count"]}  # latest QoS wins
+        topics[key] = {
+            "topic_metadata": meta,
+            "message_count": count + entry["message_count"],
+        }  # latest QoS wins
     merged["topics_with_message_count"] = list(topics.values())
     return merged
 
 
 @dataclass
 class Topic:
-    """A topic of a bag being written: name, type, the QoS profiles its publishers offered, messages written."""
+    """A topic of a bag being written: name, type, the QoS profiles its publishers offered, messages
+    written."""
 
     name: str
     msgtype: str
@@ -99,9 +113,12 @@ class Topic:
 
 
 class SplitFile:
-    """One MCAP file ``<directory>/<stem>.mcap`` of a bag, written by a rosbags Writer, with explicit chunk flushes."""
+    """One MCAP file ``<directory>/<stem>.mcap`` of a bag, written by a rosbags Writer, with
+    explicit chunk flushes."""
 
-    def __init__(self, directory: Path, stem: str, custom_data: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, directory: Path, stem: str, custom_data: dict[str, str] | None = None
+    ) -> None:
         staging = directory / stem
         self.path = directory / f"{stem}.mcap"
         if self.path.exists():
@@ -115,7 +132,9 @@ class SplitFile:
         storage.path.rename(self.path)  # the open file handle follows the rename
         storage.path = self.path
         staging.rmdir()
-        self._writer.metapath = directory / f".{stem}.{METADATA}"  # close() leaves this file's own metadata here
+        self._writer.metapath = (
+            directory / f".{stem}.{METADATA}"
+        )  # close() leaves this file's own metadata here
         self.first_timestamp: int | None = None  # of the first message written
 
     def set_custom_data(self, key: str, value: str) -> None:
@@ -123,7 +142,8 @@ class SplitFile:
         self._writer.set_custom_data(key, value)
 
     def add_connection(self, topic: Topic, typestore: Typestore) -> Connection:
-        """Register a topic in this file (its schema from ``typestore``, its offered QoS in the channel metadata)."""
+        """Register a topic in this file (its schema from ``typestore``, its offered QoS in the
+        channel metadata)."""
         return self._writer.add_connection(
             topic.name, topic.msgtype, typestore=typestore, offered_qos_profiles=topic.qos
         )
@@ -149,7 +169,8 @@ class SplitFile:
         return storage.chunk.bio.tell()
 
     def flush(self) -> None:
-        """Close the pending chunk if it holds messages and hand the file's bytes to the operating system."""
+        """Close the pending chunk if it holds messages and hand the file's bytes to the operating
+        system."""
         storage = self._writer.storage
         assert storage is not None
         if storage.chunk.msgs:
@@ -157,7 +178,8 @@ class SplitFile:
         storage.bio.flush()
 
     def close(self) -> Info:
-        """Write the summary and footer; return the file's bag information (relative to the bag directory)."""
+        """Write the summary and footer; return the file's bag information (relative to the bag
+        directory)."""
         storage = self._writer.storage
         assert storage is not None
         close_storage = storage.close
@@ -181,11 +203,13 @@ class SplitFile:
 
 
 class SplitBagWriter:
-    """A rosbag2 MCAP bag directory written split by split; see the module docstring for layout and crash safety.
+    """A rosbag2 MCAP bag directory written split by split; see the module docstring for layout and
+    crash safety.
 
-    A new split starts before a message that would make the current file larger than ``max_bytes`` or that comes
-    ``max_duration`` ns or more after the split's first message (0 disables either). Every split registers every
-    topic known so far, as rosbag2 does, so each file is a self-contained MCAP.
+    A new split starts before a message that would make the current file larger than ``max_bytes``
+    or that comes ``max_duration`` ns or more after the split's first message (0 disables either).
+    Every split registers every topic known so far, as rosbag2 does, so each file is a
+    self-contained MCAP.
     """
 
     def __init__(
@@ -229,7 +253,8 @@ class SplitBagWriter:
         self._open_split()
 
     def add_topic(self, name: str, msgtype: str, qos: Sequence[Qos]) -> int:
-        """Register a topic (its type must be known to the typestore); return the handle for :meth:`write`."""
+        """Register a topic (its type must be known to the typestore); return the handle for
+        :meth:`write`."""
         topic = Topic(name, msgtype, list(qos))
         connection = self._open().add_connection(topic, self.typestore)
         self.topics.append(topic)
@@ -237,8 +262,8 @@ class SplitBagWriter:
         return len(self.topics) - 1
 
     def set_custom_data(self, key: str, value: str) -> None:
-        """Set a ``custom_data`` entry; the open split and every later one carry it, so the bag's metadata.yaml (the
-        last split's) has the latest value."""
+        """Set a ``custom_data`` entry; the open split and every later one carry it, so the bag's
+        metadata.yaml (the last split's) has the latest value."""
         self.custom_data[key] = value
         if self._file is not None:
             self._file.set_custom_data(key, value)
@@ -248,7 +273,8 @@ class SplitBagWriter:
         self.topics[handle].qos = list(qos)
 
     def write(self, handle: int, timestamp: int, data: bytes | memoryview) -> None:
-        """Write one serialized message of topic ``handle`` with its timestamp [ns], splitting first if due."""
+        """Write one serialized message of topic ``handle`` with its timestamp [ns], splitting first
+        if due."""
         current = self._open()
         if self._split_due(current, timestamp, len(data)):
             self._close_split()
@@ -275,14 +301,18 @@ class SplitBagWriter:
         return self._file
 
     def _split_due(self, current: SplitFile, timestamp: int, size: int) -> bool:
-        """Whether a message of ``size`` bytes at ``timestamp`` belongs in a new split (never in an empty one).
+        """Whether a message of ``size`` bytes at ``timestamp`` belongs in a new split (never in an
+        empty one).
 
-        The size limit counts messages and chunk indexes; the summary and footer written at close come on top.
+        The size limit counts messages and chunk indexes; the summary and footer written at close
+        come on top.
         """
         if current.first_timestamp is None:
             return False
         too_big = self.max_bytes > 0 and current.size + size > self.max_bytes
-        too_long = self.max_duration > 0 and timestamp - current.first_timestamp >= self.max_duration
+        too_long = (
+            self.max_duration > 0 and timestamp - current.first_timestamp >= self.max_duration
+        )
         return too_big or too_long
 
     def _open_split(self) -> SplitFile:

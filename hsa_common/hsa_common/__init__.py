@@ -1,2 +1,2 @@
-"""ROS 2 glue shared by the hsa-ros nodes: QoS, parameters, diagnostics, message conversion, node runner, the ROS
-process environment and the venv launcher."""
+"""ROS 2 glue shared by the hsa-ros nodes: QoS, parameters, diagnostics, message conversion, node
+runner, the ROS process environment and the venv launcher."""

@@ -129,8 +129,11 @@ def split_parameters(
             path = next(words, "")
             doc = _read(path)
             common = _common(doc)
-            mine = {k: v for k, v in common.items()
-                    if k.partition(".")[0] in names and k.partition(".")[2]}
+            mine = {
+                k: v
+                for k, v in common.items()
+                if k.partition(".")[0] in names and k.partition(".")[2]
+            }
             for key, value in mine.items():
                 node, _, param = key.partition(".")
                 per_node.setdefault(node, {})[param] = value
@@ -192,8 +195,9 @@ def factory(entry: Entry) -> Callable[[], Node]:
     def make() -> Node:
         node = cls()
         if node.get_name() != entry.name:
-            raise ComposeError(f"{entry.module}:{entry.cls} created node '{node.get_name()}', "
-                               f"not '{entry.name}'")
+            raise ComposeError(
+                f"{entry.module}:{entry.cls} created node '{node.get_name()}', not '{entry.name}'"
+            )
         return node
 
     return make
@@ -210,7 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"hsa_compose: refusing to start: {exc}", file=sys.stderr)
         return 2
     names = [e.name for e in entries]
-    ros_args, per_node = split_parameters(words[cut + 1:], names + left_out, files)
+    ros_args, per_node = split_parameters(words[cut + 1 :], names + left_out, files)
     args = [sys.argv[0], "--ros-args", *ros_args]
     mine = {name: params for name, params in per_node.items() if name in names}
     if mine:

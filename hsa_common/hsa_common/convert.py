@@ -1,9 +1,11 @@
-"""ROS messages ↔ NumPy arrays and integer nanoseconds: the one place the nodes convert message fields.
+"""ROS messages ↔ NumPy arrays and integer nanoseconds: the one place the nodes convert message
+fields.
 
-Readers take any object with the message's fields (rclpy messages, or messages decoded from a bag); builders return
-rclpy messages. Orders as in the paper and the message definitions: χ_ee = [x, y, θ], q = [κ_be, σ_sh, σ_ax],
-φ = [φ1, φ2], quaternions (x, y, z, w). Planar points lie at z = 0 of the base frame {0}. Times are integer
-nanoseconds (a float of epoch seconds resolves only about 0.2 µs).
+Readers take any object with the message's fields (rclpy messages, or messages decoded from a bag);
+builders return rclpy messages. Orders as in the paper and the message definitions: χ_ee = [x, y,
+θ], q = [κ_be, σ_sh, σ_ax], φ = [φ1, φ2], quaternions (x, y, z, w). Planar points lie at z = 0 of
+the base frame {0}. Times are integer nanoseconds (a float of epoch seconds resolves only about 0.2
+µs).
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ def stamp_ns(stamp: Any) -> int:
 
 
 def stamp_s(stamp: Any) -> float:
-    """builtin_interfaces/Time → seconds (float; for durations and plots, not for ordering stamps)."""
+    """builtin_interfaces/Time → seconds (float; for durations and plots, not for ordering
+    stamps)."""
     return stamp.sec + stamp.nanosec * 1e-9
 
 
@@ -51,8 +54,11 @@ def position_quaternion(msg: Any) -> tuple[Vec3, Quat]:
     return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w)
 
 
-def pose_stamped(stamp: Time, frame_id: str, position: ArrayLike, quaternion: ArrayLike) -> PoseStamped:
-    """geometry_msgs/PoseStamped of a position (x, y, z) [m] and a quaternion (x, y, z, w) in ``frame_id``."""
+def pose_stamped(
+    stamp: Time, frame_id: str, position: ArrayLike, quaternion: ArrayLike
+) -> PoseStamped:
+    """geometry_msgs/PoseStamped of a position (x, y, z) [m] and a quaternion (x, y, z, w) in
+    ``frame_id``."""
     msg = PoseStamped()
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     p, o = msg.pose.position, msg.pose.orientation
@@ -93,9 +99,11 @@ def actuation(msg: Any) -> np.ndarray:
     return np.array(msg.phi, dtype=np.float64)
 
 
-def actuation_msg(phi: ArrayLike, stamp: Time, frame_id: str = "", source_stamp: Time | None = None
-                  ) -> PlanarActuation:
-    """φ = [φ1, φ2] [rad] → hsa_msgs/PlanarActuation stamped ``stamp`` (``source_stamp``: the state it came from)."""
+def actuation_msg(
+    phi: ArrayLike, stamp: Time, frame_id: str = "", source_stamp: Time | None = None
+) -> PlanarActuation:
+    """φ = [φ1, φ2] [rad] → hsa_msgs/PlanarActuation stamped ``stamp`` (``source_stamp``: the state
+    it came from)."""
     msg = PlanarActuation(phi=np.asarray(phi, dtype=np.float64))
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     if source_stamp is not None:

@@ -1,7 +1,9 @@
-"""/diagnostics publishing without diagnostic_updater (not among the Jazzy wheels): one DiagnosticArray per period.
+"""/diagnostics publishing without diagnostic_updater (not among the Jazzy wheels): one
+DiagnosticArray per period.
 
-Each node registers named checks; a check returns a level, a message and key/values. Counters that only ever grow
-(rejected samples, bus errors) are kept by the node and reported here, so nothing is lost between periods.
+Each node registers named checks; a check returns a level, a message and key/values. Counters that
+only ever grow (rejected samples, bus errors) are kept by the node and reported here, so nothing is
+lost between periods.
 """
 
 from __future__ import annotations
@@ -12,14 +14,20 @@ from dataclasses import dataclass
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
-OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE)
+OK, WARN, ERROR, STALE = (
+    DiagnosticStatus.OK,
+    DiagnosticStatus.WARN,
+    DiagnosticStatus.ERROR,
+    DiagnosticStatus.STALE,
+)
 
 
 def log_level_change(logger: object, previous: bytes | None, level: bytes, message: str) -> bytes:
-    """Log ``message`` at the severity of ``level`` when it differs from ``previous``; returns ``level``.
+    """Log ``message`` at the severity of ``level`` when it differs from ``previous``; returns
+    ``level``.
 
-    Nodes log their diagnostic state changes once this way, not on every report. One call line per severity: rclpy
-    refuses a call site whose severity changes between calls.
+    Nodes log their diagnostic state changes once this way, not on every report. One call line per
+    severity: rclpy refuses a call site whose severity changes between calls.
     """
     if level != previous:
         if level == OK:
@@ -58,7 +66,8 @@ class Diagnostics:
         self._checks[name] = check
 
     def publish(self) -> None:
-        """Run every check and publish one DiagnosticArray (a failing check is reported, never raised)."""
+        """Run every check and publish one DiagnosticArray (a failing check is reported, never
+        raised)."""
         msg = DiagnosticArray()
         msg.header.stamp = self._node.get_clock().now().to_msg()
         for name, check in self._checks.items():
@@ -66,9 +75,13 @@ class Diagnostics:
                 report = check()
             except Exception as exc:  # a broken check must not take the node down
                 report = Report(ERROR, f"check failed: {exc!r}", {})
-            msg.status.append(DiagnosticStatus(
-                level=report.level, name=f"{self._node.get_name()}: {name}", message=report.message,
-                hardware_id=self._hardware_id,
-                values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()],
-            ))
+            msg.status.append(
+                DiagnosticStatus(
+                    level=report.level,
+                    name=f"{self._node.get_name()}: {name}",
+                    message=report.message,
+                    hardware_id=self._hardware_id,
+                    values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()],
+                )
+            )
         self._pub.publish(msg)

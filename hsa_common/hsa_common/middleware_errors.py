@@ -1,12 +1,15 @@
-"""Errors the middleware sets and leaves behind: cleared after every executor step and reported in one throttled line.
+"""Errors the middleware sets and leaves behind: cleared after every executor step and reported in
+one throttled line.
 
-rcutils keeps one error state per thread. rmw_fastrtps sets it when an incoming message fails to deserialize ("Fast
-CDR exception deserializing message of type ...") and still returns success with nothing taken, so rclpy drops the
-message without a callback and never clears the state. The next error with a different text (e.g. a malformed
-message of another type) then makes rcutils print an 11-line "This error state is being overwritten" block to
-stderr; the print is compiled in (``RCUTILS_REPORT_ERROR_HANDLING_ERRORS``), no setting turns it off. The runner
-calls :meth:`MiddlewareErrors.check` after every executor step, on the thread that spins (where the take ran): it
-reads and resets the state, counts it, and logs it at WARN at most every ``period`` seconds.
+rcutils keeps one error state per thread. rmw_fastrtps sets it when an incoming message fails to
+deserialize ("Fast CDR exception deserializing message of type ...") and still returns success with
+nothing taken, so rclpy drops the message without a callback and never clears the state. The next
+error with a different text (e.g. a malformed message of another type) then makes rcutils print an
+11-line "This error state is being overwritten" block to stderr; the print is compiled in
+(``RCUTILS_REPORT_ERROR_HANDLING_ERRORS``), no setting turns it off. The runner calls
+:meth:`MiddlewareErrors.check` after every executor step, on the thread that spins (where the take
+ran): it reads and resets the state, counts it, and logs it at WARN at most every ``period``
+seconds.
 """
 
 from __future__ import annotations
@@ -17,7 +20,9 @@ import time
 
 from rclpy.node import Node
 
-ERROR_STRING_LENGTH = 1024  # RCUTILS_ERROR_MESSAGE_MAX_LENGTH: rcutils_error_string_t is a char[1024]
+ERROR_STRING_LENGTH = (
+    1024  # RCUTILS_ERROR_MESSAGE_MAX_LENGTH: rcutils_error_string_t is a char[1024]
+)
 LOG_PERIOD = 5.0  # [s] steady time between two WARN lines
 
 
@@ -28,7 +33,8 @@ class _ErrorString(ctypes.Structure):
 
 
 def _rcutils() -> ctypes.CDLL:
-    """The librcutils that rclpy has loaded (never a second copy: its error state would be another one)."""
+    """The librcutils that rclpy has loaded (never a second copy: its error state would be another
+    one)."""
     lib = ctypes.CDLL("librcutils.so", mode=os.RTLD_NOLOAD | ctypes.RTLD_GLOBAL)
     lib.rcutils_error_is_set.restype = ctypes.c_bool
     lib.rcutils_error_is_set.argtypes = []
@@ -40,7 +46,8 @@ def _rcutils() -> ctypes.CDLL:
 
 
 class MiddlewareErrors:
-    """Clears and reports the calling thread's leftover rcutils error state (see the module docstring)."""
+    """Clears and reports the calling thread's leftover rcutils error state (see the module
+    docstring)."""
 
     def __init__(self, node: Node, period: float = LOG_PERIOD) -> None:
         self._lib = _rcutils()
@@ -60,6 +67,7 @@ class MiddlewareErrors:
         if now - self._logged >= self._period:
             self._logged = now
             self._node.get_logger().warning(
-                f"middleware error (an incoming message that fails to deserialize is dropped): {text} "
+                "middleware error (an incoming message that fails to deserialize is dropped): "
+                f"{text} "
                 f"[{self.count} so far; at most one line per {self._period:g} s]"
             )

@@ -1,14 +1,16 @@
-"""Declarative node parameters: each one declared with a description and range, validated at start and at run time.
+"""Declarative node parameters: each one declared with a description and range, validated at start
+and at run time.
 
-A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` declares them (so ``ros2 param describe``
-shows units, ranges and whether they are read-only), validates the start values and raises
-:class:`ParameterValidationError` naming the first bad parameter; a value given for a parameter the node does not
-have (a typo in a parameter file or on the command line, which rclpy would silently ignore) is refused the same way.
-An integer given for a floating-point parameter (``rate:=2``) is taken as the float it spells.
-:func:`guard_updates` installs the on-set callback that refuses out-of-range or read-only updates at run time with a
-reason naming the parameter; the node keeps running with the old value. The callback has no side effects: accepted
-values are applied by the post-set callback the node passes in. :func:`typed` builds the frozen
-dataclass that ROS-free code takes from the values (no dict of parameters crosses into hsa_core).
+A node lists its parameters as :class:`ParamSpec` entries. :func:`declare` declares them (so ``ros2
+param describe`` shows units, ranges and whether they are read-only), validates the start values and
+raises :class:`ParameterValidationError` naming the first bad parameter; a value given for a
+parameter the node does not have (a typo in a parameter file or on the command line, which rclpy
+would silently ignore) is refused the same way. An integer given for a floating-point parameter
+(``rate:=2``) is taken as the float it spells. :func:`guard_updates` installs the on-set callback
+that refuses out-of-range or read-only updates at run time with a reason naming the parameter; the
+node keeps running with the old value. The callback has no side effects: accepted values are applied
+by the post-set callback the node passes in. :func:`typed` builds the frozen dataclass that ROS-free
+code takes from the values (no dict of parameters crosses into hsa_core).
 """
 
 from __future__ import annotations
@@ -19,14 +21,22 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 QOS_OVERRIDES = "qos_overrides."
-"""Prefix of the standard QoS override parameters, declared when the publisher or subscription is created."""
+"""Prefix of the standard QoS override parameters, declared when the publisher or subscription is
+created."""
 
-Validator = Callable[[Any], str | None]  # returns an error message, or None if the value is acceptable
+Validator = Callable[
+    [Any], str | None
+]  # returns an error message, or None if the value is acceptable
 T = TypeVar("T")
 
 
@@ -36,7 +46,8 @@ class ParameterValidationError(ValueError):
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One node parameter: name, default, description with units, optional range/choices/length and validator."""
+    """One node parameter: name, default, description with units, optional range/choices/length and
+    validator."""
 
     name: str
     default: Any
@@ -62,14 +73,20 @@ class ParamSpec:
         is_scalar = isinstance(self.default, (int, float)) and not isinstance(self.default, bool)
         if is_scalar and self.low is not None and self.high is not None:
             if isinstance(self.default, float):
-                desc.floating_point_range = [FloatingPointRange(from_value=float(self.low), to_value=float(self.high))]
+                desc.floating_point_range = [
+                    FloatingPointRange(from_value=float(self.low), to_value=float(self.high))
+                ]
             else:
-                desc.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)]
+                desc.integer_range = [
+                    IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)
+                ]
         return desc
 
     def check(self, value: Any) -> str | None:
         """Return why ``value`` is unacceptable for this parameter, or None."""
-        values = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else None
+        values = (
+            list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else None
+        )
         if self.length is not None and (values is None or len(values) != self.length):
             return f"must be a list of length {self.length}, got {value!r}"
         for v in values if values is not None else [value]:
@@ -84,24 +101,31 @@ class ParamSpec:
 
 
 def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
-    """Declare and validate all parameters; return their values by name (raises ParameterValidationError)."""
+    """Declare and validate all parameters; return their values by name (raises
+    ParameterValidationError)."""
     values: dict[str, Any] = {}
     for spec in specs:
         _accept_integer_spelling(node, spec)
         try:
             param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
-        except Exception as exc:  # rclpy range/type rejection of an override: re-raise naming the parameter
+        except (
+            Exception
+        ) as exc:  # rclpy range/type rejection of an override: re-raise naming the parameter
             raise ParameterValidationError(f"parameter '{spec.name}': {exc}") from exc
         value = param.value
         problem = spec.check(value)
         if problem:
             raise ParameterValidationError(f"parameter '{spec.name}' {problem}")
-        values[spec.name] = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+        values[spec.name] = (
+            list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+        )
     unknown = unknown_overrides(node)
     if unknown:
         raise ParameterValidationError(
-            f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant for another "
-            f"node?); known: {sorted(s.name for s in specs)}")
+            f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant "
+            "for another "
+            f"node?); known: {sorted(s.name for s in specs)}"
+        )
     return values
 
 
@@ -117,22 +141,34 @@ def typed(cls: type[T], values: Mapping[str, Any], **names: str) -> T:
 
 
 def _accept_integer_spelling(node: Node, spec: ParamSpec) -> None:
-    """Turn an integer override of a floating-point parameter (``rate:=2``, ``[1, 2]``) into the float it means.
+    """Turn an integer override of a floating-point parameter (``rate:=2``, ``[1, 2]``) into the
+    float it means.
 
-    rcl types ``2`` as INTEGER, and rclpy refuses it for a DOUBLE parameter ("expecting type 'DOUBLE'"); launch
-    arguments and parameter files are written by people, so ``2`` must mean ``2.0``, under ros2 launch as well.
+    rcl types ``2`` as INTEGER, and rclpy refuses it for a DOUBLE parameter ("expecting type
+    'DOUBLE'"); launch arguments and parameter files are written by people, so ``2`` must mean
+    ``2.0``, under ros2 launch as well.
     """
-    given = node._parameter_overrides.get(spec.name)  # the resolved overrides (see unknown_overrides)
+    given = node._parameter_overrides.get(
+        spec.name
+    )  # the resolved overrides (see unknown_overrides)
     if given is None:
         return
     default = spec.default
-    floats = isinstance(default, list) and bool(default) and all(isinstance(v, float) for v in default)
+    floats = (
+        isinstance(default, list) and bool(default) and all(isinstance(v, float) for v in default)
+    )
     if given.type_ == Parameter.Type.INTEGER and (
-            isinstance(default, float) or default == Parameter.Type.DOUBLE):
-        node._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(given.value))
-    elif given.type_ == Parameter.Type.INTEGER_ARRAY and (floats or default == Parameter.Type.DOUBLE_ARRAY):
+        isinstance(default, float) or default == Parameter.Type.DOUBLE
+    ):
         node._parameter_overrides[spec.name] = Parameter(
-            spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in given.value])
+            spec.name, Parameter.Type.DOUBLE, float(given.value)
+        )
+    elif given.type_ == Parameter.Type.INTEGER_ARRAY and (
+        floats or default == Parameter.Type.DOUBLE_ARRAY
+    ):
+        node._parameter_overrides[spec.name] = Parameter(
+            spec.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in given.value]
+        )
 
 
 RUNNER_PARAMS = frozenset({"lockstep"})
@@ -140,16 +176,25 @@ RUNNER_PARAMS = frozenset({"lockstep"})
 
 
 def unknown_overrides(node: Node) -> list[str]:
-    """Names given to the node (parameter files, ``-p``) that it has not declared; QoS overrides are declared later."""
-    given = node._parameter_overrides  # rclpy keeps the node's resolved overrides only here (no public accessor)
-    return sorted(name for name in given
-                  if not node.has_parameter(name) and not name.startswith(QOS_OVERRIDES) and name not in RUNNER_PARAMS)
+    """Names given to the node (parameter files, ``-p``) that it has not declared; QoS overrides are
+    declared later."""
+    given = (
+        node._parameter_overrides
+    )  # rclpy keeps the node's resolved overrides only here (no public accessor)
+    return sorted(
+        name
+        for name in given
+        if not node.has_parameter(name)
+        and not name.startswith(QOS_OVERRIDES)
+        and name not in RUNNER_PARAMS
+    )
 
 
 def guard_updates(
     node: Node, specs: Sequence[ParamSpec], apply: Callable[[dict[str, Any]], None] | None = None
 ) -> None:
-    """Refuse invalid run-time updates with a reason; hand accepted ones to ``apply`` after they are set."""
+    """Refuse invalid run-time updates with a reason; hand accepted ones to ``apply`` after they are
+    set."""
     by_name = {s.name: s for s in specs}
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
@@ -158,15 +203,20 @@ def guard_updates(
             if spec is None:
                 continue  # e.g. use_sim_time, qos_overrides: rclpy validates those
             if spec.read_only:
-                return SetParametersResult(successful=False, reason=f"parameter '{p.name}' is read-only")
+                return SetParametersResult(
+                    successful=False, reason=f"parameter '{p.name}' is read-only"
+                )
             problem = spec.check(p.value)
             if problem:
                 node.get_logger().warning(f"refused update of '{p.name}': {problem}")
-                return SetParametersResult(successful=False, reason=f"parameter '{p.name}' {problem}")
+                return SetParametersResult(
+                    successful=False, reason=f"parameter '{p.name}' {problem}"
+                )
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(on_set)
     if apply is not None:
+
         def post_set(params: list[Parameter]) -> None:
             apply({p.name: p.value for p in params if p.name in by_name})
 

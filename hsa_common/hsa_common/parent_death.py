@@ -1,21 +1,27 @@
-"""A node ends when the process that started it ends: Linux's parent-death signal (``prctl(PR_SET_PDEATHSIG)``).
+"""A node ends when the process that started it ends: Linux's parent-death signal
+(``prctl(PR_SET_PDEATHSIG)``).
 
-Why: a launcher killed with SIGKILL (or by the OOM killer) cannot stop its children, and a node without a parent keeps
-driving the robot. The kernel sends the chosen signal to the node when its parent ends, whoever the parent is
-(``hsa_launch``, ``ros2 launch``, ``ros2 run``, a shell); the runner treats it like SIGINT (torque off first).
+Why: a launcher killed with SIGKILL (or by the OOM killer) cannot stop its children, and a node
+without a parent keeps driving the robot. The kernel sends the chosen signal to the node when its
+parent ends, whoever the parent is (``hsa_launch``, ``ros2 launch``, ``ros2 run``, a shell); the
+runner treats it like SIGINT (torque off first).
 
 Rules (:func:`tie_to_parent`):
 
-* a process started by ``hsa_launch`` finds the launcher's PID in ``HSA_PARENT_PID``; after arming the signal it checks
-  that the launcher is still alive, which closes the race of a launcher that ended before the node got this far
-  (Python start-up, about a second): such a node is :attr:`Tie.ORPHANED` and must not start;
-* any other parent (``ros2 launch``, ``ros2 run``, a shell) gets the same signal but no such check: a parent that ends
-  within the node's first second leaves it running (``ros2 launch`` passes no PID to check against);
-* a process that started with SIGHUP ignored and no ``HSA_PARENT_PID`` (``nohup node &``) was detached on purpose: it
-  is :attr:`Tie.DETACHED` and outlives its shell. A node started by hand otherwise stops when its shell ends.
+* a process started by ``hsa_launch`` finds the launcher's PID in ``HSA_PARENT_PID``; after arming
+  the signal it checks that the launcher is still alive, which closes the race of a launcher that
+  ended before the node got this far (Python start-up, about a second): such a node is
+  :attr:`Tie.ORPHANED` and must not start;
+* any other parent (``ros2 launch``, ``ros2 run``, a shell) gets the same signal but no such check:
+  a parent that ends within the node's first second leaves it running (``ros2 launch`` passes no PID
+  to check against);
+* a process that started with SIGHUP ignored and no ``HSA_PARENT_PID`` (``nohup node &``) was
+  detached on purpose: it is :attr:`Tie.DETACHED` and outlives its shell. A node started by hand
+  otherwise stops when its shell ends.
 
-The signal is tied to the parent *thread*: the launcher starts its children from its main thread, which lives as long
-as the launcher. It survives ``execve`` and is cleared by ``fork``, so it concerns this process only.
+The signal is tied to the parent *thread*: the launcher starts its children from its main thread,
+which lives as long as the launcher. It survives ``execve`` and is cleared by ``fork``, so it
+concerns this process only.
 """
 
 from __future__ import annotations
@@ -31,8 +37,8 @@ PARENT_ENV = "HSA_PARENT_PID"
 """Environment variable in which a launcher passes its PID to the processes it starts."""
 _PR_SET_PDEATHSIG = 1
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
-"""Signals that stop a node or a graph like Ctrl-C (torque off first): a closed terminal or ssh session and Ctrl-\\
-too."""
+"""Signals that stop a node or a graph like Ctrl-C (torque off first): a closed terminal or ssh
+session and Ctrl-\\ too."""
 
 
 class Tie(enum.Enum):
@@ -45,9 +51,11 @@ class Tie(enum.Enum):
 
 
 def tie_to_parent(signum: int = signal.SIGTERM) -> Tie:
-    """Ask the kernel to send ``signum`` to this process when its parent ends (rules in the module docstring).
+    """Ask the kernel to send ``signum`` to this process when its parent ends (rules in the module
+    docstring).
 
-    Call it before installing a handler for SIGHUP: a SIGHUP ignored at start is what marks a detached process.
+    Call it before installing a handler for SIGHUP: a SIGHUP ignored at start is what marks a
+    detached process.
     """
     launcher = os.environ.get(PARENT_ENV)
     if launcher is None and signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
@@ -66,18 +74,22 @@ def tie_to_parent(signum: int = signal.SIGTERM) -> Tie:
 
 
 def alive(pid: int) -> bool:
-    """Whether process ``pid`` exists and has not ended (a zombie, ended but not yet reaped, counts as ended)."""
+    """Whether process ``pid`` exists and has not ended (a zombie, ended but not yet reaped, counts
+    as ended)."""
     try:
         with open(f"/proc/{pid}/stat") as file:
             stat = file.read()
     except OSError:
         return False
-    return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")  # the state follows the command name's ')'
+    return stat.rsplit(")", 1)[-1].split()[0] not in (
+        "Z",
+        "X",
+    )  # the state follows the command name's ')'
 
 
 def on_stop_signals(handler: Callable[[int, object], None]) -> None:
-    """Install ``handler`` for :data:`STOP_SIGNALS`; a SIGHUP ignored at start (``nohup``) stays ignored. Call it after
-    :func:`tie_to_parent`, which reads that disposition."""
+    """Install ``handler`` for :data:`STOP_SIGNALS`; a SIGHUP ignored at start (``nohup``) stays
+    ignored. Call it after :func:`tie_to_parent`, which reads that disposition."""
     for sig in STOP_SIGNALS:
         if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
             signal.signal(sig, handler)

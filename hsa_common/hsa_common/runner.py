@@ -1,35 +1,42 @@
-"""Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown that always runs.
+"""Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown
+that always runs.
 
-``run(MyNode)`` returns the process exit code: 0 after a stop signal or when the node shuts its context down, 2 when
-the parameters are refused at start (the error names the parameter, or the parameter file rcl cannot parse), 1 after
-an uncaught exception or when the launcher that started it has already ended. In every case the node's
-``on_shutdown()`` hook runs before the process exits — the driver turns torque off there. ``run_nodes`` does the
-same for several nodes in one process (:mod:`hsa_common.compose`).
+``run(MyNode)`` returns the process exit code: 0 after a stop signal or when the node shuts its
+context down, 2 when the parameters are refused at start (the error names the parameter, or the
+parameter file rcl cannot parse), 1 after an uncaught exception or when the launcher that started it
+has already ended. In every case the node's ``on_shutdown()`` hook runs before the process exits —
+the driver turns torque off there. ``run_nodes`` does the same for several nodes in one process
+(:mod:`hsa_common.compose`).
 
-Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) all stop the
-node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A stop signal that arrives while the node is still
-being created (parameter checks, JAX compilation) ends the process at once with exit 0: construction never touches
-the hardware (the driver enables torque from the executor), so there is nothing to stop yet. The node also stops when the process that
-started it ends, even by SIGKILL: the kernel sends it SIGTERM then (:mod:`hsa_common.parent_death`).
+Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT
+(Ctrl-\\) all stop the node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A
+stop signal that arrives while the node is still being created (parameter checks, JAX compilation)
+ends the process at once with exit 0: construction never touches the hardware (the driver enables
+torque from the executor), so there is nothing to stop yet. The node also stops when the process
+that started it ends, even by SIGKILL: the kernel sends it SIGTERM then
+(:mod:`hsa_common.parent_death`).
 
-Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python ``SingleThreadedExecutor`` for
-our 40-200 Hz timers and 200 Hz streams; see benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter.
-The stop signals only set a flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
-interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal callback error.
-Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority (``TEARDOWN_NICE``): when a whole graph stops
-at once on two cores, the driver's torque-off (and the simulator's bus answering it) must not queue behind them.
+Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python
+``SingleThreadedExecutor`` for our 40-200 Hz timers and 200 Hz streams; see
+benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter. The stop signals only set a
+flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
+interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal
+callback error. Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority
+(``TEARDOWN_NICE``): when a whole graph stops at once on two cores, the driver's torque-off (and the
+simulator's bus answering it) must not queue behind them.
 
-After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its Fast DDS
-shared-memory files from /dev/shm) a node leaves with ``os._exit``: what must persist is persisted by then, and the
-interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1 s without it), past the launcher's SIGTERM.
-rclpy's shutdown itself is bounded (``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so
-past the limit the node prints every thread's stack and a C-level timer ends it with its exit code
-(:mod:`hsa_common.exit_deadline`).
+After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its
+Fast DDS shared-memory files from /dev/shm) a node leaves with ``os._exit``: what must persist is
+persisted by then, and the interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1
+s without it), past the launcher's SIGTERM. rclpy's shutdown itself is bounded (``TEARDOWN_LIMIT``):
+it can hang inside the middleware while holding the GIL, so past the limit the node prints every
+thread's stack and a C-level timer ends it with its exit code (:mod:`hsa_common.exit_deadline`).
 
-Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's barrier
-(:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and, whenever none is ready, the
-node reports to the simulator. A node can end the process with a code of its own by setting ``exit_code`` before it
-shuts its context down (the simulator does, when a barrier times out).
+Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
+barrier (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and,
+whenever none is ready, the node reports to the simulator. A node can end the process with a code of
+its own by setting ``exit_code`` before it shuts its context down (the simulator does, when a
+barrier times out).
 """
 
 from __future__ import annotations
@@ -61,29 +68,34 @@ from hsa_common.middleware_errors import MiddlewareErrors
 from hsa_common.parameters import ParameterValidationError
 
 TEARDOWN_NICE = 5
-"""Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a graph stop, but
-not starved — at 19 a teardown beside busy processes took a minute (54-67 s measured beside six busy processes), so
-the launcher's SIGTERM escalation hit every node."""
+"""Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a
+graph stop, but not starved — at 19 a teardown beside busy processes took a minute (54-67 s measured
+beside six busy processes), so the launcher's SIGTERM escalation hit every node."""
 SPIN_PERIOD = 0.02
-"""[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (< 100 ms torque-off)."""
+"""[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (<
+100 ms torque-off)."""
 TEARDOWN_LIMIT = 5.0
-"""[s] longest wait for rclpy's teardown (destroy_node, shutdown) after the node's own: past it the node prints every
-thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code (:mod:`hsa_common.exit_deadline`). It takes
-milliseconds, but beside busy processes a planner_node once hung in it until the launcher's SIGKILL, 25 s on (and CI
-SIGKILLed two other nodes after the same 25 s)."""
+"""[s] longest wait for rclpy's teardown (destroy_node, shutdown) after the node's own: past it the
+node prints every thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code
+(:mod:`hsa_common.exit_deadline`). It takes milliseconds, but beside busy processes a planner_node
+once hung in it until the launcher's SIGKILL, 25 s on (and CI SIGKILLed two other nodes after the
+same 25 s)."""
 TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
 STUCK_AFTER = 10.0
-"""[s] after the first stop signal, a node still running prints every thread's stack (once) to stderr: a stop takes
-well under a second, so by then it is stuck, and the launcher's SIGKILL would otherwise leave no trace of where."""
+"""[s] after the first stop signal, a node still running prints every thread's stack (once) to
+stderr: a stop takes well under a second, so by then it is stuck, and the launcher's SIGKILL would
+otherwise leave no trace of where."""
 
-_DUMP_LOCK = threading.Lock()  # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
+_DUMP_LOCK = (
+    threading.Lock()
+)  # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
 _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
-    """Create the node with ``node_factory``, spin it until shutdown and end the process with its exit code (see the
-    module docstring); returns only when the node could not be created."""
+    """Create the node with ``node_factory``, spin it until shutdown and end the process with its
+    exit code (see the module docstring); returns only when the node could not be created."""
     return run_nodes([node_factory], name, args)
 
 
@@ -94,7 +106,9 @@ def run_nodes(
     DDS participant), one executor; the nodes are created in order and their ``on_shutdown`` hooks
     run in that order; the exit code is the first non-zero ``exit_code`` of the nodes."""
     rosenv.ensure_for_node()
-    tie = parent_death.tie_to_parent(signal.SIGTERM)  # before the SIGHUP handler: an ignored SIGHUP means nohup
+    tie = parent_death.tie_to_parent(
+        signal.SIGTERM
+    )  # before the SIGHUP handler: an ignored SIGHUP means nohup
     stop: list[int] = []
     starting = threading.Event()
     starting.set()
@@ -108,7 +122,10 @@ def run_nodes(
     watch_stop()
     logger = rclpy.logging.get_logger(name)
     if tie is parent_death.Tie.ORPHANED:
-        logger.fatal(f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already ended")
+        logger.fatal(
+            f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already "
+            "ended"
+        )
         return 1
     nodes: list[Node] = []
     try:
@@ -126,7 +143,9 @@ def run_nodes(
             rclpy.try_shutdown()
             return 2
         except BaseException:
-            _shut_down(nodes)  # a later node failed or a stop came: the nodes made so far stop first
+            _shut_down(
+                nodes
+            )  # a later node failed or a stop came: the nodes made so far stop first
             raise
         starting.clear()
     except StopBeforeReady:
@@ -135,9 +154,13 @@ def run_nodes(
         sys.stderr.flush()
         os._exit(0)  # skip the interpreter's teardown (JAX/XLA), as after a normal stop
     in_lockstep = any(lockstep.enabled(node) for node in nodes)
-    participant = lockstep.Group([
-        lockstep.Participant(node) for node in nodes
-        if lockstep.enabled(node) and not getattr(node, "lockstep_coordinator", False)])
+    participant = lockstep.Group(
+        [
+            lockstep.Participant(node)
+            for node in nodes
+            if lockstep.enabled(node) and not getattr(node, "lockstep_coordinator", False)
+        ]
+    )
     executor = SingleThreadedExecutor() if in_lockstep else make_executor()
     for node in nodes:
         executor.add_node(node)
@@ -158,8 +181,8 @@ def run_nodes(
         if rclpy.ok():
             raise
         failed = False
-        # the context was shut down while a callback was publishing or a message was being taken (rclpy raises
-        # RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
+        # the context was shut down while a callback was publishing or a message was being taken
+        # (rclpy raises RCLError or a pybind11 RuntimeError then): an orderly stop, not a failure
     finally:
         if rclpy.ok():
             participant.idle(leaving=True)
@@ -167,7 +190,9 @@ def run_nodes(
         for hook in hooks:
             hook()
         if not hooks:
-            os.nice(TEARDOWN_NICE)  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
+            os.nice(
+                TEARDOWN_NICE
+            )  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
         executor.shutdown(timeout_sec=1.0)
         # the work is done; the middleware's teardown may hang holding the GIL (exit_deadline)
         with _DUMP_LOCK:
@@ -186,12 +211,14 @@ def run_nodes(
         try:
             stream.flush()
         except OSError:
-            pass  # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
+            # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
+            pass
     os._exit(code)  # the hooks persisted what matters: skip the interpreter's teardown (JAX/XLA)
 
 
 def _shut_down(nodes: Sequence[Node]) -> None:
-    """Run the ``on_shutdown`` hook of each node already made (the driver turns torque off there)."""
+    """Run the ``on_shutdown`` hook of each node already made (the driver turns torque off
+    there)."""
     for node in nodes:
         hook = getattr(node, "on_shutdown", None)
         if hook is not None:
@@ -205,8 +232,8 @@ def exit_code(nodes: Sequence[Node]) -> int:
 
 
 class StopBeforeReady(BaseException):
-    """A stop signal arrived while the node was being created (a BaseException, like KeyboardInterrupt, so that no
-    ``except Exception`` in the construction swallows it)."""
+    """A stop signal arrived while the node was being created (a BaseException, like
+    KeyboardInterrupt, so that no ``except Exception`` in the construction swallows it)."""
 
 
 def spin_lockstep(
@@ -221,7 +248,9 @@ def spin_lockstep(
     idle = False
     while not stop and rclpy.ok():
         try:
-            handler, _entity, _node = executor.wait_for_ready_callbacks(timeout_sec=SPIN_PERIOD if idle else 0.0)
+            handler, _entity, _node = executor.wait_for_ready_callbacks(
+                timeout_sec=SPIN_PERIOD if idle else 0.0
+            )
         except TimeoutException:
             if participant is not None:
                 participant.idle()
@@ -238,8 +267,9 @@ def spin_lockstep(
 
 
 def watch_stop() -> None:
-    """Arm the stuck-stop report: a thread that learns of the first stop signal from the interpreter's wakeup fd,
-    which the C-level handler writes even while the main thread is blocked in rcl or DDS and runs no Python."""
+    """Arm the stuck-stop report: a thread that learns of the first stop signal from the
+    interpreter's wakeup fd, which the C-level handler writes even while the main thread is blocked
+    in rcl or DDS and runs no Python."""
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
     signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
@@ -254,7 +284,8 @@ def watch_stop() -> None:
 
 
 def make_executor() -> Executor:
-    """The executor named by HSA_EXECUTOR: 'events' (rclpy's C++ EventsExecutor, the default) or 'single'."""
+    """The executor named by HSA_EXECUTOR: 'events' (rclpy's C++ EventsExecutor, the default) or
+    'single'."""
     kind = os.environ.get("HSA_EXECUTOR", "events")
     if kind == "events":
         return EventsExecutor()

@@ -40,9 +40,11 @@ def refusal(priority: int) -> str | None:
     thread.join()
     if not result:
         return None
-    return (f"is refused by the OS: {describe(priority)} ({result[0].strerror}); grant the node "
-            f"CAP_SYS_NICE or an rtprio limit of at least {priority} (e.g. "
-            "/etc/security/limits.conf), or set it to 0")
+    return (
+        f"is refused by the OS: {describe(priority)} ({result[0].strerror}); grant the node "
+        f"CAP_SYS_NICE or an rtprio limit of at least {priority} (e.g. "
+        "/etc/security/limits.conf), or set it to 0"
+    )
 
 
 def apply(priority: int) -> None:

@@ -3,7 +3,8 @@ one-line text (for logs and /diagnostics).
 
 A :class:`Refusal` is a ``str`` (the text), so whoever shows it needs nothing more; whoever counts
 refusals keys by :attr:`Refusal.reason`, never by parsing the text. Each part that refuses inputs
-has its own reasons (:class:`StateRejection` here; :class:`hsa_core.controller.validation.SetpointRejection`,
+has its own reasons (:class:`StateRejection` here;
+:class:`hsa_core.controller.validation.SetpointRejection`,
 :class:`hsa_core.sensing.mocap_gate.Rejection`); their values are the names shown on /diagnostics.
 """
 

@@ -1,11 +1,13 @@
-"""Deterministic model results kept on disk beside JAX's compilation cache, so a second start skips recomputing them.
+"""Deterministic model results kept on disk beside JAX's compilation cache, so a second start skips
+recomputing them.
 
-The users: the planner's reachable polygon (a batch of static equilibria, most of a warm planner start) and the
-world's initial state (the plant hanging at rest, 5 s of RK4 steps). An entry is
-keyed by a name, the inputs' bytes (dtype, shape, values; parameter sets by all their fields) and the source of
-``hsa_core`` itself, so any change of the model code or of an input computes afresh. The cache lives in
-``<HSA_JAX_CACHE_DIR>/results`` and follows that setting (empty: no cache). A missing, unreadable or foreign entry is
-recomputed, never trusted: it is only a start-up shortcut, the values are the ones the computation returns.
+The users: the planner's reachable polygon (a batch of static equilibria, most of a warm planner
+start) and the world's initial state (the plant hanging at rest, 5 s of RK4 steps). An entry is
+keyed by a name, the inputs' bytes (dtype, shape, values; parameter sets by all their fields) and
+the source of ``hsa_core`` itself, so any change of the model code or of an input computes afresh.
+The cache lives in ``<HSA_JAX_CACHE_DIR>/results`` and follows that setting (empty: no cache). A
+missing, unreadable or foreign entry is recomputed, never trusted: it is only a start-up shortcut,
+the values are the ones the computation returns.
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ def _source_digest() -> bytes:
 
 
 def key(name: str, *inputs: object) -> str:
-    """Hex key of ``name`` and the inputs (arrays, numbers, strings, or pytrees of them such as HsaParams)."""
+    """Hex key of ``name`` and the inputs (arrays, numbers, strings, or pytrees of them such as
+    HsaParams)."""
     digest = hashlib.sha256(_source_digest() + name.encode())
     for item in inputs:
         leaves, tree = jax.tree_util.tree_flatten(item)
@@ -46,8 +49,11 @@ def key(name: str, *inputs: object) -> str:
     return digest.hexdigest()
 
 
-def cached(name: str, inputs: tuple[object, ...], compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """The arrays ``compute()`` returns for these inputs, from the cache when an entry exists (written if not)."""
+def cached(
+    name: str, inputs: tuple[object, ...], compute: Callable[[], dict[str, np.ndarray]]
+) -> dict[str, np.ndarray]:
+    """The arrays ``compute()`` returns for these inputs, from the cache when an entry exists
+    (written if not)."""
     root = cache_dir()
     if root is None:
         return compute()

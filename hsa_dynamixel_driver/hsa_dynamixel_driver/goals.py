@@ -1,5 +1,6 @@
-"""The newest phi_cmd on its way to the servos: clipped to [0, φ_max], clamped to the absolute goal limits and
-rate-limited on the node clock (planning_and_control.md §7; issue 11). ROS-free: the node writes and publishes."""
+"""The newest phi_cmd on its way to the servos: clipped to [0, φ_max], clamped to the absolute goal
+limits and rate-limited on the node clock (planning_and_control.md §7; issue 11). ROS-free: the node
+writes and publishes."""
 
 from __future__ import annotations
 
@@ -8,14 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from hsa_core.model.actuation import MotorLimits, MotorMap
-from hsa_core.model.actuation import GoalRateLimiter
+from hsa_core.model.actuation import GoalRateLimiter, MotorLimits, MotorMap
 
 
 @dataclasses.dataclass(frozen=True)
 class GoalStep:
-    """A goal to write [ticks]; rate_limited: the limit shortened a new command's goal; clipped: why the command was
-    clipped or clamped (for the counters and the throttled log), or None."""
+    """A goal to write [ticks]; rate_limited: the limit shortened a new command's goal; clipped: why
+    the command was clipped or clamped (for the counters and the throttled log), or None."""
 
     ticks: np.ndarray
     rate_limited: bool
@@ -45,11 +45,12 @@ class GoalPipeline:
         """Stale command (watchdog) or torque off: nothing more is written, the last goal stays."""
         self.target, self.pending = None, False
 
-    def next_goal(self, now: float, motor_map: MotorMap, limits: MotorLimits, max_rate: float,
-                  period: float) -> GoalStep | None:
-        """The goal to write at ``now`` [s]: a new command's (clipped to the map's [0, phi_max]), or the next step of
-        a rate-limited ramp; None when there is nothing new to write. ``max_rate`` [rad/s] (0 = no limit),
-        ``period`` [s] of the control cycle."""
+    def next_goal(
+        self, now: float, motor_map: MotorMap, limits: MotorLimits, max_rate: float, period: float
+    ) -> GoalStep | None:
+        """The goal to write at ``now`` [s]: a new command's (clipped to the map's [0, phi_max]), or
+        the next step of a rate-limited ramp; None when there is nothing new to write. ``max_rate``
+        [rad/s] (0 = no limit), ``period`` [s] of the control cycle."""
         fresh, clipped, phi_max = self.pending, None, motor_map.phi_max
         if fresh:
             phi = np.asarray(self.command.phi)
@@ -62,7 +63,9 @@ class GoalPipeline:
             self.target_source, self.pending = self.command.source_stamp, False
         if self.target is None:
             return None
-        goal = self.limiter.limited(self.target, now, max_rate, period, lambda g: limits.clamp(g)[0])
+        goal = self.limiter.limited(
+            self.target, now, max_rate, period, lambda g: limits.clamp(g)[0]
+        )
         if not fresh and np.array_equal(goal, self.limiter.goal):
             return None
         return GoalStep(goal, fresh and not np.array_equal(goal, self.target), clipped)

@@ -1,9 +1,11 @@
-"""The dynamixel_driver's bus side: connect and reconnect, neutral ticks, torque on/off, link loss, hardware errors
-and reboots — the I/O around the decisions of `hsa_core.driver.servo_supervision.ServoSupervisor` (no ROS: the node passes
-its logger and node clock in).
+"""The dynamixel_driver's bus side: connect and reconnect, neutral ticks, torque on/off, link loss,
+hardware errors and reboots — the I/O around the decisions of
+`hsa_core.driver.servo_supervision.ServoSupervisor` (no ROS: the node passes its logger and node
+clock in).
 
-Torque-on holds the present positions (goal := present, so nothing jumps); torque-off is best effort with plain
-serial I/O, verified and repeated once after 0.1 s (usable after the ROS context is gone: the runner's exit hook).
+Torque-on holds the present positions (goal := present, so nothing jumps); torque-off is best effort
+with plain serial I/O, verified and repeated once after 0.1 s (usable after the ROS context is gone:
+the runner's exit hook).
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from hsa_common.model_params import load_model, load_wiring_param
-from hsa_core.model.actuation import MotorLimits, MotorMap, RejectionLog, accept_read_neutral
 from hsa_core.driver.servo_supervision import Alert, Answer, ServoSupervisor, Verdict, WatchdogEvent
+from hsa_core.model.actuation import MotorLimits, MotorMap, RejectionLog, accept_read_neutral
 from hsa_dynamixel_driver.bus import (
     ADDR_TORQUE_ENABLE,
     BusError,
@@ -32,10 +34,26 @@ from hsa_dynamixel_driver.bus import (
 from hsa_dynamixel_driver.goals import GoalPipeline
 from hsa_dynamixel_driver.neutral import configured_neutral, write_neutral_file
 
-REBOOT_WAIT_S = 2.0  # wall-clock wait for rebooted servos to answer a ping again (bus-level, like the SDK timeouts)
-COUNTERS = ("cycles", "writes", "reads", "commands", "rejected", "clamped", "ignored", "reconnect_attempts",
-            "reconnects", "bus_losses", "port_errors", "comm_errors", "status_errors", "estops", "rate_limited",
-            "reboots")
+# wall-clock wait for rebooted servos to answer a ping again (bus-level, like the SDK timeouts)
+REBOOT_WAIT_S = 2.0
+COUNTERS = (
+    "cycles",
+    "writes",
+    "reads",
+    "commands",
+    "rejected",
+    "clamped",
+    "ignored",
+    "reconnect_attempts",
+    "reconnects",
+    "bus_losses",
+    "port_errors",
+    "comm_errors",
+    "status_errors",
+    "estops",
+    "rate_limited",
+    "reboots",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,15 +80,26 @@ class Servos:
     ``p`` are its parameters."""
 
     def __init__(self, p: dict[str, Any], logger: Any, now: Callable[[], float]) -> None:
-        """Load the model and wiring, fix the configured neutral (a refused parameter raises ParameterValidationError)."""
+        """Load the model and wiring, fix the configured neutral (a refused parameter raises
+        ParameterValidationError)."""
         self._p, self._log, self._now = p, logger, now
-        self.wiring = load_wiring_param(p["wiring_file"])  # motor IDs, rods and rod signs: the robot's wiring file
+        self.wiring = load_wiring_param(
+            p["wiring_file"]
+        )  # motor IDs, rods and rod signs: the robot's wiring file
         self._model = load_model(p)  # the rods' handedness and twist limit
-        self.limit = self._model.phi_limit  # the φ limit; the motor map's goal clamp is its `motor` bound
+        self.limit = (
+            self._model.phi_limit
+        )  # the φ limit; the motor map's goal clamp is its `motor` bound
         self.ids: list[int] = list(self.wiring.motor_ids)
         self.stored_neutral = configured_neutral(p, self.ids, self.wiring.neutral_ticks)
-        self.sup = ServoSupervisor(tuple(self.ids), p["error_limit"], p["neutral_tolerance"],
-                                   describe_hardware_error, p["torque_retry_period"], p["torque_retry_max"])
+        self.sup = ServoSupervisor(
+            tuple(self.ids),
+            p["error_limit"],
+            p["neutral_tolerance"],
+            describe_hardware_error,
+            p["torque_retry_period"],
+            p["torque_retry_max"],
+        )
         self.goals = GoalPipeline()
         self.counts = dict.fromkeys(COUNTERS, 0)
         self._rejections = RejectionLog()
@@ -92,15 +121,19 @@ class Servos:
 
     # ------------------------------------------------------------------ neutral ticks
     def _set_neutral(self, ticks: list[int]) -> None:
-        """Build the motor map, the absolute goal clamp and the sane range around the configured neutral ticks; a
-        read neutral may later replace the map's zero (``_refine_map``), never these limits."""
-        self.map = self.wiring.motor_map(self._model, neutral_ticks=tuple(ticks), margin=self._p["goal_margin"])
+        """Build the motor map, the absolute goal clamp and the sane range around the configured
+        neutral ticks; a read neutral may later replace the map's zero (``_refine_map``), never
+        these limits."""
+        self.map = self.wiring.motor_map(
+            self._model, neutral_ticks=tuple(ticks), margin=self._p["goal_margin"]
+        )
         self.limits = MotorLimits.from_map(self.map)
         self.sup.positions.calibrate(self.map)
 
     def _refine_map(self) -> None:
-        """neutral_source 'read': the present positions become the φ map's zero if they lie within neutral_tolerance
-        of the configured neutral ticks; the goal limits stay where the configuration put them."""
+        """neutral_source 'read': the present positions become the φ map's zero if they lie within
+        neutral_tolerance of the configured neutral ticks; the goal limits stay where the
+        configuration put them."""
         neutral = self.sup.positions.neutral
         assert self.bus is not None and self.map is not None and neutral is not None
         ticks = self.present_ticks(self.bus.read_positions().ticks).tolist()
@@ -112,8 +145,9 @@ class Servos:
         self._log.info(f"φ map zero read from the servos: {ticks} (limits on {neutral.tolist()})")
 
     def _adopt_present_as_neutral(self) -> None:
-        """First start with a missing neutral file: the present positions become the stored calibration, unless the
-        supervisor refuses them (servos held at start): then nothing is stored and torque stays off."""
+        """First start with a missing neutral file: the present positions become the stored
+        calibration, unless the supervisor refuses them (servos held at start): then nothing is
+        stored and torque stays off."""
         assert self.bus is not None
         ticks = self.present_ticks(self.bus.read_positions().ticks).tolist()
         self._set_neutral(ticks)  # also gives the state topics their zero while uncalibrated
@@ -133,24 +167,29 @@ class Servos:
     # ------------------------------------------------------------------ connection
     def configure(self) -> None:
         """Create the bus (not yet opened) and fix the configured neutral, if there is one."""
-        self.bus = DynamixelBus(self._p["port"], self._p["baudrate"], self.ids,
-                                min_packet_timeout_ms=self._p["packet_timeout"])
+        self.bus = DynamixelBus(
+            self._p["port"],
+            self._p["baudrate"],
+            self.ids,
+            min_packet_timeout_ms=self._p["packet_timeout"],
+        )
         self.map = self.limits = None
         self.sup.configured(self.stored_neutral is not None)
         if self.stored_neutral is not None:
             self._set_neutral(self.stored_neutral)
 
     def connect(self) -> None:
-        """Open the bus, configure the servos (torque off, return delay, extended position mode), fix neutrals; then
-        torque on if it is due."""
+        """Open the bus, configure the servos (torque off, return delay, extended position mode),
+        fix neutrals; then torque on if it is due."""
         assert self.bus is not None
         try:
             self.bus.close()
             self.bus.open()
             positions = self.sup.positions
             if positions.needs_held_check():  # before configure() turns torque off: still held?
-                positions.held = all(self.bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1
-                                     for i in self.ids)
+                positions.held = all(
+                    self.bus.read_register(i, ADDR_TORQUE_ENABLE, 1) == 1 for i in self.ids
+                )
             self.bus.configure(return_delay=self._p["return_delay"])
             if self.map is None:
                 self._adopt_present_as_neutral()
@@ -160,7 +199,9 @@ class Servos:
             self.count_error(exc)
             self.bus.close()
             if self.sup.link.connect_failed(str(exc)):
-                self._log.warning(f"bus not ready ({exc}); retrying every {self._p['reconnect_period']} s")
+                self._log.warning(
+                    f"bus not ready ({exc}); retrying every {self._p['reconnect_period']} s"
+                )
             return
         outage = self.sup.link.connected(self._now())
         if outage is not None:
@@ -181,9 +222,12 @@ class Servos:
             self.connect()
 
     def lose_link(self, exc: BusError) -> None:
-        """The bus stopped answering: torque off where still possible, close, let the reconnect timer retry."""
+        """The bus stopped answering: torque off where still possible, close, let the reconnect
+        timer retry."""
         assert self.bus is not None
-        self._log.error(f"bus lost ({exc}); torque off, reconnecting every {self._p['reconnect_period']} s")
+        self._log.error(
+            f"bus lost ({exc}); torque off, reconnecting every {self._p['reconnect_period']} s"
+        )
         self.disable_torque("bus lost")
         self.bus.close()
         self.sup.link_lost(str(exc), self._now())
@@ -199,35 +243,50 @@ class Servos:
     def count_error(self, exc: BusError) -> None:
         """Count a bus error by kind and keep its text for diagnostics."""
         self.last_error = str(exc)
-        kind = ("port_errors" if isinstance(exc, PortError) else "comm_errors" if isinstance(exc, CommError)
-                else "status_errors" if isinstance(exc, ServoStatusError) else "comm_errors")
+        kind = (
+            "port_errors"
+            if isinstance(exc, PortError)
+            else "comm_errors"
+            if isinstance(exc, CommError)
+            else "status_errors"
+            if isinstance(exc, ServoStatusError)
+            else "comm_errors"
+        )
         self.counts[kind] += 1
 
     # ------------------------------------------------------------------ torque
     def _checked(self, check: Callable[[], str | None]) -> str | None:
-        """Run one of the supervisor's torque-on checks; warn once when it keeps the pose of servos held at start."""
+        """Run one of the supervisor's torque-on checks; warn once when it keeps the pose of servos
+        held at start."""
         positions = self.sup.positions
         checked = positions.startup_checked
         problem = check()
         if not checked and positions.startup_checked and positions.held:
-            self._log.warning("servos still held at start (driver restart): keeping their pose within the limits "
-                              f"of the configured neutral ticks {positions.neutral.tolist()}")
+            self._log.warning(
+                "servos still held at start (driver restart): keeping their pose within the limits "
+                f"of the configured neutral ticks {positions.neutral.tolist()}"
+            )
         return problem
 
     def enable_torque(self) -> str | None:
-        """Torque on holding the present positions if the supervisor allows it; returns why not otherwise. A refusal
-        by the checks stays until asked again; a failure on the bus is retried with backoff while torque is due."""
+        """Torque on holding the present positions if the supervisor allows it; returns why not
+        otherwise. A refusal by the checks stays until asked again; a failure on the bus is retried
+        with backoff while torque is due."""
         assert self.bus is not None
         try:
             reading = self.bus.read_positions()
             errors = self._hardware_errors() if reading.alerts else None
             ticks = self.present_ticks(reading.ticks)
-            problem = self._checked(lambda: self.sup.torque_on_problem(ticks, reading.alerts, errors))
+            problem = self._checked(
+                lambda: self.sup.torque_on_problem(ticks, reading.alerts, errors)
+            )
             if problem is None:
                 self.bus.enable_torque()
         except BusError as exc:
             self.count_error(exc)
-            self.bus.disable_torque(verify=False)  # servos enabled before the failure must not stay on
+            self.bus.disable_torque(
+                verify=False
+            )  # servos enabled before the failure must not stay on
             problem = f"torque-on failed: {exc}"
             delay = self.sup.torque_failed(problem, self._now())
             retry = f"; retrying in {delay:.3g} s" if delay is not None else ""
@@ -245,12 +304,14 @@ class Servos:
         return None
 
     def disable_torque(self, reason: str) -> frozenset[int]:
-        """Best-effort torque off (one sync write, then read back); returns and logs the IDs that did not confirm."""
+        """Best-effort torque off (one sync write, then read back); returns and logs the IDs that
+        did not confirm."""
         was_on = self.sup.torque_disabled(reason)
         if self.bus is None or not self.bus.is_open:
             return frozenset(self.ids)
         unconfirmed = self.bus.disable_torque()
-        if unconfirmed:  # once more after a pause, so a half-finished exchange (e.g. cut by a signal) has died out
+        # once more after a pause, so a half-finished exchange (e.g. cut by a signal) has died out
+        if unconfirmed:
             time.sleep(0.1)
             unconfirmed = self.bus.disable_torque()
         if unconfirmed:
@@ -260,12 +321,14 @@ class Servos:
         return unconfirmed
 
     def _hardware_errors(self) -> dict[int, int]:
-        """Hardware Error Status of the servos that report one (nonzero bits only), read from the bus."""
+        """Hardware Error Status of the servos that report one (nonzero bits only), read from the
+        bus."""
         assert self.bus is not None
         return {i: b for i, b in self.bus.read_hardware_errors().items() if b}
 
     def alerts(self, alerts: frozenset[int]) -> None:
-        """The set of alerting servos changed: read their Hardware Error Status; on a new error, torque off for all."""
+        """The set of alerting servos changed: read their Hardware Error Status; on a new error,
+        torque off for all."""
         assert self.bus is not None
         errors = self._hardware_errors() if alerts else {}
         event = self.sup.hardware_errors(alerts, errors)
@@ -278,8 +341,9 @@ class Servos:
             self._log.info("hardware errors cleared")
 
     def reboot(self, ids: list[int]) -> Answer:
-        """Protocol 2.0 REBOOT of ``ids`` (torque off for every servo first), then configure, re-read the hardware
-        errors and present positions and re-check them; torque stays off until ``set_torque(true)``."""
+        """Protocol 2.0 REBOOT of ``ids`` (torque off for every servo first), then configure,
+        re-read the hardware errors and present positions and re-check them; torque stays off until
+        ``set_torque(true)``."""
         problem = self.sup.reboot_refusal()
         if problem is not None:
             return Answer(False, f"reboot refused: {problem}")
@@ -292,7 +356,9 @@ class Servos:
             for dxl_id in ids:
                 self.bus.reboot(dxl_id)
             self.bus.wait_answering(ids, REBOOT_WAIT_S)
-            self.bus.configure(return_delay=self._p["return_delay"])  # RAM defaults: torque off; EEPROM checked
+            self.bus.configure(
+                return_delay=self._p["return_delay"]
+            )  # RAM defaults: torque off; EEPROM checked
             reading = self.bus.read_positions()
             errors = self._hardware_errors()
         except BusError as exc:
@@ -304,15 +370,26 @@ class Servos:
         self.counts["reboots"] += 1
         ticks = self.present_ticks(reading.ticks)
         problem = self._checked(lambda: self.sup.rebooted(ticks, reading.alerts, errors))
-        self.last_reboot = f"IDs {ids} in {took * 1e3:.1f} ms: " + (problem or "ready for set_torque(true)")
+        self.last_reboot = f"IDs {ids} in {took * 1e3:.1f} ms: " + (
+            problem or "ready for set_torque(true)"
+        )
         self.sup.torque_refused(f"off (rebooted IDs {ids}{': ' + problem if problem else ''})")
         if problem is not None:
             self._log.error(f"rebooted IDs {ids}; torque stays off: {problem}")
         else:
-            self._log.warning(f"rebooted IDs {ids} in {took * 1e3:.1f} ms: hardware errors cleared, present "
-                              "positions within the limits; torque off until set_torque(true)")
-        return Answer(problem is None, f"rebooted IDs {ids}; " + (f"torque stays off: {problem}" if problem else
-                      "hardware errors cleared, positions within the limits: call set_torque(true)"))
+            self._log.warning(
+                f"rebooted IDs {ids} in {took * 1e3:.1f} ms: hardware errors cleared, present "
+                "positions within the limits; torque off until set_torque(true)"
+            )
+        return Answer(
+            problem is None,
+            f"rebooted IDs {ids}; "
+            + (
+                f"torque stays off: {problem}"
+                if problem
+                else "hardware errors cleared, positions within the limits: call set_torque(true)"
+            ),
+        )
 
     # ------------------------------------------------------------------ node events
     def activate(self) -> None:
@@ -379,8 +456,9 @@ class Servos:
         engaged = self.sup.estop.engage(reason, self._now())
         if engaged:
             self.counts["estops"] += 1
-            self._log.error(f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until "
-                            "clear_estop")
+            self._log.error(
+                f"E-stop engaged ({reason}): {outcome}; phi_cmd ignored until clear_estop"
+            )
         return engaged, outcome
 
     def clear_estop(self) -> tuple[Answer, bool]:
@@ -429,8 +507,10 @@ class Servos:
         decision = self.sup.check_watchdog(now, timeout, self._p["watchdog_action"])
         if decision.event in (WatchdogEvent.HOLD, WatchdogEvent.RELAX):
             relax = decision.event is WatchdogEvent.RELAX
-            self._log.warning(f"no phi_cmd for > {timeout} s: "
-                              + ("relaxing (torque off)" if relax else "holding the last goal"))
+            self._log.warning(
+                f"no phi_cmd for > {timeout} s: "
+                + ("relaxing (torque off)" if relax else "holding the last goal")
+            )
         if decision.torque_off:
             self.disable_torque("watchdog: no phi_cmd")
         if decision.stale:

@@ -1,1 +1,2 @@
-"""hsa_identification: excitation, rest-strain calibration, system identification, model verification, workspace map."""
+"""hsa_identification: excitation, rest-strain calibration, system identification, model
+verification, workspace map."""

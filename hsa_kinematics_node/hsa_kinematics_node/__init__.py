@@ -1,1 +1,2 @@
-"""Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap sample."""
+"""Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation per mocap
+sample."""

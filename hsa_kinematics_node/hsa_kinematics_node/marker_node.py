@@ -1,10 +1,12 @@
-"""marker_node: RViz/Foxglove markers of the robot (``state``) and of the goal (``setpoint``) → ``markers``.
+"""marker_node: RViz/Foxglove markers of the robot (``state``) and of the goal (``setpoint``) →
+``markers``.
 
-One visualization_msgs/MarkerArray per accepted ``state``, at most ``rate`` per second of the node clock (the states in
-between are dropped before any work is done): backbone and both rods as LINE_STRIPs, the platform as a CUBE, and once a
-setpoint is known the desired EE position as a SPHERE and a translucent ghost of q^d (backbone, rods, platform
-outline). A new setpoint is drawn at once. Every marker carries the stamp of the newest state and the ``frame_id``
-parameter; namespaces and ids never change, so each marker is replaced in place. All geometry comes from
+One visualization_msgs/MarkerArray per accepted ``state``, at most ``rate`` per second of the node
+clock (the states in between are dropped before any work is done): backbone and both rods as
+LINE_STRIPs, the platform as a CUBE, and once a setpoint is known the desired EE position as a
+SPHERE and a translucent ghost of q^d (backbone, rods, platform outline). A new setpoint is drawn at
+once. Every marker carries the stamp of the newest state and the ``frame_id`` parameter; namespaces
+and ids never change, so each marker is replaced in place. All geometry comes from
 hsa_core.model.visual. Parameters and topics: docs/nodes/hsa_kinematics_node.md.
 """
 
@@ -24,27 +26,55 @@ from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
-from hsa_core.rate_meter import RateMeter
-from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
 from hsa_core.jaxsetup import configure_jax
+from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.rate_meter import RateMeter
 from hsa_msgs.msg import CsConfiguration, PlanarState, Setpoint
 
 SPECS = (
     *MODEL_SPECS,
-    ParamSpec("frame_id", "hsa_base", "frame of the markers (the planar base frame {0})", read_only=True),
-    ParamSpec("rate", 20.0, "[Hz] most MarkerArrays per second (node clock); states in between are dropped",
-              low=0.1, high=1000.0),
-    ParamSpec("n_points", DEFAULT_POINTS, "[-] samples of the active length per backbone or rod polyline",
-              low=2, high=200, read_only=True),
+    ParamSpec(
+        "frame_id", "hsa_base", "frame of the markers (the planar base frame {0})", read_only=True
+    ),
+    ParamSpec(
+        "rate",
+        20.0,
+        "[Hz] most MarkerArrays per second (node clock); states in between are dropped",
+        low=0.1,
+        high=1000.0,
+    ),
+    ParamSpec(
+        "n_points",
+        DEFAULT_POINTS,
+        "[-] samples of the active length per backbone or rod polyline",
+        low=2,
+        high=200,
+        read_only=True,
+    ),
     ParamSpec("backbone_width", 0.002, "[m] line width of the backbone", low=0.0001, high=0.1),
-    ParamSpec("ghost_alpha", 0.3, "[-] opacity of the ghost of the desired configuration", low=0.0, high=1.0),
-    ParamSpec("setpoint_diameter", 0.008, "[m] diameter of the setpoint sphere", low=0.0001, high=0.1),
-    ParamSpec("diagnostics_period", 1.0, "[s] period of the /diagnostics reports", low=0.05, high=60.0,
-              read_only=True),
+    ParamSpec(
+        "ghost_alpha",
+        0.3,
+        "[-] opacity of the ghost of the desired configuration",
+        low=0.0,
+        high=1.0,
+    ),
+    ParamSpec(
+        "setpoint_diameter", 0.008, "[m] diameter of the setpoint sphere", low=0.0001, high=0.1
+    ),
+    ParamSpec(
+        "diagnostics_period",
+        1.0,
+        "[s] period of the /diagnostics reports",
+        low=0.05,
+        high=60.0,
+        read_only=True,
+    ),
 )
 
 NAMESPACES = ("backbone", "rods", "platform", "setpoint", "ghost")
-"""Marker namespaces; ids: backbone 0, rods 0/1 (virtual rod 1/2), platform 0, setpoint 0, ghost 0-3."""
+"""Marker namespaces; ids: backbone 0, rods 0/1 (virtual rod 1/2), platform 0, setpoint 0, ghost
+0-3."""
 
 BACKBONE = (0.9, 0.9, 0.9)
 RODS = ((0.85, 0.33, 0.10), (0.00, 0.45, 0.74))  # virtual rod 1 (roff < 0), rod 2 (roff > 0)
@@ -54,7 +84,8 @@ GHOST = (0.3, 0.8, 1.0)
 
 
 class MarkerNode(Node):
-    """Draws the measured configuration and the setpoint with hsa_core.model.visual geometry, rate-limited."""
+    """Draws the measured configuration and the setpoint with hsa_core.model.visual geometry,
+    rate-limited."""
 
     def __init__(self) -> None:
         super().__init__("marker_node")
@@ -67,15 +98,29 @@ class MarkerNode(Node):
         guard_updates(self, SPECS, self._update)
         self._state: PlanarState | None = None
         self._setpoint: Setpoint | None = None
-        self._goal: list[Marker] = []  # setpoint sphere and ghost of q^d, rebuilt on a new setpoint or parameter
+        self._goal: list[
+            Marker
+        ] = []  # setpoint sphere and ghost of q^d, rebuilt on a new setpoint or parameter
         self._published_at: Time | None = None
         self._counts = {"states": 0, "setpoints": 0, "published": 0}
         self._rates = RateMeter(self.get_clock().now().nanoseconds)
-        self._pub = self.create_publisher(MarkerArray, "markers", qos.INFO, qos_overriding_options=qos.overridable())
-        self.create_subscription(PlanarState, "state", self._on_state, qos.SENSOR,
-                                 qos_overriding_options=qos.overridable())
-        self.create_subscription(Setpoint, "setpoint", self._on_setpoint, qos.LATCHED,
-                                 qos_overriding_options=qos.overridable())
+        self._pub = self.create_publisher(
+            MarkerArray, "markers", qos.INFO, qos_overriding_options=qos.overridable()
+        )
+        self.create_subscription(
+            PlanarState,
+            "state",
+            self._on_state,
+            qos.SENSOR,
+            qos_overriding_options=qos.overridable(),
+        )
+        self.create_subscription(
+            Setpoint,
+            "setpoint",
+            self._on_setpoint,
+            qos.LATCHED,
+            qos_overriding_options=qos.overridable(),
+        )
         self._diagnostics = Diagnostics(self, self._p["diagnostics_period"])
         self._diagnostics.add("markers", self._report)
 
@@ -90,11 +135,15 @@ class MarkerNode(Node):
         return jax.device_get(self._geometry(convert.configuration(q)))
 
     def _on_state(self, msg: PlanarState) -> None:
-        """Keep the newest state; draw it unless the last MarkerArray went out less than 1/rate ago."""
+        """Keep the newest state; draw it unless the last MarkerArray went out less than 1/rate
+        ago."""
         self._counts["states"] += 1
         self._state = msg
         now = self.get_clock().now()
-        if self._published_at is not None and 0 <= (now - self._published_at).nanoseconds < 1e9 / self._p["rate"]:
+        if (
+            self._published_at is not None
+            and 0 <= (now - self._published_at).nanoseconds < 1e9 / self._p["rate"]
+        ):
             return
         self._publish(now)
 
@@ -106,7 +155,8 @@ class MarkerNode(Node):
         self._publish(self.get_clock().now())
 
     def _publish(self, now: Time) -> None:
-        """One MarkerArray: robot of the newest state, setpoint sphere and ghost, all stamped with the state stamp."""
+        """One MarkerArray: robot of the newest state, setpoint sphere and ghost, all stamped with
+        the state stamp."""
         markers: list[Marker] = []
         stamp = self._state.header.stamp if self._state is not None else self._setpoint.header.stamp
         if self._state is not None:
@@ -128,11 +178,16 @@ class MarkerNode(Node):
         return [sphere, *self._robot_markers("ghost", self._compute(setpoint.q_des), ghost=True)]
 
     def _robot_markers(self, ns: str, g: RobotGeometry, ghost: bool) -> list[Marker]:
-        """Backbone and rod LINE_STRIPs plus the platform (CUBE for the robot, outline LINE_STRIP for the ghost)."""
+        """Backbone and rod LINE_STRIPs plus the platform (CUBE for the robot, outline LINE_STRIP
+        for the ghost)."""
         alpha = self._p["ghost_alpha"] if ghost else 1.0
 
-        def strip(name: str, marker_id: int, points: np.ndarray, color: tuple[float, ...], width: float) -> Marker:
-            marker = _marker(ns or name, marker_id, Marker.LINE_STRIP, GHOST if ghost else color, alpha)
+        def strip(
+            name: str, marker_id: int, points: np.ndarray, color: tuple[float, ...], width: float
+        ) -> Marker:
+            marker = _marker(
+                ns or name, marker_id, Marker.LINE_STRIP, GHOST if ghost else color, alpha
+            )
             marker.scale.x = width
             marker.points = [convert.planar_point(x, y) for x, y in points]
             return marker
@@ -149,15 +204,23 @@ class MarkerNode(Node):
         cube = _marker("platform", 0, Marker.CUBE, PLATFORM, 1.0)
         cube.pose.position = convert.planar_point(*g.platform_pose[:2])
         orientation = cube.pose.orientation
-        orientation.x, orientation.y, orientation.z, orientation.w = (float(v) for v in g.platform_orientation)
+        orientation.x, orientation.y, orientation.z, orientation.w = (
+            float(v) for v in g.platform_orientation
+        )
         cube.scale.x, cube.scale.y, cube.scale.z = (float(v) for v in self._plate_size)
         return markers + [cube]
 
     def _report(self) -> Report:
         """Counts and output rate since the last report; WARN while no state has arrived."""
         now = self.get_clock().now()
-        rate = self._rates.rates(now.nanoseconds, {"published": self._counts["published"]})["published"]
-        values: dict[str, Any] = {**self._counts, "output_rate_hz": round(rate, 1), "rate_limit_hz": self._p["rate"]}
+        rate = self._rates.rates(now.nanoseconds, {"published": self._counts["published"]})[
+            "published"
+        ]
+        values: dict[str, Any] = {
+            **self._counts,
+            "output_rate_hz": round(rate, 1),
+            "rate_limit_hz": self._p["rate"],
+        }
         if self._state is None:
             return Report(WARN, "waiting for state", values)
         return Report(OK, "drawing", values)

@@ -1,1 +1,2 @@
-"""Planner node: steady-state setpoint planning service and a setpoint sequencer for step and contour trajectories."""
+"""Planner node: steady-state setpoint planning service and a setpoint sequencer for step and
+contour trajectories."""

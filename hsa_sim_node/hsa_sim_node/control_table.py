@@ -1,12 +1,15 @@
-"""The MX-28(2.0) control table (no ROS): every item's address, size, default, access and accepted values.
+"""The MX-28(2.0) control table (no ROS): every item's address, size, default, access and accepted
+values.
 
-Source: ROBOTIS e-Manual, MX-28(2.0) page, "Control Table" (EEPROM area: addresses < 64; RAM area: 64 and up).
-Indirect addresses/data are not emulated.
+Source: ROBOTIS e-Manual, MX-28(2.0) page, "Control Table" (EEPROM area: addresses < 64; RAM area:
+64 and up). Indirect addresses/data are not emulated.
 
-The driver names some of these addresses again in ``hsa_dynamixel_driver/hsa_dynamixel_driver/bus.py``. That
-duplication is deliberate: this table is the emulator's own, independent transcription of the e-Manual, so the
-emulator is an oracle of the real servo — a wrong address in the driver is refused or answered with the wrong item by
-the emulator (and caught by the tests) instead of being shared by both sides. Do not import one from the other.
+The driver names some of these addresses again in
+``hsa_dynamixel_driver/hsa_dynamixel_driver/bus.py``. That duplication is deliberate: this table is
+the emulator's own, independent transcription of the e-Manual, so the emulator is an oracle of the
+real servo — a wrong address in the driver is refused or answered with the wrong item by the
+emulator (and caught by the tests) instead of being shared by both sides. Do not import one from the
+other.
 """
 
 from __future__ import annotations
@@ -28,16 +31,28 @@ MX28_FIRMWARE = 45
 TICKS_PER_REV = 4096
 EXTENDED_GOAL_LIMIT = 1_048_575  # ±256 rev in Extended Position Control Mode
 VELOCITY_UNIT_RPM = 0.229  # one unit of Present Velocity (128) [rev/min]
-BAUD_RATE_CODES = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4, 3_000_000: 5, 4_000_000: 6, 4_500_000: 7}
+BAUD_RATE_CODES = {
+    9600: 0,
+    57600: 1,
+    115200: 2,
+    1_000_000: 3,
+    2_000_000: 4,
+    3_000_000: 5,
+    4_000_000: 6,
+    4_500_000: 7,
+}
 # termios speed constant -> Baud Rate(8) code, for the rates this platform's termios knows.
 SPEED_CODES = {
-    getattr(termios, f"B{rate}"): code for rate, code in BAUD_RATE_CODES.items() if hasattr(termios, f"B{rate}")
+    getattr(termios, f"B{rate}"): code
+    for rate, code in BAUD_RATE_CODES.items()
+    if hasattr(termios, f"B{rate}")
 }
 
 
 @dataclass(frozen=True)
 class Item:
-    """One control-table entry; ``valid`` lists accepted write values (None: anything that fits in ``size`` bytes)."""
+    """One control-table entry; ``valid`` lists accepted write values (None: anything that fits in
+    ``size`` bytes)."""
 
     address: int
     size: int
@@ -129,7 +144,12 @@ ITEMS = {
         Item(ADDR_PRESENT_TEMPERATURE, 1, 35, writable=False),  # °C
     )
 }
-# Byte address -> item it belongs to, for detecting writes that cut an item or touch undefined addresses.
+# Byte address -> item it belongs to, for detecting writes that cut an item or touch undefined
+# addresses.
 OWNER = {a: item for item in ITEMS.values() for a in range(item.address, item.address + item.size)}
-GOALS = (ADDR_GOAL_PWM, ADDR_GOAL_VELOCITY, ADDR_GOAL_POSITION)  # read-only while a bus-watchdog error is latched
+GOALS = (
+    ADDR_GOAL_PWM,
+    ADDR_GOAL_VELOCITY,
+    ADDR_GOAL_POSITION,
+)  # read-only while a bus-watchdog error is latched
 COMPUTED = (ADDR_REALTIME_TICK, ADDR_MOVING, ADDR_PRESENT_VELOCITY, ADDR_PRESENT_POSITION)

@@ -1,7 +1,9 @@
-"""Dynamixel Protocol 2.0 packet codec (no ROS): CRC, byte stuffing, packet encoding and stream reassembly.
+"""Dynamixel Protocol 2.0 packet codec (no ROS): CRC, byte stuffing, packet encoding and stream
+reassembly.
 
-Framing, instruction and error codes follow the ROBOTIS e-Manual, Protocol 2.0 page. Used by the emulated MX-28 bus
-(:mod:`hsa_sim_node.mx28_emulator`) to read instruction packets and write status packets.
+Framing, instruction and error codes follow the ROBOTIS e-Manual, Protocol 2.0 page. Used by the
+emulated MX-28 bus (:mod:`hsa_sim_node.mx28_emulator`) to read instruction packets and write status
+packets.
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ _MAX_PACKET_LENGTH = 1024  # longest Length field accepted before resynchronisin
 
 
 def _make_crc_table() -> tuple[int, ...]:
-    """Table of the non-reflected CRC-16 with polynomial 0x8005 and initial value 0 used by Protocol 2.0."""
+    """Table of the non-reflected CRC-16 with polynomial 0x8005 and initial value 0 used by Protocol
+    2.0."""
     table = []
     for byte in range(256):
         crc = byte << 8
@@ -58,7 +61,8 @@ def crc16(data: bytes | bytearray) -> int:
 
 
 def stuff(body: bytes | bytearray) -> bytes:
-    """Byte-stuff instruction+parameters: every 0xFF 0xFF 0xFD gets an extra 0xFD so it cannot look like a header."""
+    """Byte-stuff instruction+parameters: every 0xFF 0xFF 0xFD gets an extra 0xFD so it cannot look
+    like a header."""
     if HEADER[:3] not in body:
         return bytes(body)
     out = bytearray()
@@ -93,7 +97,8 @@ def encode_packet(dxl_id: int, instruction: int, params: bytes | bytearray = b""
 
 
 def u16(data: bytes, offset: int) -> int:
-    """Little-endian unsigned 16-bit field of ``data`` at ``offset`` (addresses and lengths in parameters)."""
+    """Little-endian unsigned 16-bit field of ``data`` at ``offset`` (addresses and lengths in
+    parameters)."""
     return data[offset] | data[offset + 1] << 8
 
 
@@ -125,7 +130,8 @@ class PacketReader:
         self._buffer.clear()
 
     def next_packet(self) -> Packet | None:
-        """Next complete packet, or None until more bytes arrive; malformed headers are skipped byte by byte."""
+        """Next complete packet, or None until more bytes arrive; malformed headers are skipped byte
+        by byte."""
         buf = self._buffer
         while True:
             start = buf.find(HEADER[:3])

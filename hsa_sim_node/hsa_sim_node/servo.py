@@ -1,10 +1,12 @@
-"""One emulated MX-28(2.0) servo (no ROS): its control-table state and how it executes Protocol 2.0 instructions.
+"""One emulated MX-28(2.0) servo (no ROS): its control-table state and how it executes Protocol 2.0
+instructions.
 
-The register semantics (access, ranges, EEPROM lock, bus watchdog, shutdown, multi-turn reset) follow the ROBOTIS
-e-Manual MX-28(2.0) page; behaviour the manual leaves open is marked "assumption". The shaft's motion is not modelled
-here: with a :class:`hsa_core.model.actuation.ServoModel` the shaft follows its goal by that model (the emulator used alone,
-by the driver's tests); with ``model=None`` it is driven from outside (sim_node: the shafts of
-:class:`hsa_core.sim.world.World`).
+The register semantics (access, ranges, EEPROM lock, bus watchdog, shutdown, multi-turn reset)
+follow the ROBOTIS e-Manual MX-28(2.0) page; behaviour the manual leaves open is marked
+"assumption". The shaft's motion is not modelled here: with a
+:class:`hsa_core.model.actuation.ServoModel` the shaft follows its goal by that model (the emulator
+used alone, by the driver's tests); with ``model=None`` it is driven from outside (sim_node: the
+shafts of :class:`hsa_core.sim.world.World`).
 """
 
 from __future__ import annotations
@@ -65,7 +67,8 @@ from hsa_sim_node.protocol import (
 
 
 class RegisterWrite(NamedTuple):
-    """One control-table item changed by a WRITE or SYNC_WRITE, stamped when the emulator executed the packet."""
+    """One control-table item changed by a WRITE or SYNC_WRITE, stamped when the emulator executed
+    the packet."""
 
     time: float  # time.monotonic() (CLOCK_MONOTONIC, comparable between processes of one machine)
     dxl_id: int
@@ -76,7 +79,9 @@ class RegisterWrite(NamedTuple):
 class Servo:
     """Control table and shaft state of one emulated MX-28(2.0)."""
 
-    def __init__(self, dxl_id: int, baud_code: int, ticks: int, model: ServoModel | None, now: float) -> None:
+    def __init__(
+        self, dxl_id: int, baud_code: int, ticks: int, model: ServoModel | None, now: float
+    ) -> None:
         self.table = bytearray(TABLE_SIZE)
         for item in ITEMS.values():
             self.put(item.address, item.default)
@@ -84,12 +89,16 @@ class Servo:
         self.put(ADDR_BAUD_RATE, baud_code)
         self.position = float(ticks)
         self.velocity = 0.0
-        self.put(ADDR_GOAL_POSITION, ticks)  # assumption: at power-on the goal equals the present position
+        self.put(
+            ADDR_GOAL_POSITION, ticks
+        )  # assumption: at power-on the goal equals the present position
         self.model = model
         self.responsive = True
         self.updated = now
         self.last_instruction = now
-        self.journal: deque[RegisterWrite] | None = None  # the emulator's write log, if it keeps one
+        self.journal: deque[RegisterWrite] | None = (
+            None  # the emulator's write log, if it keeps one
+        )
 
     @property
     def dxl_id(self) -> int:
@@ -104,19 +113,25 @@ class Servo:
     def get(self, address: int) -> int:
         """Value of the item at ``address`` (with its size and signedness)."""
         item = ITEMS[address]
-        return int.from_bytes(self.table[address : address + item.size], "little", signed=item.signed)
+        return int.from_bytes(
+            self.table[address : address + item.size], "little", signed=item.signed
+        )
 
     def put(self, address: int, value: int) -> None:
         """Store ``value`` in the item at ``address`` without any access check."""
         item = ITEMS[address]
-        self.table[address : address + item.size] = int(value).to_bytes(item.size, "little", signed=item.signed)
+        self.table[address : address + item.size] = int(value).to_bytes(
+            item.size, "little", signed=item.signed
+        )
 
     def error_byte(self, error: int) -> int:
-        """Status error field: the error number plus the alert bit while a hardware error is latched."""
+        """Status error field: the error number plus the alert bit while a hardware error is
+        latched."""
         return error | (ERRBIT_ALERT if self.table[ADDR_HARDWARE_ERROR] else 0)
 
     def advance(self, now: float) -> None:
-        """Move the shaft to time ``now``, tripping the bus watchdog at its exact expiry time if due."""
+        """Move the shaft to time ``now``, tripping the bus watchdog at its exact expiry time if
+        due."""
         watchdog = self.get(ADDR_BUS_WATCHDOG)
         if self.torque_on and watchdog > 0:
             expiry = self.last_instruction + watchdog * 0.020
@@ -134,12 +149,15 @@ class Servo:
         if self.model is None:
             return
         if self.torque_on and self.get(ADDR_OPERATING_MODE) in (3, 4):
-            self.position, self.velocity = self.model.step(self.position, self.get(ADDR_GOAL_POSITION), dt)
+            self.position, self.velocity = self.model.step(
+                self.position, self.get(ADDR_GOAL_POSITION), dt
+            )
         else:
             self.velocity = 0.0
 
     def refresh(self, now: float) -> None:
-        """Update the computed registers (present position/velocity, moving, realtime tick) for a read at ``now``."""
+        """Update the computed registers (present position/velocity, moving, realtime tick) for a
+        read at ``now``."""
         self.advance(now)
         self.put(ADDR_PRESENT_POSITION, max(-(2**31), min(2**31 - 1, round(self.position))))
         velocity = round(self.velocity * 60.0 / TICKS_PER_REV / VELOCITY_UNIT_RPM)
@@ -148,7 +166,8 @@ class Servo:
         self.put(ADDR_REALTIME_TICK, int(now * 1000) % 32768)
 
     def wrap_to_one_turn(self) -> None:
-        """Reset the multi-turn count: present (and goal) move into one absolute rotation, the shaft stays put."""
+        """Reset the multi-turn count: present (and goal) move into one absolute rotation, the shaft
+        stays put."""
         offset = math.floor(self.position / TICKS_PER_REV) * TICKS_PER_REV
         self.position -= offset
         self.put(ADDR_GOAL_POSITION, self.get(ADDR_GOAL_POSITION) - offset)
@@ -161,7 +180,8 @@ class Servo:
         return 0, bytes(self.table[address : address + length])
 
     def write(self, address: int, data: bytes, now: float) -> int:
-        """WRITE semantics, all-or-nothing: returns the error number (0 when applied, then journaled at ``now``)."""
+        """WRITE semantics, all-or-nothing: returns the error number (0 when applied, then journaled
+        at ``now``)."""
         staged: list[tuple[Item, int]] = []
         pos, end = address, address + len(data)
         if not data:
@@ -174,7 +194,9 @@ class Servo:
                 return ERR_DATA_LENGTH
             if not item.writable or (item.address < EEPROM_END and self.torque_on):
                 return ERR_ACCESS
-            value = int.from_bytes(data[pos - address : pos - address + item.size], "little", signed=item.signed)
+            value = int.from_bytes(
+                data[pos - address : pos - address + item.size], "little", signed=item.signed
+            )
             error = self._check(item, value)
             if error:
                 return error
@@ -212,9 +234,12 @@ class Servo:
             self.wrap_to_one_turn()
 
     def reboot(self) -> None:
-        """REBOOT: RAM back to defaults, errors cleared, torque off, present position within one turn."""
+        """REBOOT: RAM back to defaults, errors cleared, torque off, present position within one
+        turn."""
         for item in ITEMS.values():
-            if (item.address >= EEPROM_END and item.writable) or item.address == ADDR_HARDWARE_ERROR:
+            if (
+                item.address >= EEPROM_END and item.writable
+            ) or item.address == ADDR_HARDWARE_ERROR:
                 self.put(item.address, item.default)
         self.wrap_to_one_turn()
         self.put(ADDR_GOAL_POSITION, round(self.position))
@@ -228,13 +253,20 @@ class Servo:
 
 
 def execute(servo: Servo, packet: Packet, now: float) -> list[tuple[int, int, bytes]]:
-    """One servo's part of an instruction packet: (reply slot, status error field, data) for each status it owes."""
+    """One servo's part of an instruction packet: (reply slot, status error field, data) for each
+    status it owes."""
     inst, params, unicast = packet.instruction, packet.params, packet.dxl_id == servo.dxl_id
     level = servo.table[ADDR_STATUS_RETURN_LEVEL]
     if not unicast and packet.dxl_id != BROADCAST_ID:
         return []
     if inst == INST_PING:  # answered at every Status Return Level
-        return [(servo.dxl_id, servo.error_byte(0), bytes(servo.table[0:2] + servo.table[ADDR_FIRMWARE:7]))]
+        return [
+            (
+                servo.dxl_id,
+                servo.error_byte(0),
+                bytes(servo.table[0:2] + servo.table[ADDR_FIRMWARE:7]),
+            )
+        ]
     if inst == INST_SYNC_WRITE and not unicast:
         _sync_write(servo, params, now)
         return []
@@ -245,7 +277,9 @@ def execute(servo: Servo, packet: Packet, now: float) -> list[tuple[int, int, by
         error, data = servo.read(address, length, now)
         return [(slot, servo.error_byte(error), data)]
     if inst == INST_WRITE:
-        error = servo.write(u16(params, 0), params[2:], now) if len(params) >= 3 else ERR_INSTRUCTION
+        error = (
+            servo.write(u16(params, 0), params[2:], now) if len(params) >= 3 else ERR_INSTRUCTION
+        )
         return [(0, servo.error_byte(error), b"")] if unicast and level == 2 else []
     if not unicast:
         return []  # READ, REBOOT, CLEAR and unknown instructions get no broadcast reply
@@ -273,7 +307,8 @@ def _sync_write(servo: Servo, params: bytes, now: float) -> None:
 
 
 def _group_read_request(dxl_id: int, inst: int, params: bytes) -> tuple[int | None, int, int]:
-    """(reply slot of ``dxl_id``, or None if not listed; address; length) of a SYNC_READ or BULK_READ."""
+    """(reply slot of ``dxl_id``, or None if not listed; address; length) of a SYNC_READ or
+    BULK_READ."""
     if inst == INST_SYNC_READ:
         listed = list(params[4:])
         if len(params) < 4 or dxl_id not in listed:
@@ -286,11 +321,11 @@ def _group_read_request(dxl_id: int, inst: int, params: bytes) -> tuple[int | No
 
 
 def _clear(servo: Servo, params: bytes) -> int:
-    """CLEAR with option 0x01 (fixed key 44 58 4C 22): reset the multi-turn count of a stopped servo."""
+    """CLEAR with option 0x01 (fixed key 44 58 4C 22): reset the multi-turn count of a stopped
+    servo."""
     if params != b"\x01\x44\x58\x4c\x22":
         return ERR_DATA_RANGE
     if servo.velocity != 0.0:
         return ERR_RESULT_FAIL  # the manual allows CLEAR only while the servo is stopped
     servo.wrap_to_one_turn()
     return 0
-

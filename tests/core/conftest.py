@@ -1,8 +1,9 @@
-"""Shared fixtures for the hsa_core model tests: parameter sets, jitted model functions, spec reference values.
+"""Shared fixtures for the hsa_core model tests: parameter sets, jitted model functions, spec
+reference values.
 
-Every expected number in REFERENCE is copied from the specification (model.md §10); none comes from running this code.
-Jitted functions take the parameters as a pytree argument, so each is compiled once per (material, kappa_rule) and
-reused by every test that needs it.
+Every expected number in REFERENCE is copied from the specification (model.md §10); none comes from
+running this code. Jitted functions take the parameters as a pytree argument, so each is compiled
+once per (material, kappa_rule) and reused by every test that needs it.
 """
 
 import jax
@@ -14,7 +15,8 @@ from hsa_core.model.params import HsaParams, load_params
 
 
 class Model:
-    """Jitted model functions shared by all tests (compiled lazily, cached by JAX per static configuration)."""
+    """Jitted model functions shared by all tests (compiled lazily, cached by JAX per static
+    configuration)."""
 
     fk = jax.jit(kinematics.end_effector_pose)
     jee = jax.jit(kinematics.end_effector_jacobian)
@@ -52,16 +54,20 @@ def params_for(material: str, kappa_rule: str = "exact") -> HsaParams:
 
 
 def assert_printed(actual, expected, rtol: float = 1e-7, atol: float = 0.0, name: str = "") -> None:
-    """Compare with values printed to 8 significant digits: |a - e| <= rtol |e| + atol, entry by entry."""
+    """Compare with values printed to 8 significant digits: |a - e| <= rtol |e| + atol, entry by
+    entry."""
     actual, expected = np.asarray(actual, dtype=float), np.asarray(expected, dtype=float)
     assert actual.shape == expected.shape, f"{name}: shape {actual.shape} != {expected.shape}"
     err = np.abs(actual - expected)
     bound = rtol * np.abs(expected) + atol
-    assert np.all(err <= bound), f"{name}: max excess {np.max(err - bound):.3e}\nactual={actual}\nexpected={expected}"
+    assert np.all(err <= bound), (
+        f"{name}: max excess {np.max(err - bound):.3e}\nactual={actual}\nexpected={expected}"
+    )
 
 
-# model.md §10: inputs (full precision) and outputs (8 significant digits). "exact": smooth model without shift;
-# "reference": original implementation with the exp2023 rule; "compat": R1 with the exp2023 rule, no cancellation error.
+# model.md §10: inputs (full precision) and outputs (8 significant digits). "exact": smooth model
+# without shift; "reference": original implementation with the exp2023 rule; "compat": R1 with the
+# exp2023 rule, no cancellation error.
 REFERENCE = {
     "R1": dict(
         material="fpu",
@@ -70,7 +76,11 @@ REFERENCE = {
         phi=[2.5421285355261904, 2.856580426497421],
         exact=dict(
             chiee=[0.0, 0.11, 0.0],
-            M=[[8.1645776e-07, -1.3904338e-05, 0], [-1.3904338e-05, 0.00030796339, 0], [0, 0, 0.00030796339]],
+            M=[
+                [8.1645776e-07, -1.3904338e-05, 0],
+                [-1.3904338e-05, 0.00030796339, 0],
+                [0, 0, 0.00030796339],
+            ],
             G=[0, 0, -0.054392633],
             K=[0, 0, 0],
             alpha=[0.017748652, 0, 11.457288],
@@ -186,7 +196,11 @@ REFERENCE = {
             G=[-0.00027128005, 0.0035213002, -0.0621449],
             K=[-0.0033658152, -0.0035318876, 0.6086957],
             alpha=[0.00059484674, -0.0021122275, 1.1755336],
-            A=[[-0.0081290716, 0.008600766], [-0.00042771608, -0.00042771608], [0.33987915, 0.35719741]],
+            A=[
+                [-0.0081290716, 0.008600766],
+                [-0.00042771608, -0.00042771608],
+                [0.33987915, 0.35719741],
+            ],
             varphi=[0.69024589, 0.63513436, 0.0043012962],
             q_ddot=[12374.551, 596.31446, 2001.3134],
         ),
@@ -200,7 +214,11 @@ REFERENCE = {
             G=[-0.00027003703, 0.0035047018, -0.06214621],
             K=[-0.0033498711, -0.0035117194, 0.6086957],
             alpha=[0.00058473298, -0.0021122275, 1.1755484],
-            A=[[-0.0081311196, 0.008598718], [-0.00042771608, -0.00042771608], [0.33995897, 0.3571176]],
+            A=[
+                [-0.0081311196, 0.008598718],
+                [-0.00042771608, -0.00042771608],
+                [0.33995897, 0.3571176],
+            ],
             varphi=[0.69024589, 0.63513436, 0.0043012962],
             q_ddot=[12277.854, 591.59146, 2001.5999],
         ),

@@ -1,4 +1,5 @@
-"""Tests of hsa_core.model.actuation: φ ↔ ψ ↔ Dynamixel ticks, goal limits and rate limit (spec §7–§8)."""
+"""Tests of hsa_core.model.actuation: φ ↔ ψ ↔ Dynamixel ticks, goal limits and rate limit (spec
+§7–§8)."""
 
 import math
 
@@ -35,7 +36,8 @@ def test_defaults_follow_spec_wiring():
 
 
 def test_a_map_has_no_default_twist_limit():
-    """The twist limit comes from the parameter set (Wiring.motor_map), never from a default of the map."""
+    """The twist limit comes from the parameter set (Wiring.motor_map), never from a default of the
+    map."""
     with pytest.raises(TypeError, match="phi_max"):
         MotorMap()
 
@@ -64,10 +66,14 @@ def test_control_handedness_flips_the_rod():
 
 def test_ticks_formula_truncates_towards_zero():
     # goal = neutral + trunc(ψ·2048/π): 1.7 ticks → 1, −1.7 ticks → −1, exact 2048 ticks = π
-    np.testing.assert_array_equal(angles_to_ticks([1.7 * TICK, -1.7 * TICK, math.pi, -math.pi], [10] * 4),
-                                  [11, 9, 10 + 2048, 10 - 2048])  # fmt: skip
+    np.testing.assert_array_equal(
+        angles_to_ticks([1.7 * TICK, -1.7 * TICK, math.pi, -math.pi], [10] * 4),
+        [11, 9, 10 + 2048, 10 - 2048],
+    )
     assert angles_to_ticks([0.0], [5]).dtype == np.int32
-    np.testing.assert_allclose(ticks_to_angles([2048 + 100, 100 - 4096], [100, 100]), [math.pi, -2 * math.pi])
+    np.testing.assert_allclose(
+        ticks_to_angles([2048 + 100, 100 - 4096], [100, 100]), [math.pi, -2 * math.pi]
+    )
 
 
 def test_non_finite_or_huge_angles_raise_instead_of_wrapping(motor_map):
@@ -93,7 +99,7 @@ def test_round_trip_phi_ticks_phi_within_one_tick(motor_map):
 def test_round_trip_ticks_phi_ticks_exact(motor_map):
     rng = np.random.default_rng(1)
     neutral = np.array(NEUTRAL)
-    for d1, d2 in rng.integers(-2**20, 2**20, size=(2000, 2)):
+    for d1, d2 in rng.integers(-(2**20), 2**20, size=(2000, 2)):
         ticks = neutral + np.array([d2, -d2, d1, -d1])  # consistent pairs, as the map produces them
         np.testing.assert_array_equal(motor_map.goal_ticks(motor_map.present_twists(ticks)), ticks)
     every = np.arange(-5000, 5000)
@@ -116,7 +122,9 @@ def test_limits_never_exceeded(motor_map):
         assert np.all(twists >= -motor_map.margin - TICK)
         assert np.all(twists <= motor_map.phi_max + motor_map.margin + TICK)
         lo, hi = -motor_map.margin, motor_map.phi_max + motor_map.margin
-        if np.all((np.abs(phi - lo) > 2 * TICK) & (np.abs(phi - hi) > 2 * TICK)):  # away from the rounded edges
+        if np.all(
+            (np.abs(phi - lo) > 2 * TICK) & (np.abs(phi - hi) > 2 * TICK)
+        ):  # away from the rounded edges
             outside = (phi < lo) | (phi > hi)
             np.testing.assert_array_equal(clipped, outside[[1, 1, 0, 0]])
 
@@ -168,18 +176,23 @@ def test_neutral_check_at_rest_passes_twisted_only_while_held():
     assert neutral_check([0.05, -0.1, 0.0, 0.0], 0.1, held=False) is None
     problem = neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=False)
     assert problem is not None and "untwist the robot or re-home" in problem and "\n" not in problem
-    assert neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=True) is None  # a driver restart: the servos were held
+    assert (
+        neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=True) is None
+    )  # a driver restart: the servos were held
 
 
 def test_read_neutral_is_accepted_only_near_the_configured_one():
     configured = (2048, 2048, 2048, 2048)
-    assert accept_read_neutral((2050, 2040, 2048, 2100), configured, 0.1) is None  # 52 ticks = 0.08 rad
+    assert (
+        accept_read_neutral((2050, 2040, 2048, 2100), configured, 0.1) is None
+    )  # 52 ticks = 0.08 rad
     problem = accept_read_neutral((2700, 1396, 2048, 2048), configured, 0.1)  # twisted by 1 rad
     assert problem is not None and "configured neutral" in problem
 
 
 def test_limits_depend_on_the_configured_neutral_only():
-    """The goal clamp of a φ command is the same whatever present positions exist: it is built from the map alone."""
+    """The goal clamp of a φ command is the same whatever present positions exist: it is built from
+    the map alone."""
     limits = MotorLimits.from_map(MotorMap(neutral_ticks=(2048,) * 4, phi_max=PHI_MAX))
     upper = 2048 + math.ceil((math.radians(200) + 0.02) * 2048 / math.pi)
     assert limits.upper[0] == upper and limits.lower[1] == 2048 - upper + 2048

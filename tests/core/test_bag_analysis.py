@@ -1,8 +1,10 @@
-"""hsa_bag without ROS: split bag writing, crash recovery, ordered reading, bag → RunLog → metrics, bad-bag errors.
+"""hsa_bag without ROS: split bag writing, crash recovery, ordered reading, bag → RunLog → metrics,
+bad-bag errors.
 
-The analysis is checked on a bag whose metrics are known by construction: an exponential step response
-p_ee = p^d + (p_start − p^d)·r^k with r = exp(−dt/τ) at tick k of each step, so e_k = |Δ|·r^k and RMSE, response
-time, steady-state error, saturation and rate follow in closed form (computed here, not with hsa_core.analysis.metrics).
+The analysis is checked on a bag whose metrics are known by construction: an exponential step
+response p_ee = p^d + (p_start − p^d)·r^k with r = exp(−dt/τ) at tick k of each step, so e_k =
+|Δ|·r^k and RMSE, response time, steady-state error, saturation and rate follow in closed form
+(computed here, not with hsa_core.analysis.metrics).
 """
 
 from __future__ import annotations
@@ -15,7 +17,14 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -30,8 +39,8 @@ INFO = "hsa_msgs/msg/ControllerInfo"
 STRING = "std_msgs/msg/String"
 TRACKING, WAITING, STOPPED = 2, 0, 4
 
-# the synthetic run: 4 steps of N ticks at DT, time constant TAU (TAU·ln10/DT and 2/DT are not integers, so no tick
-# sits exactly on the 10 % threshold or the steady-state window edge)
+# the synthetic run: 4 steps of N ticks at DT, time constant TAU (TAU·ln10/DT and 2/DT are not
+# integers, so no tick sits exactly on the 10 % threshold or the steady-state window edge)
 DT, TAU, N = 0.03, 0.5, 100
 TARGETS = [(0.0, 0.110), (0.010, 0.120), (-0.010, 0.115), (0.005, 0.105)]
 START = (0.002, 0.108)  # measured position at t = 0
@@ -39,7 +48,8 @@ SATURATED_EVERY = 10
 
 
 def store_with_hsa_msgs():
-    """A Jazzy typestore with the hsa_msgs definitions from the source tree (independent of hsa_bag's registry)."""
+    """A Jazzy typestore with the hsa_msgs definitions from the source tree (independent of
+    hsa_bag's registry)."""
     store = get_typestore(Stores.ROS2_JAZZY)
     for path in MSG_DIR.glob("*.msg"):
         store.register(get_types_from_msg(path.read_text(), f"hsa_msgs/msg/{path.stem}"))
@@ -55,29 +65,61 @@ def stamp(ns: int):
     return T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
 
 
-def info_msg(t_ns: int, state: int, p: tuple[float, float], p_des: tuple[float, float], k: int,
-             trajectory_length: int = len(TARGETS), controller: str = "psatid", z_ee: float = 0.0) -> bytes:
-    """Serialized ControllerInfo of one tick with measured p, setpoint p_des and recognisable other fields."""
-    pose, cfg, setpoint = T["hsa_msgs/msg/PlanarPose"], T["hsa_msgs/msg/CsConfiguration"], T["hsa_msgs/msg/Setpoint"]
+def info_msg(
+    t_ns: int,
+    state: int,
+    p: tuple[float, float],
+    p_des: tuple[float, float],
+    k: int,
+    trajectory_length: int = len(TARGETS),
+    controller: str = "psatid",
+    z_ee: float = 0.0,
+) -> bytes:
+    """Serialized ControllerInfo of one tick with measured p, setpoint p_des and recognisable other
+    fields."""
+    pose, cfg, setpoint = (
+        T["hsa_msgs/msg/PlanarPose"],
+        T["hsa_msgs/msg/CsConfiguration"],
+        T["hsa_msgs/msg/Setpoint"],
+    )
     sp = setpoint(
-        header=T["std_msgs/msg/Header"](stamp=stamp(0), frame_id="hsa_base"), chiee_des=pose(p_des[0], p_des[1], 0.0),
-        q_des=cfg(1.0, 0.0, 0.0), phi_ss=np.array([1.0, 2.0]), optimality_error=0.0, trajectory_index=0,
+        header=T["std_msgs/msg/Header"](stamp=stamp(0), frame_id="hsa_base"),
+        chiee_des=pose(p_des[0], p_des[1], 0.0),
+        q_des=cfg(1.0, 0.0, 0.0),
+        phi_ss=np.array([1.0, 2.0]),
+        optimality_error=0.0,
+        trajectory_index=0,
         trajectory_length=trajectory_length,
-    )  # fmt: skip
+    )
     msg = T[INFO](
-        header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id="hsa_base"), state_stamp=stamp(t_ns),
-        controller=controller, state=state, setpoint=sp, chiee=pose(p[0], p[1], 0.01 * k),
-        chiee_des=pose(p_des[0], p_des[1], -0.02), q=cfg(float(k), 0.1, 0.2), q_des=cfg(1.0, 0.0, 0.0),
-        q_dot=cfg(0.0, 0.0, 0.0), varphi=np.array([k, 2.0, 3.0]), varphi_des=np.array([1.0, 2.0, 3.0]),
-        e_int=np.array([0.5 * k, 0.0]), z_ee=np.array([z_ee, 0.0]), phi_ss=np.array([1.0, 2.0]),
-        phi_des_unsat=np.array([k, -1.0]), phi_des_sat=np.array([k, 0.0]), motor_goal_angles=np.zeros(4),
-        saturated=(k % SATURATED_EVERY == 0), state_age=0.0, compute_time=0.0,
-    )  # fmt: skip
+        header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id="hsa_base"),
+        state_stamp=stamp(t_ns),
+        controller=controller,
+        state=state,
+        setpoint=sp,
+        chiee=pose(p[0], p[1], 0.01 * k),
+        chiee_des=pose(p_des[0], p_des[1], -0.02),
+        q=cfg(float(k), 0.1, 0.2),
+        q_des=cfg(1.0, 0.0, 0.0),
+        q_dot=cfg(0.0, 0.0, 0.0),
+        varphi=np.array([k, 2.0, 3.0]),
+        varphi_des=np.array([1.0, 2.0, 3.0]),
+        e_int=np.array([0.5 * k, 0.0]),
+        z_ee=np.array([z_ee, 0.0]),
+        phi_ss=np.array([1.0, 2.0]),
+        phi_des_unsat=np.array([k, -1.0]),
+        phi_des_sat=np.array([k, 0.0]),
+        motor_goal_angles=np.zeros(4),
+        saturated=(k % SATURATED_EVERY == 0),
+        state_age=0.0,
+        compute_time=0.0,
+    )
     return STORE.serialize_cdr(msg, INFO)
 
 
 def step_response() -> list[tuple[int, int, tuple[float, float], tuple[float, float], int]]:
-    """(stamp ns, state, p, p_des, tracking tick index) of the synthetic run, with non-tracking ticks around it."""
+    """(stamp ns, state, p, p_des, tracking tick index) of the synthetic run, with non-tracking
+    ticks around it."""
     t0 = 1_700_000_000 * 10**9
     dt = round(DT * 1e9)
     ticks = [(t0 + j * dt, WAITING, (9.0, 9.0), (0.0, 0.0), -1) for j in range(10)]
@@ -94,21 +136,30 @@ def step_response() -> list[tuple[int, int, tuple[float, float], tuple[float, fl
     return ticks
 
 
-def write_info_bag(path: Path, ticks, topic: str = analysis.TOPIC, trajectory_length: int = len(TARGETS)) -> Path:
-    """A rosbags-written bag of ControllerInfo ticks; receive times jittered 0–3 ms after the header stamps."""
+def write_info_bag(
+    path: Path, ticks, topic: str = analysis.TOPIC, trajectory_length: int = len(TARGETS)
+) -> Path:
+    """A rosbags-written bag of ControllerInfo ticks; receive times jittered 0–3 ms after the header
+    stamps."""
     rng = np.random.default_rng(1)
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conn = writer.add_connection(topic, INFO, typestore=STORE)
         for t_ns, state, p, p_des, k in ticks:
-            writer.write(conn, t_ns + int(rng.integers(0, 3_000_000)), info_msg(t_ns, state, p, p_des, k,
-                                                                               trajectory_length))
+            writer.write(
+                conn,
+                t_ns + int(rng.integers(0, 3_000_000)),
+                info_msg(t_ns, state, p, p_des, k, trajectory_length),
+            )
     return path
 
 
 def expected(kept: list[int]) -> dict[str, float]:
-    """Closed-form metrics when ``kept[i]`` ticks of step i are used (step i's end is N ticks after its start)."""
+    """Closed-form metrics when ``kept[i]`` ticks of step i are used (step i's end is N ticks after
+    its start)."""
     r = math.exp(-DT / TAU)
-    sizes = [math.dist(TARGETS[i], START if i == 0 else TARGETS[i - 1]) for i in range(len(TARGETS))]
+    sizes = [
+        math.dist(TARGETS[i], START if i == 0 else TARGETS[i - 1]) for i in range(len(TARGETS))
+    ]
     squares = sum(d**2 * (1 - r ** (2 * m)) / (1 - r**2) for d, m in zip(sizes, kept))
     late = math.ceil(N - 2.0 / DT)  # first tick index in the last 2 s of a full step
     e_ss = [d * sum(r**k for k in range(late, N)) / (N - late) for d in sizes]
@@ -125,14 +176,17 @@ def info_bag(tmp_path_factory) -> Path:
     return write_info_bag(tmp_path_factory.mktemp("analysis") / "step_run", step_response())
 
 
-# --- bag → RunLog → metrics ---------------------------------------------------------------------------------------
+# --- bag → RunLog → metrics
+# ---------------------------------------------------------------------------------------
 
 
 def test_runlog_from_bag_keeps_tracking_ticks_with_header_time(info_bag: Path) -> None:
     log = analysis.runlog_from_bag(info_bag)
     n = len(TARGETS) * N
     assert len(log) == n  # 10 waiting and 5 stopped ticks dropped
-    np.testing.assert_allclose(log.t, np.arange(n) * DT, atol=1e-9)  # header stamps, not the jittered receive times
+    np.testing.assert_allclose(
+        log.t, np.arange(n) * DT, atol=1e-9
+    )  # header stamps, not the jittered receive times
     k = np.arange(n)
     np.testing.assert_allclose(log.chiee[:, 2], 0.01 * k)
     np.testing.assert_allclose(log.chiee_des[:, 2], -0.02)
@@ -143,7 +197,11 @@ def test_runlog_from_bag_keeps_tracking_ticks_with_header_time(info_bag: Path) -
     np.testing.assert_allclose(log.e_int[:, 0], 0.5 * k)
     np.testing.assert_array_equal(log.saturated, k % SATURATED_EVERY == 0)
     assert log.meta["controller"] == "psatid" and log.meta["trajectory_length"] == str(len(TARGETS))
-    assert log.meta["ee_integral"] == "false" and "material" not in log.meta and "setup" not in log.meta
+    assert (
+        log.meta["ee_integral"] == "false"
+        and "material" not in log.meta
+        and "setup" not in log.meta
+    )
     assert log.phi_meas is None  # no /hsa/phi_present in this bag
     assert not analysis.is_contour(log)
 
@@ -176,21 +234,39 @@ def test_cli_writes_tables_figures_and_exports(info_bag: Path, tmp_path: Path, c
     printed = capsys.readouterr().out
     assert "RMSE [mm]" in printed and "step" in printed
     assert f"{expected([N] * 4)['rmse'] * 1e3:.2f}" in printed
-    assert {p.name for p in out.iterdir()} == {"metrics.txt", "run.csv", "run.npz", "figures"}  # README layout
+    assert {p.name for p in out.iterdir()} == {
+        "metrics.txt",
+        "run.csv",
+        "run.npz",
+        "figures",
+    }  # README layout
     figures = ("end_effector", "steps", "path", "actuation", "configuration", "collocated")
-    assert {p.name for p in (out / "figures").iterdir()} == {f"{f}.{x}" for f in figures for x in ("pdf", "png")}
+    assert {p.name for p in (out / "figures").iterdir()} == {
+        f"{f}.{x}" for f in figures for x in ("pdf", "png")
+    }
     assert "RMSE [mm]" in (out / "metrics.txt").read_text()
     saved = RunLog.load_npz(out / "run.npz")
     np.testing.assert_allclose(saved.chiee, analysis.runlog_from_bag(info_bag).chiee)
     header = (out / "run.csv").read_text().splitlines()[0].split(",")
-    assert header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]", "chiee_theta [rad]"] and "phi_sat_2 [rad]" in header
+    assert (
+        header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]", "chiee_theta [rad]"]
+        and "phi_sat_2 [rad]" in header
+    )
     assert len((out / "run.csv").read_text().splitlines()) == 1 + len(TARGETS) * N
 
 
 def test_contour_run_draws_the_path_and_is_not_trimmed(tmp_path: Path) -> None:
     dt = round(DT * 1e9)
-    ticks = [(10**18 + k * dt, TRACKING, (0.01 * math.cos(0.1 * k), 0.11), (0.01 * math.cos(0.1 * k), 0.111), k)
-             for k in range(40)]  # fmt: skip
+    ticks = [
+        (
+            10**18 + k * dt,
+            TRACKING,
+            (0.01 * math.cos(0.1 * k), 0.11),
+            (0.01 * math.cos(0.1 * k), 0.111),
+            k,
+        )
+        for k in range(40)
+    ]
     bag = write_info_bag(tmp_path / "contour", ticks, trajectory_length=40)
     result = analysis.analyze(bag, tmp_path / "out", duration=None)
     assert (tmp_path / "out" / "figures" / "path.png") in result.files
@@ -198,7 +274,8 @@ def test_contour_run_draws_the_path_and_is_not_trimmed(tmp_path: Path) -> None:
     assert result.metrics.rmse == pytest.approx(0.001)
 
 
-# --- measured φ, material and setup from the bag; overlays; NPZ runs ------------------------------------------------
+# --- measured φ, material and setup from the bag; overlays; NPZ runs
+# ------------------------------------------------
 
 PHI = "hsa_msgs/msg/PlanarActuation"
 DIAG = "diagnostic_msgs/msg/DiagnosticArray"
@@ -207,23 +284,43 @@ PHI_PERIOD = 7_000_000  # ns: the driver's reads, not aligned with the 30 ms tic
 
 def phi_msg(t_ns: int, phi: tuple[float, float]) -> bytes:
     """Serialized PlanarActuation (measured twist) stamped t_ns."""
-    msg = T[PHI](header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""), source_stamp=stamp(0),
-                 phi=np.array(phi))
+    msg = T[PHI](
+        header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""),
+        source_stamp=stamp(0),
+        phi=np.array(phi),
+    )
     return STORE.serialize_cdr(msg, PHI)
 
 
 def diag_msg(t_ns: int, statuses: list[tuple[str, dict[str, str]]]) -> bytes:
     """Serialized DiagnosticArray with the given (name, values) statuses."""
     status, kv = T["diagnostic_msgs/msg/DiagnosticStatus"], T["diagnostic_msgs/msg/KeyValue"]
-    msg = T[DIAG](header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""), status=[
-        status(level=0, name=name, message="", hardware_id="", values=[kv(key=k, value=v) for k, v in values.items()])
-        for name, values in statuses])  # fmt: skip
+    msg = T[DIAG](
+        header=T["std_msgs/msg/Header"](stamp=stamp(t_ns), frame_id=""),
+        status=[
+            status(
+                level=0,
+                name=name,
+                message="",
+                hardware_id="",
+                values=[kv(key=k, value=v) for k, v in values.items()],
+            )
+            for name, values in statuses
+        ],
+    )
     return STORE.serialize_cdr(msg, DIAG)
 
 
-def write_full_bag(path: Path, controller: str = "psatid", nodes: tuple[str, ...] = ("sim_node",),
-                   material: str = "epu", custom: dict[str, str] | None = None, z_ee: float = 0.0) -> Path:
-    """The step run with /hsa/phi_present (φ = (j·1e-3, 2) at stamp t0 + j·PHI_PERIOD) and /diagnostics."""
+def write_full_bag(
+    path: Path,
+    controller: str = "psatid",
+    nodes: tuple[str, ...] = ("sim_node",),
+    material: str = "epu",
+    custom: dict[str, str] | None = None,
+    z_ee: float = 0.0,
+) -> Path:
+    """The step run with /hsa/phi_present (φ = (j·1e-3, 2) at stamp t0 + j·PHI_PERIOD) and
+    /diagnostics."""
     ticks = step_response()
     t0, t_end = ticks[0][0], ticks[-1][0]
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -236,9 +333,13 @@ def write_full_bag(path: Path, controller: str = "psatid", nodes: tuple[str, ...
         statuses += [(f"{node}: status", {"x": "1"}) for node in nodes]
         writer.write(diag, t0, diag_msg(t0, statuses))
         for t_ns, state, p, p_des, k in ticks:
-            writer.write(info, t_ns, info_msg(t_ns, state, p, p_des, k, controller=controller, z_ee=z_ee))
+            writer.write(
+                info, t_ns, info_msg(t_ns, state, p, p_des, k, controller=controller, z_ee=z_ee)
+            )
         for j in range((t_end - t0) // PHI_PERIOD):
-            writer.write(phi, t0 + j * PHI_PERIOD + 1, phi_msg(t0 + j * PHI_PERIOD, (j * 1e-3, 2.0)))
+            writer.write(
+                phi, t0 + j * PHI_PERIOD + 1, phi_msg(t0 + j * PHI_PERIOD, (j * 1e-3, 2.0))
+            )
     return path
 
 
@@ -250,12 +351,22 @@ def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> No
         tick = first_tracking + round(log.t[k] * 1e9)
         j = max(i for i in range(10**6) if t0 + i * PHI_PERIOD <= tick)
         np.testing.assert_allclose(log.phi_meas[k], [j * 1e-3, 2.0], atol=1e-12)
-    assert log.meta["material"] == "epu" and log.meta["setup"] == "sim" and log.meta["ee_integral"] == "false"
-    assert float(log.meta["phi_max"]) == pytest.approx(4.7123890, abs=1e-6)  # EPU's φ_max (epu.yaml, 270°)
+    assert (
+        log.meta["material"] == "epu"
+        and log.meta["setup"] == "sim"
+        and log.meta["ee_integral"] == "false"
+    )
+    assert float(log.meta["phi_max"]) == pytest.approx(
+        4.7123890, abs=1e-6
+    )  # EPU's φ_max (epu.yaml, 270°)
 
-    robot = analysis.runlog_from_bag(write_full_bag(tmp_path / "robot_run", nodes=("dynamixel_driver",)))
+    robot = analysis.runlog_from_bag(
+        write_full_bag(tmp_path / "robot_run", nodes=("dynamixel_driver",))
+    )
     assert robot.meta["setup"] == "robot" and robot.meta["material"] == "epu"
-    told = analysis.runlog_from_bag(write_full_bag(tmp_path / "told", custom={"setup": "robot", "material": "fpu"}))
+    told = analysis.runlog_from_bag(
+        write_full_bag(tmp_path / "told", custom={"setup": "robot", "material": "fpu"})
+    )
     assert told.meta["setup"] == "robot" and told.meta["material"] == "fpu"  # custom_data wins
     eei = analysis.runlog_from_bag(write_full_bag(tmp_path / "eei", z_ee=0.01))
     assert eei.meta["ee_integral"] == "true"
@@ -271,9 +382,12 @@ def test_figures_of_a_bag_name_the_run_and_draw_measured_phi(tmp_path: Path) -> 
     fig = plotting.actuation_figure(result.log, label)
     for ax in fig.axes:
         assert [line.get_gid() for line in ax.get_lines()].count("measured") == 1
-        assert "reference" not in [line.get_gid() for line in ax.get_lines()]  # a PID run has no φ^ss
-        assert sorted(line.get_ydata()[0] for line in ax.get_lines() if line.get_gid() == "limit") == [
-            0.0, pytest.approx(4.7123890, abs=1e-6)]
+        assert "reference" not in [
+            line.get_gid() for line in ax.get_lines()
+        ]  # a PID run has no φ^ss
+        assert sorted(
+            line.get_ydata()[0] for line in ax.get_lines() if line.get_gid() == "limit"
+        ) == [0.0, pytest.approx(4.7123890, abs=1e-6)]
     assert (tmp_path / "out" / "figures" / "actuation.pdf").is_file()
 
 
@@ -286,12 +400,23 @@ def test_several_runs_are_analysed_and_overlaid(tmp_path: Path, capsys) -> None:
     out = tmp_path / "cmp"
     assert analysis.main([str(a), str(b), str(npz_run / "log.npz"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert {p.name for p in out.iterdir()} == {"a", "pid_run", "epu_psatid", "figures", "metrics.txt"}
+    assert {p.name for p in out.iterdir()} == {
+        "a",
+        "pid_run",
+        "epu_psatid",
+        "figures",
+        "metrics.txt",
+    }
     for name in ("a", "pid_run", "epu_psatid"):
-        assert (out / name / "metrics.txt").is_file() and (out / name / "figures" / "end_effector.pdf").is_file()
+        assert (out / name / "metrics.txt").is_file() and (
+            out / name / "figures" / "end_effector.pdf"
+        ).is_file()
     overlays = {p.name for p in (out / "figures").iterdir()}
-    assert overlays == {f"overlay_{f}.{x}" for f in ("end_effector", "steps", "path", "actuation")
-                        for x in ("pdf", "png")}  # fmt: skip
+    assert overlays == {
+        f"overlay_{f}.{x}"
+        for f in ("end_effector", "steps", "path", "actuation")
+        for x in ("pdf", "png")
+    }
     table = (out / "metrics.txt").read_text()
     rmse = f"{expected([N] * 4)['rmse'] * 1e3:.2f}"
     assert all(name in table for name in ("a", "pid_run", "epu_psatid")) and table.count(rmse) == 3
@@ -305,12 +430,17 @@ def test_two_runs_of_the_same_name_are_kept_apart(tmp_path: Path) -> None:
     assert {"run1", "run1_2"} <= {p.name for p in (tmp_path / "o").iterdir()}
 
 
-@pytest.mark.parametrize(("args", "message"), [
-    (["{bag}", "{bag}", "--name", "x"], "--name names one run"),
-    (["{bag}", "/nonexistent/bag"], "/nonexistent/bag does not exist"),
-    ([], "the following arguments are required: RUN"),
-])
-def test_bad_arguments_are_one_line_with_exit_2(info_bag: Path, tmp_path: Path, capsys, args, message) -> None:
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["{bag}", "{bag}", "--name", "x"], "--name names one run"),
+        (["{bag}", "/nonexistent/bag"], "/nonexistent/bag does not exist"),
+        ([], "the following arguments are required: RUN"),
+    ],
+)
+def test_bad_arguments_are_one_line_with_exit_2(
+    info_bag: Path, tmp_path: Path, capsys, args, message
+) -> None:
     with pytest.raises(SystemExit) as exit_info:
         analysis.main([a.format(bag=info_bag) for a in args] + ["--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
@@ -325,19 +455,28 @@ def test_npz_that_is_not_a_runlog_is_refused(tmp_path: Path, capsys) -> None:
 
 
 def garbage(k: int) -> bytes:
-    """The k-th of four malformed CDR payloads: truncated, garbage, encapsulation only, invalid UTF-8 in a string."""
+    """The k-th of four malformed CDR payloads: truncated, garbage, encapsulation only, invalid
+    UTF-8 in a string."""
     good = bytes(info_msg(0, TRACKING, (0.0, 0.0), (0.0, 0.0), 0))
-    return [good[: len(good) // 2], b"\x00\x01\x00\x00" + b"\xff" * 40, b"\x00\x01\x00\x00",
-            good[:16] + b"\xff\xfe" + good[18:]][k % 4]  # fmt: skip
+    return [
+        good[: len(good) // 2],
+        b"\x00\x01\x00\x00" + b"\xff" * 40,
+        b"\x00\x01\x00\x00",
+        good[:16] + b"\xff\xfe" + good[18:],
+    ][k % 4]
 
 
 def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path, capsys) -> None:
     spoiled = {analysis.TOPIC: 7, "/hsa/phi_present": 5, "/diagnostics": 3}
     t0 = step_response()[0][0]
-    bag = SplitBagWriter(tmp_path / "spoiled", STORE)  # the recorder's writer, malformed payloads among the real ones
+    bag = SplitBagWriter(
+        tmp_path / "spoiled", STORE
+    )  # the recorder's writer, malformed payloads among the real ones
     bag.open()
     with Bag(write_full_bag(tmp_path / "clean")) as clean:
-        handles = {name: bag.add_topic(name, info.msgtype, []) for name, info in clean.topics.items()}
+        handles = {
+            name: bag.add_topic(name, info.msgtype, []) for name, info in clean.topics.items()
+        }
         for topic, t, raw in clean.messages():
             bag.write(handles[topic], t, raw)
     for topic, count in spoiled.items():
@@ -351,7 +490,9 @@ def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path,
     assert f"{expected([N] * 4)['rmse'] * 1e3:.2f}" in captured.out  # the run is whole
     lines = captured.err.splitlines()
     for topic, count in spoiled.items():
-        assert sum(f"skipped {count} undecodable message(s) on {topic}" in line for line in lines) == 1, lines
+        assert (
+            sum(f"skipped {count} undecodable message(s) on {topic}" in line for line in lines) == 1
+        ), lines
     log = analysis.runlog_from_bag(tmp_path / "spoiled")
     reference = analysis.runlog_from_bag(tmp_path / "clean")
     np.testing.assert_array_equal(log.chiee, reference.chiee)
@@ -360,7 +501,8 @@ def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path,
     assert analysis.skipped_messages(log) == spoiled and analysis.skipped_messages(reference) == {}
 
 
-# --- bad bags ------------------------------------------------------------------------------------------------------
+# --- bad bags
+# --------------------------------------------------------------------------------------------------
 
 
 def run_cli(args: list[str], capsys) -> tuple[int, str]:
@@ -374,7 +516,12 @@ def test_truncated_file_is_named(info_bag: Path, tmp_path: Path, capsys) -> None
     mcap = next(bag.glob("*.mcap"))
     mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
     code, err = run_cli([str(bag), "--out", str(tmp_path / "o")], capsys)
-    assert code == 2 and mcap.name in err and "not a complete MCAP file" in err and "bag_recover" in err
+    assert (
+        code == 2
+        and mcap.name in err
+        and "not a complete MCAP file" in err
+        and "bag_recover" in err
+    )
 
 
 def test_missing_metadata_is_named(info_bag: Path, tmp_path: Path, capsys) -> None:
@@ -393,8 +540,14 @@ def test_missing_listed_file_is_named(info_bag: Path, tmp_path: Path, capsys) ->
 
 
 def test_missing_topic_is_named(info_bag: Path, tmp_path: Path, capsys) -> None:
-    code, err = run_cli([str(info_bag), "--topic", "/robot/controller_info", "--out", str(tmp_path)], capsys)
-    assert code == 2 and "topic /robot/controller_info is not in the bag" in err and analysis.TOPIC in err
+    code, err = run_cli(
+        [str(info_bag), "--topic", "/robot/controller_info", "--out", str(tmp_path)], capsys
+    )
+    assert (
+        code == 2
+        and "topic /robot/controller_info is not in the bag" in err
+        and analysis.TOPIC in err
+    )
 
 
 def test_wrong_and_undecodable_types_are_named(tmp_path: Path, capsys) -> None:
@@ -404,10 +557,13 @@ def test_wrong_and_undecodable_types_are_named(tmp_path: Path, capsys) -> None:
     code, err = run_cli([str(tmp_path / "wrong"), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and f"has type {STRING}, expected {INFO}" in err
 
-    # a definition without its nested types (as a broken tool might store it): Setpoint etc. are unknown
+    # a definition without its nested types (as a broken tool might store it): Setpoint etc. are
+    # unknown
     msgdef = (MSG_DIR / "ControllerInfo.msg").read_text()
     with Writer(tmp_path / "undecodable", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conn = writer.add_connection(analysis.TOPIC, INFO, msgdef=msgdef, rihs01="RIHS01_" + "0" * 64)
+        conn = writer.add_connection(
+            analysis.TOPIC, INFO, msgdef=msgdef, rihs01="RIHS01_" + "0" * 64
+        )
         writer.write(conn, 1, info_msg(1, TRACKING, (0, 0), (0, 0), 0))
     code, err = run_cli([str(tmp_path / "undecodable"), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and f"type {INFO} of topic {analysis.TOPIC} cannot be decoded" in err
@@ -416,15 +572,27 @@ def test_wrong_and_undecodable_types_are_named(tmp_path: Path, capsys) -> None:
 
 def test_bag_without_tracking_ticks_is_refused(tmp_path: Path, capsys) -> None:
     ticks = [(10**18 + k, WAITING, (0, 0), (0, 0), k) for k in range(5)]
-    code, err = run_cli([str(write_info_bag(tmp_path / "idle", ticks)), "--out", str(tmp_path / "o")], capsys)
+    code, err = run_cli(
+        [str(write_info_bag(tmp_path / "idle", ticks)), "--out", str(tmp_path / "o")], capsys
+    )
     assert code == 2 and "0 tick(s) in STATE_TRACKING" in err
 
 
-# --- writing: splits, metadata, crash safety, order ----------------------------------------------------------------
+# --- writing: splits, metadata, crash safety, order
+# ----------------------------------------------------------------
 
 INFINITE = QosTime(9223372036, 854775807)
-OFFER = Qos(QosHistory.UNKNOWN, 0, QosReliability.BEST_EFFORT, QosDurability.TRANSIENT_LOCAL, INFINITE, INFINITE,
-            QosLiveliness.AUTOMATIC, INFINITE, False)  # fmt: skip
+OFFER = Qos(
+    QosHistory.UNKNOWN,
+    0,
+    QosReliability.BEST_EFFORT,
+    QosDurability.TRANSIENT_LOCAL,
+    INFINITE,
+    INFINITE,
+    QosLiveliness.AUTOMATIC,
+    INFINITE,
+    False,
+)
 
 
 def string(i: int) -> bytes:
@@ -442,17 +610,32 @@ def test_split_bag_layout_metadata_and_independent_readers(tmp_path: Path) -> No
     info = read_metadata(path)
     files = info["relative_file_paths"]
     assert len(files) >= 3 and files == [f"split_{k}.mcap" for k in range(len(files))]
-    assert sorted(p.name for p in path.iterdir()) == sorted([*files, "metadata.yaml"])  # no staging left over
-    assert info["version"] == 9 and info["storage_identifier"] == "mcap" and info["message_count"] == 600
-    assert sum(f["message_count"] for f in info["files"]) == 600 and all(f["message_count"] for f in info["files"])
-    assert info["duration"]["nanoseconds"] == 599 * 10**6 and info["starting_time"]["nanoseconds_since_epoch"] == 10**9
+    assert sorted(p.name for p in path.iterdir()) == sorted(
+        [*files, "metadata.yaml"]
+    )  # no staging left over
+    assert (
+        info["version"] == 9
+        and info["storage_identifier"] == "mcap"
+        and info["message_count"] == 600
+    )
+    assert sum(f["message_count"] for f in info["files"]) == 600 and all(
+        f["message_count"] for f in info["files"]
+    )
+    assert (
+        info["duration"]["nanoseconds"] == 599 * 10**6
+        and info["starting_time"]["nanoseconds_since_epoch"] == 10**9
+    )
     topic = info["topics_with_message_count"][0]
     assert topic["message_count"] == 600
     assert topic["topic_metadata"]["offered_qos_profiles"][0]["durability"] == "transient_local"
-    assert all((path / f).stat().st_size <= 8_000 + 3_000 for f in files)  # + summary and footer written at close
+    assert all(
+        (path / f).stat().st_size <= 8_000 + 3_000 for f in files
+    )  # + summary and footer written at close
 
     seen = []
-    for name in files:  # each split is a self-contained MCAP: the `mcap` reader with mcap_ros2 decoding
+    for (
+        name
+    ) in files:  # each split is a self-contained MCAP: the `mcap` reader with mcap_ros2 decoding
         with open(path / name, "rb") as handle:
             reader = make_reader(handle, decoder_factories=[DecoderFactory()])
             seen += [m.decoded_message.data for m in reader.iter_decoded_messages(topics=["/text"])]
@@ -470,7 +653,12 @@ def test_split_by_duration_and_refusing_an_existing_path(tmp_path: Path) -> None
     for i in range(35):
         bag.write(text, i * 10**8, string(i))  # 3.5 s at 10 Hz
     bag.close()
-    assert [f["message_count"] for f in read_metadata(tmp_path / "timed")["files"]] == [10, 10, 10, 5]
+    assert [f["message_count"] for f in read_metadata(tmp_path / "timed")["files"]] == [
+        10,
+        10,
+        10,
+        5,
+    ]
     with pytest.raises(FileExistsError):
         SplitBagWriter(tmp_path / "timed", STORE).open()
 
@@ -485,7 +673,9 @@ def test_killed_writer_loses_only_the_unflushed_chunk(tmp_path: Path) -> None:
     bag.flush()
     for i in range(150, 170):  # never flushed
         bag.write(text, i * 10**7, string(i))
-    crashed = shutil.copytree(path, tmp_path / "on_disk")  # what the disk holds if the process dies now
+    crashed = shutil.copytree(
+        path, tmp_path / "on_disk"
+    )  # what the disk holds if the process dies now
     bag.close()
 
     assert read_metadata(crashed)["relative_file_paths"] == ["killed_0.mcap"]
@@ -495,7 +685,11 @@ def test_killed_writer_loses_only_the_unflushed_chunk(tmp_path: Path) -> None:
         Bag(crashed / "killed_1.mcap")
     results = recover_bag(crashed)
     assert [(r.file.name, r.messages) for r in results] == [("killed_1.mcap", 50)]
-    assert sorted(p.name for p in crashed.iterdir()) == ["killed_0.mcap", "killed_1.mcap", "metadata.yaml"]
+    assert sorted(p.name for p in crashed.iterdir()) == [
+        "killed_0.mcap",
+        "killed_1.mcap",
+        "metadata.yaml",
+    ]
     with Bag(crashed) as reader:
         assert [data for _, _, data in reader.messages()] == [string(i) for i in range(150)]
     assert recover_bag(crashed) == []  # idempotent
@@ -534,5 +728,11 @@ def test_written_bags_name_jazzy_as_their_distribution(tmp_path: Path) -> None:
         assert reader.ros_distro == "jazzy"
     for name in info["relative_file_paths"]:  # the copy of the metadata embedded in every MCAP file
         with open(path / name, "rb") as handle:
-            embedded = [m.metadata["serialized_metadata"] for m in make_reader(handle).iter_metadata()]
-        assert len(embedded) == 1 and "ros_distro: jazzy" in embedded[0] and "rosbags" not in embedded[0]
+            embedded = [
+                m.metadata["serialized_metadata"] for m in make_reader(handle).iter_metadata()
+            ]
+        assert (
+            len(embedded) == 1
+            and "ros_distro: jazzy" in embedded[0]
+            and "rosbags" not in embedded[0]
+        )

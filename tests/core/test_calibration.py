@@ -1,9 +1,10 @@
-"""Rest-strain calibration (planning_and_control.md §6.5): a simulated rest with known sigma_a_eq is recovered; windows
-that are not a rest at phi = 0 are refused.
+"""Rest-strain calibration (planning_and_control.md §6.5): a simulated rest with known sigma_a_eq is
+recovered; windows that are not a rest at phi = 0 are refused.
 
-Ground truth by construction: the rest poses come from the static equilibrium of a plant whose sigma_a_eq is set
-(hsa_core.task.planning.static_equilibrium, an iterative solve of G + K - alpha = 0), or from a dynamic rollout; the
-calibration only sees the poses and a model with another (nominal) sigma_a_eq.
+Ground truth by construction: the rest poses come from the static equilibrium of a plant whose
+sigma_a_eq is set (hsa_core.task.planning.static_equilibrium, an iterative solve of G + K - alpha =
+0), or from a dynamic rollout; the calibration only sees the poses and a model with another
+(nominal) sigma_a_eq.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import numpy as np
 import pytest
 
 from hsa_core.model import kinematics, simulation
+from hsa_core.model.params import load_params
 from hsa_core.sysid import calibration
 from hsa_core.task import planning
-from hsa_core.model.params import load_params
 
 NOISE = np.array([1e-4, 1e-4, 1e-3])  # mocap noise, m, m, rad (hsa_core.sim.disturbance default)
 fk = jax.jit(kinematics.end_effector_pose)
@@ -42,12 +43,15 @@ def test_result_does_not_depend_on_the_reference_rest_strains_of_the_model():
     nominal = load_params("fpu")
     pose = rest_pose(nominal.replace(sigma_a_eq=np.array([1.01, 0.97])))
     a = calibration.calibrate(nominal, np.tile(pose, (5, 1))).sigma_a_eq
-    b = calibration.calibrate(nominal.replace(sigma_a_eq=np.array([0.8, 1.3])), np.tile(pose, (5, 1))).sigma_a_eq
+    b = calibration.calibrate(
+        nominal.replace(sigma_a_eq=np.array([0.8, 1.3])), np.tile(pose, (5, 1))
+    ).sigma_a_eq
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
 
 
 def test_noisy_rest_is_recovered_within_its_reported_uncertainty():
-    """200 samples with 0.1 mm / 1 mrad noise: |error| <= 4 sigma for 10 seeds, sigma below 5e-4 (0.03 mm of rod)."""
+    """200 samples with 0.1 mm / 1 mrad noise: |error| <= 4 sigma for 10 seeds, sigma below 5e-4
+    (0.03 mm of rod)."""
     nominal = load_params("fpu")
     truth = np.array([1.02, 0.99])
     pose = rest_pose(nominal.replace(sigma_a_eq=truth))
@@ -60,7 +64,9 @@ def test_noisy_rest_is_recovered_within_its_reported_uncertainty():
         assert np.all(np.abs(result.sigma_a_eq - truth) < 1e-3)
     z = np.array(z)
     assert np.all(np.abs(z) < 4.0)
-    assert 0.3 < np.sqrt(np.mean(z**2)) < 2.0  # the reported sigma is the right size, not just large
+    assert (
+        0.3 < np.sqrt(np.mean(z**2)) < 2.0
+    )  # the reported sigma is the right size, not just large
 
 
 def test_rest_check_accepts_a_noisy_rest_and_refuses_twist_motion_and_short_windows():
@@ -77,7 +83,9 @@ def test_rest_check_accepts_a_noisy_rest_and_refuses_twist_motion_and_short_wind
 
     # the first second after a 1 rad elongation step, simulated at 200 Hz: the robot moves
     q0, _ = planning.static_equilibrium(plant, np.zeros(2), np.zeros(3))
-    xs = simulation.simulate(plant, np.concatenate([q0, np.zeros(3)]), np.tile([1.0, 1.0], (200, 1)), 1.25e-3, 4)
+    xs = simulation.simulate(
+        plant, np.concatenate([q0, np.zeros(3)]), np.tile([1.0, 1.0], (200, 1)), 1.25e-3, 4
+    )
     moving = np.asarray(jax.vmap(lambda q: fk(plant, q))(xs[1:, :3]))
     assert "moving" in calibration.rest_problem(t, moving, np.zeros((50, 2)))
     # a slow drift of 5 mm/s within the spread bound is refused as drifting

@@ -1,4 +1,5 @@
-"""The JAX closed loop (hsa_core.sim.closed_loop) against the offline experiment it must reproduce, and its batching."""
+"""The JAX closed loop (hsa_core.sim.closed_loop) against the offline experiment it must reproduce,
+and its batching."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import numpy as np
 import pytest
 
 from hsa_core.analysis import reference
-from hsa_core.sim import closed_loop, profiles
 from hsa_core.controller.control import CollocatedGains, default_gains
+from hsa_core.sim import closed_loop, profiles
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
 from hsa_core.task.trajectories import TimedReference, step_reference
@@ -32,20 +33,33 @@ def short(material: str = "fpu", seconds: float = 10.0) -> TimedReference:
 
 def metric_values(m) -> np.ndarray:
     """RMSE, saturation, mean t_r, t_s, overshoot and e_ss of a RunMetrics, as one vector."""
-    return np.array([m.rmse, m.saturated_fraction, m.response_time_mean, m.settling_time_mean, m.overshoot_mean,
-                     m.steady_state_error_mean, m.n_ticks])
+    return np.array(
+        [
+            m.rmse,
+            m.saturated_fraction,
+            m.response_time_mean,
+            m.settling_time_mean,
+            m.overshoot_mean,
+            m.steady_state_error_mean,
+            m.n_ticks,
+        ]
+    )
 
 
-@pytest.mark.parametrize("law, ee_integral", [("psatid", False), ("pid", False), ("psatid_gc", True)])
+@pytest.mark.parametrize(
+    "law, ee_integral", [("psatid", False), ("pid", False), ("psatid_gc", True)]
+)
 def test_the_jax_loop_reproduces_the_offline_experiment(law: str, ee_integral: bool) -> None:
-    config = ExperimentConfig("fpu", law, ee_integral, reference=short(seconds=40.0))  # e_ss of 3 steps compared
+    config = ExperimentConfig(
+        "fpu", law, ee_integral, reference=short(seconds=40.0)
+    )  # e_ss of 3 steps compared
     offline = run_experiment(config)
     spec, inputs, constants = closed_loop.prepare(config)
     log = closed_loop.compiled(spec, inputs, constants)
     got = closed_loop.evaluate(spec, log, config.name)
     ran = np.asarray(log.ran)
     first = int(np.argmax(ran))
-    chiee = np.asarray(log.chiee)[first:first + spec.n_eval]
+    chiee = np.asarray(log.chiee)[first : first + spec.n_eval]
     assert chiee.shape == offline.log.chiee.shape
     np.testing.assert_allclose(chiee, offline.log.chiee, rtol=0, atol=1e-9)  # tick by tick
     assert np.all(np.isfinite(metric_values(offline.metrics)))
@@ -59,15 +73,13 @@ def assert_equal_to_the_offline_experiment(config: ExperimentConfig) -> closed_l
     spec, inputs, constants = closed_loop.prepare(config)
     log = closed_loop.compiled(spec, inputs, constants)
     first = int(np.argmax(np.asarray(log.ran)))
-    chiee = np.asarray(log.chiee)[first:first + spec.n_eval]
+    chiee = np.asarray(log.chiee)[first : first + spec.n_eval]
     assert chiee.shape == offline.log.chiee.shape
     np.testing.assert_allclose(chiee, offline.log.chiee, rtol=0, atol=1e-9)
-    true_chiee = np.asarray(log.true_chiee)[first:first + spec.n_eval]
-    np.testing.assert_allclose(true_chiee, offline.true_chiee, rtol=0,
-                               atol=1e-9)
+    true_chiee = np.asarray(log.true_chiee)[first : first + spec.n_eval]
+    np.testing.assert_allclose(true_chiee, offline.true_chiee, rtol=0, atol=1e-9)
     got = closed_loop.evaluate(spec, log)
-    np.testing.assert_allclose(metric_values(got), metric_values(offline.metrics),
-                               rtol=RTOL)
+    np.testing.assert_allclose(metric_values(got), metric_values(offline.metrics), rtol=RTOL)
     return log
 
 
@@ -125,7 +137,8 @@ def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
     batched = jax.tree_util.tree_map(lambda *v: np.stack(v), *gains)
     axes = closed_loop.LoopInputs(None, 0, None, None)
     logs = jax.jit(jax.vmap(partial(closed_loop.rollout, spec), in_axes=(axes, None)))(
-        inputs._replace(gains=batched), constants)
+        inputs._replace(gains=batched), constants
+    )
     for i, g in enumerate(gains):
         one = run_experiment(dataclasses.replace(config, gains=g))
         got = closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[i], logs))
@@ -133,7 +146,8 @@ def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:
 
 
 def test_a_batch_of_models_and_setpoints_equals_the_runs_one_by_one() -> None:
-    """constant_axes batches the controller's model and its planned setpoints (as the feedforward bound needs)."""
+    """constant_axes batches the controller's model and its planned setpoints (as the feedforward
+    bound needs)."""
     config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0))
     nominal = closed_loop.prepare(config)[2].model
     models = [nominal, nominal.replace(C_eps=np.asarray(nominal.C_eps) * 1.05)]
@@ -141,8 +155,13 @@ def test_a_batch_of_models_and_setpoints_equals_the_runs_one_by_one() -> None:
     spec, inputs, _ = prepared[0]
     stacked = jax.tree_util.tree_map(lambda *v: np.stack(v), *[p[2] for p in prepared])
     constants = stacked._replace(ref_index=prepared[0][2].ref_index)
-    logs = closed_loop.batch_rollout(spec, inputs, constants, closed_loop.LoopInputs(None, None, None, None),
-                                     closed_loop.LoopConstants(0, 0, None))
+    logs = closed_loop.batch_rollout(
+        spec,
+        inputs,
+        constants,
+        closed_loop.LoopInputs(None, None, None, None),
+        closed_loop.LoopConstants(0, 0, None),
+    )
     rmse = []
     for i, (_, _, one_constants) in enumerate(prepared):
         one = closed_loop.evaluate(spec, closed_loop.compiled(spec, inputs, one_constants))
@@ -161,22 +180,31 @@ from hsa_core.sim import closed_loop
 from hsa_core.sim.experiment import ExperimentConfig
 from hsa_core.task.trajectories import TimedReference, step_reference
 ref = step_reference("fpu")
-config = ExperimentConfig("fpu", "psatid", reference=TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 3.0))
+reference = TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 3.0)
+config = ExperimentConfig("fpu", "psatid", reference=reference)
 spec, inputs, constants = closed_loop.prepare(config)
 noise = np.stack([closed_loop.noise(config.disturbance, spec, seed=s) for s in range(4)])
 axes = closed_loop.LoopInputs(None, None, 0, None)
 logs = closed_loop.batch_rollout(spec, inputs._replace(noise=noise), constants, axes)
 one = closed_loop.compiled(spec, inputs._replace(noise=noise[3]), constants)
+runs = [jax.tree_util.tree_map(lambda a: a[i], logs) for i in range(4)]
+rmse = [closed_loop.evaluate(spec, run).rmse for run in runs]
 print(json.dumps({"devices": len(jax.devices()), "shards": len(logs.chiee.sharding.device_set),
-                  "rmse": [closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[i], logs)).rmse
-                           for i in range(4)], "one": closed_loop.evaluate(spec, one).rmse}))
+                  "rmse": rmse, "one": closed_loop.evaluate(spec, one).rmse}))
 """
 
 
 def test_the_batch_is_split_over_every_device() -> None:
-    """Two host devices (XLA_FLAGS) stand in for two GPUs: each holds half the batch, results as on one device."""
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    out = subprocess.run([sys.executable, "-c", SHARDED], env=env, capture_output=True, text=True, timeout=600)
+    """Two host devices (XLA_FLAGS) stand in for two GPUs: each holds half the batch, results as on
+    one device."""
+    env = {
+        **os.environ,
+        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        "JAX_PLATFORMS": "cpu",
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", SHARDED], env=env, capture_output=True, text=True, timeout=600
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["devices"] == 2 and got["shards"] == 2
@@ -185,15 +213,23 @@ def test_the_batch_is_split_over_every_device() -> None:
 
 
 def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> None:
-    """σ_a,eq calibrated before a run (hsa_core.analysis.reference conditions): the model's, and the plant's plus the offset."""
-    config = ExperimentConfig("fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03))
+    """σ_a,eq calibrated before a run (hsa_core.analysis.reference conditions): the model's, and the
+    plant's plus the offset."""
+    config = ExperimentConfig(
+        "fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03)
+    )
     spec, inputs, constants = closed_loop.prepare(config)
     np.testing.assert_allclose(constants.model.sigma_a_eq, [1.02, 1.03])
-    np.testing.assert_allclose(inputs.plant.sigma_a_eq, np.add([1.02, 1.03], config.disturbance.rest_strain_offset))
-    np.testing.assert_allclose(ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0])  # default: nominal
+    np.testing.assert_allclose(
+        inputs.plant.sigma_a_eq, np.add([1.02, 1.03], config.disturbance.rest_strain_offset)
+    )
+    np.testing.assert_allclose(
+        ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0]
+    )  # default: nominal
 
 
 def test_a_run_with_mocap_outages_is_refused() -> None:
-    """The batched loop has no supervision faults; an outage run must go to run_experiment, not be silently lost."""
+    """The batched loop has no supervision faults; an outage run must go to run_experiment, not be
+    silently lost."""
     with pytest.raises(ValueError, match="fault-free"):
         closed_loop.prepare(ExperimentConfig("fpu", "psatid", mocap_outages=((1.0, 1.5),)))

@@ -1,6 +1,6 @@
-"""Control laws (planning_and_control.md §3): each law against a hand computation of the spec formulas, saturation,
-integrator behaviour, options, gain validation, and the §3.8 EE-integral extension in a closed loop with a mismatched
-plant."""
+"""Control laws (planning_and_control.md §3): each law against a hand computation of the spec
+formulas, saturation, integrator behaviour, options, gain validation, and the §3.8 EE-integral
+extension in a closed loop with a mismatched plant."""
 
 from __future__ import annotations
 
@@ -11,14 +11,21 @@ import numpy as np
 import pytest
 
 from hsa_core.controller import control
+from hsa_core.controller.control import (
+    CollocatedGains,
+    Controller,
+    EeIntegralGains,
+    PidGains,
+    default_gains,
+)
 from hsa_core.model import dynamics, kinematics, simulation
-from hsa_core.task import planning
-from hsa_core.controller.control import CollocatedGains, Controller, EeIntegralGains, PidGains, default_gains
 from hsa_core.model.params import load_params
+from hsa_core.task import planning
 from hsa_core.task.planning import Setpoint
 
 DT = 0.025
-# FPU worked example of planning_and_control.md §2.2, exact model (the spec's numbers, not planner output).
+# FPU worked example of planning_and_control.md §2.2, exact model (the spec's numbers, not planner
+# output).
 SETPOINT = Setpoint(
     chiee_des=np.array([0.00479247, 0.12781018, -0.066980133]),
     q_des=np.array([-1.1352565, 0.0080816386, 0.30410104]),
@@ -47,9 +54,23 @@ def controllers(params):
 
 
 def varphi_by_hand(p, q, phi):
-    """Collocated coordinates by the formula of planning_and_control.md §3.2, NumPy, virtual-rod constants."""
-    a = {k: np.asarray(getattr(p, k)) for k in ("roff", "h", "S_a_hat", "C_eps", "C_S_a", "C_S_b", "C_S_sh",
-                                                "kappa_b_eq", "sigma_sh_eq", "sigma_a_eq")}
+    """Collocated coordinates by the formula of planning_and_control.md §3.2, NumPy, virtual-rod
+    constants."""
+    a = {
+        k: np.asarray(getattr(p, k))
+        for k in (
+            "roff",
+            "h",
+            "S_a_hat",
+            "C_eps",
+            "C_S_a",
+            "C_S_b",
+            "C_S_sh",
+            "kappa_b_eq",
+            "sigma_sh_eq",
+            "sigma_a_eq",
+        )
+    }
     kappa, sigma_sh, sigma_ax = np.asarray(p.xi_eq) + q
     l = float(p.l)
     s = sigma_ax + a["roff"] * kappa
@@ -88,15 +109,22 @@ def test_collocated_laws_match_hand_computation(params, controllers, kind):
     gains = CollocatedGains(0.3, 0.05, 0.02, 100.0)
     gc = kind == "psatid_gc"
     e_int = np.zeros(2)
-    for q, q_dot in ((Q, Q_DOT), (Q + 0.1, -Q_DOT)):  # the second tick uses the integral of the first
+    for q, q_dot in (
+        (Q, Q_DOT),
+        (Q + 0.1, -Q_DOT),
+    ):  # the second tick uses the integral of the first
         expected, e_int_next = psatid_by_hand(params, gains, SETPOINT, q, q_dot, e_int, gc)
         phi, info = c.step(q, q_dot, CHIEE, CHIEE_DOT, SETPOINT)
         assert 0.0 < expected.min() and expected.max() < 3.4906585  # inside the limits: no clipping
         np.testing.assert_allclose(phi, expected, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(info.phi_des_unsat, expected, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(info.e_int, e_int_next, rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(info.varphi, varphi_by_hand(params, q, SETPOINT.phi_ss), rtol=1e-12)
-        np.testing.assert_allclose(info.varphi_des, varphi_by_hand(params, SETPOINT.q_des, SETPOINT.phi_ss), rtol=1e-12)
+        np.testing.assert_allclose(
+            info.varphi, varphi_by_hand(params, q, SETPOINT.phi_ss), rtol=1e-12
+        )
+        np.testing.assert_allclose(
+            info.varphi_des, varphi_by_hand(params, SETPOINT.q_des, SETPOINT.phi_ss), rtol=1e-12
+        )
         assert info.saturated is False
         np.testing.assert_array_equal(info.phi_ss, SETPOINT.phi_ss)
         np.testing.assert_array_equal(info.q, q)
@@ -110,9 +138,13 @@ def test_gc_terms_published(params, controllers):
     c.reset()
     _, info = c.step(Q, Q_DOT, CHIEE, CHIEE_DOT, SETPOINT)
     J_h = J_h_by_hand(params, Q, SETPOINT.phi_ss)  # J_h at the current xi for both terms (§3.4)
-    np.testing.assert_allclose(info.g_varphi, np.linalg.solve(J_h.T, gravity_vector(params, Q))[:2], rtol=1e-10)
     np.testing.assert_allclose(
-        info.g_varphi_des, np.linalg.solve(J_h.T, gravity_vector(params, SETPOINT.q_des))[:2], rtol=1e-10
+        info.g_varphi, np.linalg.solve(J_h.T, gravity_vector(params, Q))[:2], rtol=1e-10
+    )
+    np.testing.assert_allclose(
+        info.g_varphi_des,
+        np.linalg.solve(J_h.T, gravity_vector(params, SETPOINT.q_des))[:2],
+        rtol=1e-10,
     )
 
 
@@ -138,10 +170,13 @@ def test_task_space_pid_matches_hand_computation(controllers):
 def test_saturation_clips_to_limits(controllers, kind):
     c = controllers[kind]
     c.reset()
-    # phi_ss close to the limit, measured axial strain 0.1 short, EE 60 mm off and moving away: phi1 exceeds phi_max.
+    # phi_ss close to the limit, measured axial strain 0.1 short, EE 60 mm off and moving away: phi1
+    # exceeds phi_max.
     far = Setpoint(np.array([0.03, 0.135, -0.6]), SETPOINT.q_des, np.array([3.46, 0.02]), 0.0)
     q = SETPOINT.q_des - [0.0, 0.0, 0.1]
-    phi, info = c.step(q, np.zeros(3), np.array([-0.03, 0.111, 0.5]), np.array([-8.0, 0.0, 0.0]), far)
+    phi, info = c.step(
+        q, np.zeros(3), np.array([-0.03, 0.111, 0.5]), np.array([-8.0, 0.0, 0.0]), far
+    )
     c.set_setpoint(SETPOINT)
     phi_max = np.radians(200.0)
     assert info.saturated is True
@@ -158,9 +193,12 @@ def test_tanh_integrator_bounds_the_integral_rate(controllers):
     for k in range(20):
         q = SETPOINT.q_des + rng.normal(scale=[3.0, 0.02, 0.05])
         _, info = c.step(q, rng.normal(size=3), CHIEE, CHIEE_DOT, SETPOINT)
-        assert np.all(np.abs(info.e_int - prev) <= DT * (1.0 + 1e-12))  # K_i e_int changes by <= K_i dt per tick
+        assert np.all(
+            np.abs(info.e_int - prev) <= DT * (1.0 + 1e-12)
+        )  # K_i e_int changes by <= K_i dt per tick
         prev = info.e_int
-    # A large collocated error saturates the integrand: e_int grows by exactly dt per tick (to rounding).
+    # A large collocated error saturates the integrand: e_int grows by exactly dt per tick (to
+    # rounding).
     c.reset()
     _, info = c.step(SETPOINT.q_des + [8.0, 0.0, 0.1], np.zeros(3), CHIEE, CHIEE_DOT, SETPOINT)
     np.testing.assert_allclose(np.abs(info.e_int), DT, rtol=1e-9)
@@ -182,7 +220,9 @@ def test_integral_reset_option(params, controllers):
     resetting.step(Q, Q_DOT, CHIEE, CHIEE_DOT, SETPOINT)
     assert np.all(resetting.state.e_int != 0.0)
     resetting.step(Q, Q_DOT, CHIEE, CHIEE_DOT, other)
-    _, expected_e_int = psatid_by_hand(params, default_gains("psatid"), other, Q, Q_DOT, np.zeros(2))
+    _, expected_e_int = psatid_by_hand(
+        params, default_gains("psatid"), other, Q, Q_DOT, np.zeros(2)
+    )
     np.testing.assert_allclose(resetting.state.e_int, expected_e_int, rtol=1e-12)
 
 
@@ -205,13 +245,19 @@ def test_pure_law_is_functional(params):
     phi3, _, _ = control.p_sati_d(params, default_gains("psatid"), ref, s1, meas, DT)
     np.testing.assert_array_equal(phi1, phi2)
     np.testing.assert_array_equal(s1.e_int, s2.e_int)
-    np.testing.assert_allclose(np.asarray(phi3) - np.asarray(phi1), 0.05 * np.asarray(s1.e_int), rtol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(phi3) - np.asarray(phi1), 0.05 * np.asarray(s1.e_int), rtol=1e-9
+    )
 
 
 def test_paper_default_gains():
     for material in ("fpu", "epu"):
-        assert control.default_gains("psatid", material) == CollocatedGains(kp=0.3, ki=0.05, kd=0.02, gamma=100.0)
-        assert control.default_gains("psatid_gc", material) == CollocatedGains(kp=0.3, ki=0.05, kd=0.02, gamma=100.0)
+        assert control.default_gains("psatid", material) == CollocatedGains(
+            kp=0.3, ki=0.05, kd=0.02, gamma=100.0
+        )
+        assert control.default_gains("psatid_gc", material) == CollocatedGains(
+            kp=0.3, ki=0.05, kd=0.02, gamma=100.0
+        )
         assert control.default_gains("pid", material) == PidGains(kp=10.0, ki=110.0, kd=0.25)
 
 
@@ -247,7 +293,10 @@ def test_invalid_configuration_and_setpoints(params, controllers):
         (Setpoint(SETPOINT.chiee_des, SETPOINT.q_des, SETPOINT.phi_ss, 2e-3), "optimality"),
         (Setpoint(SETPOINT.chiee_des, SETPOINT.q_des, np.array([-0.1, 1.0]), 0.0), "phi_ss"),
         (Setpoint(SETPOINT.chiee_des, SETPOINT.q_des, np.array([1.0, 3.6]), 0.0), "phi_ss"),
-        (Setpoint(SETPOINT.chiee_des, np.array([np.nan, 0.0, 0.3]), SETPOINT.phi_ss, 0.0), "non-finite"),
+        (
+            Setpoint(SETPOINT.chiee_des, np.array([np.nan, 0.0, 0.3]), SETPOINT.phi_ss, 0.0),
+            "non-finite",
+        ),
     ):
         with pytest.raises(ValueError, match=why):
             c.set_setpoint(bad)
@@ -279,7 +328,9 @@ def test_steady_state_sensitivity_matches_finite_differences(params):
         step = np.zeros(2)
         step[j] = delta
         p = [
-            ee_pose(params, planning.static_equilibrium(params, SETPOINT.phi_ss + s, SETPOINT.q_des)[0])[:2]
+            ee_pose(
+                params, planning.static_equilibrium(params, SETPOINT.phi_ss + s, SETPOINT.q_des)[0]
+            )[:2]
             for s in (step, -step)
         ]
         columns.append((np.asarray(p[0]) - np.asarray(p[1])) / (2.0 * delta))
@@ -287,11 +338,17 @@ def test_steady_state_sensitivity_matches_finite_differences(params):
 
 
 def closed_loop_ee_error(plant, controller, setpoint, duration):
-    """Run the controller at 40 Hz against the plant (RK4, dt = 2.5 ms, stable below 3.8 ms); EE errors [m] per tick."""
+    """Run the controller at 40 Hz against the plant (RK4, dt = 2.5 ms, stable below 3.8 ms); EE
+    errors [m] per tick."""
     substeps = 10
-    plant_step = jax.jit(lambda x, phi: simulation.simulate(plant, x, phi[None, :], DT / substeps, substeps)[-1])
+    plant_step = jax.jit(
+        lambda x, phi: simulation.simulate(plant, x, phi[None, :], DT / substeps, substeps)[-1]
+    )
     fk = jax.jit(
-        lambda x: (kinematics.end_effector_pose(plant, x[:3]), kinematics.end_effector_jacobian(plant, x[:3]) @ x[3:])
+        lambda x: (
+            kinematics.end_effector_pose(plant, x[:3]),
+            kinematics.end_effector_jacobian(plant, x[:3]) @ x[3:],
+        )
     )
     x = np.zeros(6)
     errors = []
@@ -304,11 +361,16 @@ def closed_loop_ee_error(plant, controller, setpoint, duration):
 
 
 def test_ee_integral_removes_steady_state_error_under_model_mismatch(params):
-    """Plant shear stiffness half the model's (the CS model captures shear poorly, experiments.md §6): P-satI-D keeps
-    an EE offset (its integral acts on varphi, which does not contain the shear); the §3.8 extension removes it."""
+    """Plant shear stiffness half the model's (the CS model captures shear poorly, experiments.md
+    §6): P-satI-D keeps an EE offset (its integral acts on varphi, which does not contain the
+    shear); the §3.8 extension removes it."""
     plant = params.replace(S_sh_hat=0.5 * np.asarray(params.S_sh_hat))
     setpoint = SETPOINT
     plain = closed_loop_ee_error(plant, Controller("psatid", params), setpoint, 6.0)
-    extended = closed_loop_ee_error(plant, Controller("psatid", params, ee_integral=EeIntegralGains()), setpoint, 8.0)
-    assert np.ptp(plain[-40:]) < 1e-6 and np.mean(plain[-40:]) > 0.4e-3  # settled, with an offset > 0.4 mm
+    extended = closed_loop_ee_error(
+        plant, Controller("psatid", params, ee_integral=EeIntegralGains()), setpoint, 8.0
+    )
+    assert (
+        np.ptp(plain[-40:]) < 1e-6 and np.mean(plain[-40:]) > 0.4e-3
+    )  # settled, with an offset > 0.4 mm
     assert np.max(extended[-40:]) < 0.2e-3

@@ -1,5 +1,6 @@
-"""The supervised controller tick (hsa_core.controller.control_loop) on a stand-in law: setpoint activation, track -> hold ->
-stale -> track, E-stop, refused steps and states, counters; expected values from docs/nodes/hsa_controller_node.md."""
+"""The supervised controller tick (hsa_core.controller.control_loop) on a stand-in law: setpoint
+activation, track -> hold -> stale -> track, E-stop, refused steps and states, counters; expected
+values from docs/nodes/hsa_controller_node.md."""
 
 from __future__ import annotations
 
@@ -10,12 +11,17 @@ import numpy as np
 import pytest
 
 from hsa_core.controller.control import ControllerState
-from hsa_core.controller.control_loop import SETPOINT_CHECKS, SETPOINT_INTAKE, Activation, ControlLoop
-from hsa_core.model.params import load_params
-from hsa_core.task.planning import Setpoint
-from hsa_core.refusal import Refusal, StateRejection
+from hsa_core.controller.control_loop import (
+    SETPOINT_CHECKS,
+    SETPOINT_INTAKE,
+    Activation,
+    ControlLoop,
+)
 from hsa_core.controller.supervision import Action, Mode, Supervisor, SupervisorConfig
 from hsa_core.controller.validation import SetpointRejection
+from hsa_core.model.params import load_params
+from hsa_core.refusal import Refusal, StateRejection
+from hsa_core.task.planning import Setpoint
 
 MS = 1_000_000  # ns
 Q, CHIEE, ZERO = np.zeros(3), np.array([0.0, 0.12, 0.0]), np.zeros(3)
@@ -23,7 +29,8 @@ SP_A, SP_B = (Setpoint(CHIEE, Q, np.full(2, v), 0.0) for v in (1.0, 2.0))
 
 
 class FakeLaw:
-    """Stands in for hsa_core.controller.control.Controller: the n-th step commands φ = [n, n] and leaves e_int = [n, n]."""
+    """Stands in for hsa_core.controller.control.Controller: the n-th step commands φ = [n, n] and
+    leaves e_int = [n, n]."""
 
     def __init__(self) -> None:
         self.params, self.dt = load_params("fpu"), 0.025
@@ -51,7 +58,9 @@ class FakeLaw:
 def _loop(driver_timeout: float = 0.0, check=None) -> tuple[FakeLaw, ControlLoop]:
     """A loop with the node's default bounds (0.1 s stale, 0.25 s hold) around a FakeLaw."""
     law = FakeLaw()
-    return law, ControlLoop(law, Supervisor(SupervisorConfig(0.1, 0.25, driver_timeout)), check=check)
+    return law, ControlLoop(
+        law, Supervisor(SupervisorConfig(0.1, 0.25, driver_timeout)), check=check
+    )
 
 
 def _state(loop: ControlLoop, stamp: int, now: int | None = None) -> None:
@@ -70,18 +79,35 @@ def _tracking_at(t: int) -> tuple[FakeLaw, ControlLoop]:
 def test_a_setpoint_is_active_from_the_first_tick_after_its_stamp() -> None:
     law, loop = _loop()
     loop.receive_setpoint(100 * MS, SP_A, "a")
-    first = loop.tick(100 * MS)  # a tick at the very instant of the stamp still uses the previous (none)
-    assert first.activated == () and first.mode is Mode.WAITING_FOR_SETPOINT and loop.active_tag is None
+    first = loop.tick(
+        100 * MS
+    )  # a tick at the very instant of the stamp still uses the previous (none)
+    assert (
+        first.activated == ()
+        and first.mode is Mode.WAITING_FOR_SETPOINT
+        and loop.active_tag is None
+    )
     second = loop.tick(125 * MS)
-    assert second.activated == (Activation("a", None),) and loop.active_tag == "a" and law.active == [SP_A]
+    assert (
+        second.activated == (Activation("a", None),)
+        and loop.active_tag == "a"
+        and law.active == [SP_A]
+    )
     assert second.mode is Mode.WAITING_FOR_STATE
     loop.receive_setpoint(130 * MS, SP_B, "b")
     loop.receive_setpoint(140 * MS, SP_A, "a2")
     loop.receive_setpoint(150 * MS, SP_B, "b2")  # stamped at the tick: waits for the next one
-    assert [a.tag for a in loop.tick(150 * MS).activated] == ["a2"] and loop.active_tag == "a2"  # the newest due wins
+    assert [a.tag for a in loop.tick(150 * MS).activated] == [
+        "a2"
+    ] and loop.active_tag == "a2"  # the newest due wins
     assert [a.tag for a in loop.tick(175 * MS).activated] == ["b2"] and loop.active_tag == "b2"
     c = loop.counters
-    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (4, 3, 1, 0)
+    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (
+        4,
+        3,
+        1,
+        0,
+    )
 
 
 def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
@@ -91,7 +117,11 @@ def test_a_refused_setpoint_leaves_the_previous_one_active() -> None:
     loop.receive_setpoint(0, SP_B, "b")
     loop.receive_setpoint(0, Setpoint(CHIEE, Q, np.full(2, math.nan), 0.0), "nan")
     activated = loop.tick(25 * MS).activated
-    assert [(a.tag, a.problem is None) for a in activated] == [("a", True), ("b", False), ("nan", False)]
+    assert [(a.tag, a.problem is None) for a in activated] == [
+        ("a", True),
+        ("b", False),
+        ("nan", False),
+    ]
     assert loop.active_tag == "a" and law.active == [SP_A]
     assert loop.counters.rejected_setpoints == 2 and loop.counters.setpoints == 1
     rejected = loop.rejections.setpoints
@@ -108,18 +138,33 @@ def test_a_setpoint_flood_costs_the_tick_a_bounded_number_of_checks_and_the_newe
         loop.receive_setpoint(k, sp, k)
     tick = loop.tick(10_000)
     assert tick.activated == (Activation(9_999, None),) and loop.active_tag == 9_999
-    assert checked == [flood[-1]] and law.active == [flood[-1]], "one check and one activation, whatever the load"
+    assert checked == [flood[-1]] and law.active == [flood[-1]], (
+        "one check and one activation, whatever the load"
+    )
     c = loop.counters
-    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (10_000, 1, 9_999, 0)
+    assert (c.received_setpoints, c.setpoints, c.superseded_setpoints, c.rejected_setpoints) == (
+        10_000,
+        1,
+        9_999,
+        0,
+    )
     assert loop.pending_setpoints == 0
     for k in range(100):  # stamped in the future: kept, but never more than the intake holds
         loop.receive_setpoint(10**12 + k, flood[k], f"future {k}")
-    assert loop.pending_setpoints == SETPOINT_INTAKE and c.superseded_setpoints == 9_999 + 100 - SETPOINT_INTAKE
+    assert (
+        loop.pending_setpoints == SETPOINT_INTAKE
+        and c.superseded_setpoints == 9_999 + 100 - SETPOINT_INTAKE
+    )
     loop.drop_setpoints(7)  # dropped undecoded by the caller: received and superseded
-    assert (c.received_setpoints, c.superseded_setpoints) == (10_107, 9_999 + 100 - SETPOINT_INTAKE + 7)
+    assert (c.received_setpoints, c.superseded_setpoints) == (
+        10_107,
+        9_999 + 100 - SETPOINT_INTAKE + 7,
+    )
 
 
-def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the_check_budget() -> None:
+def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the_check_budget() -> (
+    None
+):
     nan = Setpoint(CHIEE, Q, np.full(2, math.nan), 0.0)
     law, loop = _loop()
     loop.receive_setpoint(0, SP_A, "a")
@@ -128,13 +173,24 @@ def test_a_refused_newest_setpoint_leaves_the_newest_valid_one_active_within_the
         loop.receive_setpoint(0, nan, f"nan {k}")
     activated = loop.tick(25 * MS).activated
     assert [a.tag for a in activated] == ["b", *(f"nan {k}" for k in range(SETPOINT_CHECKS - 1))]
-    assert loop.active_tag == "b" and law.active == [SP_B] and loop.counters.superseded_setpoints == 1
+    assert (
+        loop.active_tag == "b" and law.active == [SP_B] and loop.counters.superseded_setpoints == 1
+    )
     assert loop.counters.rejected_setpoints == SETPOINT_CHECKS - 1
-    for k in range(SETPOINT_CHECKS + 3):  # more refused ones than the budget: the valid one before is not reached
+    for k in range(
+        SETPOINT_CHECKS + 3
+    ):  # more refused ones than the budget: the valid one before is not reached
         loop.receive_setpoint(30 * MS, SP_A if k == 0 else nan, k)
     activated = loop.tick(50 * MS).activated
-    assert len(activated) == SETPOINT_CHECKS and all(a.problem for a in activated) and loop.active_tag == "b"
-    assert loop.counters.superseded_setpoints == 1 + 3 and loop.counters.rejected_setpoints == 2 * SETPOINT_CHECKS - 1
+    assert (
+        len(activated) == SETPOINT_CHECKS
+        and all(a.problem for a in activated)
+        and loop.active_tag == "b"
+    )
+    assert (
+        loop.counters.superseded_setpoints == 1 + 3
+        and loop.counters.rejected_setpoints == 2 * SETPOINT_CHECKS - 1
+    )
 
 
 def test_an_unreadable_setpoint_is_counted_as_refused_and_the_active_one_stays() -> None:
@@ -144,8 +200,14 @@ def test_an_unreadable_setpoint_is_counted_as_refused_and_the_active_one_stays()
     loop.refuse_setpoint("undecodable: Fast CDR exception")
     loop.tick(50 * MS)
     assert loop.active_tag == "a" and law.active == [SP_A]
-    assert (loop.counters.received_setpoints, loop.counters.setpoints, loop.counters.rejected_setpoints) == (2, 1, 1)
-    assert loop.rejections.setpoints["undecodable"] == 1 and loop.rejections.last_setpoint.startswith("undecodable")
+    assert (
+        loop.counters.received_setpoints,
+        loop.counters.setpoints,
+        loop.counters.rejected_setpoints,
+    ) == (2, 1, 1)
+    assert loop.rejections.setpoints[
+        "undecodable"
+    ] == 1 and loop.rejections.last_setpoint.startswith("undecodable")
 
 
 def test_track_then_hold_then_stale_then_track_again() -> None:
@@ -156,18 +218,24 @@ def test_track_then_hold_then_stale_then_track_again() -> None:
     assert law.n == 5
     held = [loop.tick(t + k * 25 * MS) for k in range(5, 11)]  # age 125..250 ms: the hold, 6 ticks
     assert all(h.mode is Mode.HOLD and h.sent is Action.HOLD for h in held)
-    assert all(np.array_equal(h.command.phi, [5.0, 5.0]) and h.command.source_stamp_ns == t for h in held)
+    assert all(
+        np.array_equal(h.command.phi, [5.0, 5.0]) and h.command.source_stamp_ns == t for h in held
+    )
     entry = held[0].transition
     assert (entry.old, entry.new) == (Mode.TRACKING, Mode.HOLD) and math.isnan(entry.outage_s)
     assert all(h.transition is None for h in held[1:])
-    assert law.n == 5 and np.array_equal(law.state.e_int, [5.0, 5.0])  # not stepped: integrators frozen
+    assert law.n == 5 and np.array_equal(
+        law.state.e_int, [5.0, 5.0]
+    )  # not stepped: integrators frozen
     stale = loop.tick(t + 275 * MS)  # age 275 ms > hold_timeout: nothing sent
     assert (stale.mode, stale.sent, stale.command) == (Mode.STALE, Action.NONE, None) and law.n == 5
     _state(loop, t + 290 * MS)
     back = loop.tick(t + 300 * MS)
     assert back.sent is Action.STEP and back.command.source_stamp_ns == t + 290 * MS and law.n == 6
     assert back.transition.new is Mode.TRACKING
-    assert back.transition.outage_s == pytest.approx(0.2)  # last tracking tick t + 100 ms, back at t + 300 ms
+    assert back.transition.outage_s == pytest.approx(
+        0.2
+    )  # last tracking tick t + 100 ms, back at t + 300 ms
     c = loop.counters
     assert (c.stale_events, c.held_ticks, c.stale_stops, c.saturated) == (1, 6, 1, 1)
     assert loop.last_outage_s == pytest.approx(0.2)
@@ -192,7 +260,9 @@ def test_a_refused_step_sends_nothing_keeps_the_mode_and_leaves_nothing_to_hold(
     law.refuse_step = True
     refused = loop.tick(25 * MS)
     assert refused.sent is Action.NONE and refused.refused.startswith("non-finite command")
-    assert refused.mode is Mode.WAITING_FOR_SETPOINT and refused.transition is None  # the mode before the tick
+    assert (
+        refused.mode is Mode.WAITING_FOR_SETPOINT and refused.transition is None
+    )  # the mode before the tick
     assert loop.counters.refused_ticks == 1
     stale = loop.tick(150 * MS)  # age 130 ms, but no command was ever sent: nothing to hold
     assert (stale.mode, stale.sent) == (Mode.STALE, Action.NONE)
@@ -203,12 +273,17 @@ def test_states_are_checked_before_they_can_be_used() -> None:
     loop.receive_setpoint(0, SP_A, "a")
     assert loop.state(10 * MS, 10 * MS, Q, ZERO, np.array([math.nan, 0.1, 0.0]), ZERO) is not None
     assert loop.state(10 * MS, 10 * MS, Q, ZERO, np.array([5.0, 0.1, 0.0]), ZERO) is not None
-    assert loop.state(10 * MS, 10 * MS, Q, ZERO, CHIEE, ZERO, velocity_valid=False) is None  # not refused, not used
+    assert (
+        loop.state(10 * MS, 10 * MS, Q, ZERO, CHIEE, ZERO, velocity_valid=False) is None
+    )  # not refused, not used
     assert loop.tick(25 * MS).mode is Mode.WAITING_FOR_STATE
     _state(loop, 30 * MS)
     assert loop.state(30 * MS, 31 * MS, Q, ZERO, CHIEE, ZERO) == "older than the newest state"
-    assert dict(loop.rejections.states) == {"non-finite pose or configuration": 1,
-                                            "implausible pose or configuration": 1, "older than the newest state": 1}
+    assert dict(loop.rejections.states) == {
+        "non-finite pose or configuration": 1,
+        "implausible pose or configuration": 1,
+        "older than the newest state": 1,
+    }
     assert loop.rejections.last_state == "older than the newest state"
     assert all(type(reason) is StateRejection for reason in loop.rejections.states)  # not parsed
     assert loop.tick(50 * MS).sent is Action.STEP
@@ -239,7 +314,9 @@ def test_driver_torque_off_leaves_tracking_freezes_the_integrators_and_is_counte
         modes.append(tick.mode)
         assert (tick.sent is Action.NONE) == (tick.mode is Mode.TORQUE_OFF)
     assert modes == [Mode.TRACKING] * 3 + [Mode.TORQUE_OFF] * 4 + [Mode.TRACKING] * 5
-    assert law.n == 8 and loop.counters.torque_off_events == 1  # 4 ticks without a step: integrators frozen
+    assert (
+        law.n == 8 and loop.counters.torque_off_events == 1
+    )  # 4 ticks without a step: integrators frozen
 
 
 def test_deadline_misses_and_the_period_tick_rate() -> None:
@@ -248,5 +325,7 @@ def test_deadline_misses_and_the_period_tick_rate() -> None:
         loop.tick(t * MS)
     assert (loop.counters.ticks, loop.counters.deadline_misses) == (5, 1)
     period = loop.period(200 * MS)
-    assert period.rate_hz == pytest.approx(25.0) and period.compute_s == ()  # 5 ticks in 0.2 s, no step
+    assert (
+        period.rate_hz == pytest.approx(25.0) and period.compute_s == ()
+    )  # 5 ticks in 0.2 s, no step
     assert loop.period(300 * MS).rate_hz == 0.0

@@ -1,8 +1,9 @@
-"""Tests of hsa_core.driver.servo_supervision's instant-wise goal-rate limiter and reboot admission (issues 11, 12), and of the
-driver's goal pipeline (hsa_dynamixel_driver.goals); the supervisor state machine is in test_servo_supervision.py.
+"""Tests of hsa_core.driver.servo_supervision's instant-wise goal-rate limiter and reboot admission
+(issues 11, 12), and of the driver's goal pipeline (hsa_dynamixel_driver.goals); the supervisor
+state machine is in test_servo_supervision.py.
 
-Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by the code under
-test: max_rate · dt · 2048/π ticks, rounded down.
+Expected steps are computed here from the tick unit (4096 ticks per revolution) and the rate, not by
+the code under test: max_rate · dt · 2048/π ticks, rounded down.
 """
 
 import itertools
@@ -12,9 +13,8 @@ import random
 import numpy as np
 import pytest
 
-from hsa_core.model.actuation import MotorLimits, MotorMap
-from hsa_core.model.actuation import GoalRateLimiter
 from hsa_core.driver.servo_supervision import reboot_refusal
+from hsa_core.model.actuation import GoalRateLimiter, MotorLimits, MotorMap
 from hsa_dynamixel_driver.goals import GoalPipeline
 
 TICKS_PER_RAD = 2048 / math.pi
@@ -45,8 +45,9 @@ def test_step_constant_is_the_rate_times_the_period() -> None:
 
 @pytest.mark.parametrize("order", list(itertools.permutations(range(3))))
 def test_writes_at_one_instant_end_at_the_same_goal_in_any_order(order: tuple[int, ...]) -> None:
-    # At t = 1.01 the cycle (old target A), a phi_cmd (target B) and the cycle again (target B) write in some order;
-    # the last write decides, and it is measured from the goal of instant 1.00 whatever came before it.
+    # At t = 1.01 the cycle (old target A), a phi_cmd (target B) and the cycle again (target B)
+    # write in some order; the last write decides, and it is measured from the goal of instant 1.00
+    # whatever came before it.
     targets = [HELD + 500, HELD - 500, HELD + 20]
     limiter = limiter_at(HELD, 1.00)
     for k in order:
@@ -56,8 +57,9 @@ def test_writes_at_one_instant_end_at_the_same_goal_in_any_order(order: tuple[in
 
 
 def test_cycle_then_command_equals_command_then_cycle() -> None:
-    # The driver's two paths at one simulated instant: the cycle rewrites the old target A, the phi_cmd writes B;
-    # with the command first, the cycle then writes B again (its newest target). Both end at B limited from 1.00.
+    # The driver's two paths at one simulated instant: the cycle rewrites the old target A, the
+    # phi_cmd writes B; with the command first, the cycle then writes B again (its newest target).
+    # Both end at B limited from 1.00.
     a, b = HELD + 300, HELD - 300
     first = limiter_at(HELD, 1.00)
     write(first, a, 1.01)
@@ -78,11 +80,15 @@ def test_next_instant_is_measured_from_the_final_goal_of_the_previous_one() -> N
 
 def test_dt_is_capped_at_one_period_and_a_held_goal_moves_one_period_at_once() -> None:
     limiter = limiter_at(HELD, 1.00)
-    np.testing.assert_array_equal(write(limiter, HELD + 5000, 3.00), HELD + STEP)  # 2 s later: still one period
+    np.testing.assert_array_equal(
+        write(limiter, HELD + 5000, 3.00), HELD + STEP
+    )  # 2 s later: still one period
     fresh = GoalRateLimiter()
     fresh.reset(HELD)  # torque came on holding HELD: the first write may move a full period's step
     np.testing.assert_array_equal(write(fresh, HELD + 5000, 7.0), HELD + STEP)
-    np.testing.assert_array_equal(write(fresh, HELD - 5000, 7.0), HELD - STEP)  # same instant: from HELD again
+    np.testing.assert_array_equal(
+        write(fresh, HELD - 5000, 7.0), HELD - STEP
+    )  # same instant: from HELD again
 
 
 def test_clock_jumping_back_allows_no_motion() -> None:
@@ -93,7 +99,9 @@ def test_clock_jumping_back_allows_no_motion() -> None:
 def test_rate_zero_is_no_limit_and_clamp_is_applied() -> None:
     limiter = limiter_at(HELD, 1.0)
     np.testing.assert_array_equal(limiter.limited(HELD + 5000, 1.01, 0.0, PERIOD), HELD + 5000)
-    clamped = limiter.limited(HELD + 5000, 1.01, RATE, PERIOD, clamp=lambda g: np.minimum(g, HELD + 10))
+    clamped = limiter.limited(
+        HELD + 5000, 1.01, RATE, PERIOD, clamp=lambda g: np.minimum(g, HELD + 10)
+    )
     np.testing.assert_array_equal(clamped, HELD + 10)
 
 
@@ -103,9 +111,10 @@ def test_limited_before_reset_is_an_error() -> None:
 
 
 def test_flood_bound_holds_for_any_interleaving() -> None:
-    # A flood of full-range swings at random instants, several writes per instant: every write stays within
-    # RATE · min(t − t_prev, PERIOD) of the previous instant's final goal, and the final goals of any two instants
-    # differ by at most RATE · Δt (the bound tests/ros/test_goal_flood.py checks on the bus).
+    # A flood of full-range swings at random instants, several writes per instant: every write stays
+    # within RATE · min(t − t_prev, PERIOD) of the previous instant's final goal, and the final
+    # goals of any two instants differ by at most RATE · Δt (the bound tests/ros/test_goal_flood.py
+    # checks on the bus).
     rng = random.Random(3)
     limiter = GoalRateLimiter()
     limiter.reset(HELD)
@@ -125,11 +134,21 @@ def test_flood_bound_holds_for_any_interleaving() -> None:
 
 def test_reboot_refused_only_while_tracking_with_torque_on() -> None:
     assert "tracking" in reboot_refusal(active=True, link_up=True, torque_on=True, tracking=True)
-    assert reboot_refusal(active=True, link_up=True, torque_on=True, tracking=False) is None  # holding
-    assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=True) is None  # torque off
+    assert (
+        reboot_refusal(active=True, link_up=True, torque_on=True, tracking=False) is None
+    )  # holding
+    assert (
+        reboot_refusal(active=True, link_up=True, torque_on=False, tracking=True) is None
+    )  # torque off
     assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=False) is None
-    assert reboot_refusal(active=False, link_up=True, torque_on=False, tracking=False) == "node is not active"
-    assert reboot_refusal(active=True, link_up=False, torque_on=False, tracking=False) == "bus not connected"
+    assert (
+        reboot_refusal(active=False, link_up=True, torque_on=False, tracking=False)
+        == "node is not active"
+    )
+    assert (
+        reboot_refusal(active=True, link_up=False, torque_on=False, tracking=False)
+        == "bus not connected"
+    )
 
 
 MAP = MotorMap(tuple(HELD.tolist()), (21, 22, 23, 24), phi_max=math.radians(200.0), margin=0.02)
@@ -151,7 +170,8 @@ def pipeline_holding() -> GoalPipeline:
 
 
 def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
-    # φ = (0.1, 0.2) rad -> ψ = [+φ₂, −φ₂, +φ₁, −φ₁] -> ⌊0.2·2048/π⌋ = 130, ⌊0.1·2048/π⌋ = 65 ticks from neutral
+    # φ = (0.1, 0.2) rad -> ψ = [+φ₂, −φ₂, +φ₁, −φ₁] -> ⌊0.2·2048/π⌋ = 130, ⌊0.1·2048/π⌋ = 65 ticks
+    # from neutral
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
     step = goals.next_goal(1.0, MAP, LIMITS, 0.0, PERIOD)
@@ -160,7 +180,9 @@ def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
     step = goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD)
-    np.testing.assert_array_equal(step.ticks, HELD + [STEP, -STEP, 65, -65])  # 130 ticks shortened to 65
+    np.testing.assert_array_equal(
+        step.ticks, HELD + [STEP, -STEP, 65, -65]
+    )  # 130 ticks shortened to 65
     assert step.rate_limited
 
 
@@ -168,7 +190,9 @@ def test_pipeline_ramp_continues_then_stops_when_reached() -> None:
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
     goals.written(goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD).ticks, 1.0)
-    step = goals.next_goal(1.01, MAP, LIMITS, RATE, PERIOD)  # the ramp's next step: not a new command
+    step = goals.next_goal(
+        1.01, MAP, LIMITS, RATE, PERIOD
+    )  # the ramp's next step: not a new command
     np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
     assert not step.rate_limited
     goals.written(step.ticks, 1.01)
@@ -180,6 +204,8 @@ def test_pipeline_clips_phi_and_drops_a_stale_target() -> None:
     goals.take(Command([-1.0, 10.0]))
     step = goals.next_goal(1.0, MAP, LIMITS, 0.0, PERIOD)
     assert step.clipped is not None and "outside [0, 3.4907]" in step.clipped
-    np.testing.assert_array_equal(step.ticks, HELD + [2275, -2275, 0, 0])  # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
+    np.testing.assert_array_equal(
+        step.ticks, HELD + [2275, -2275, 0, 0]
+    )  # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
     goals.drop_target()
     assert goals.next_goal(1.01, MAP, LIMITS, 0.0, PERIOD) is None

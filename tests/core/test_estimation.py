@@ -1,4 +1,5 @@
-"""Tests of hsa_core.sensing.estimation: Savitzky–Golay differentiation (spec §6.4) and the pose → q helper (spec §6.3)."""
+"""Tests of hsa_core.sensing.estimation: Savitzky–Golay differentiation (spec §6.4) and the pose → q
+helper (spec §6.3)."""
 
 import math
 
@@ -6,18 +7,38 @@ import numpy as np
 import pytest
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from hsa_core.sensing.estimation import (EstimateMode, SampleRejection, SavitzkyGolayDifferentiator,
-                                 derivative_coefficients)
+from hsa_core.sensing.estimation import (
+    EstimateMode,
+    SampleRejection,
+    SavitzkyGolayDifferentiator,
+    derivative_coefficients,
+)
 
 T = 0.005  # 200 Hz mocap period
 
 # spec §6.4, oldest to newest
 SPEC_COEFFICIENTS = [
-    -0.09166196123, -0.02180847375, 0.0258122249, 0.05407040425, 0.06583633384,
-    0.06398028319, 0.05137252183, 0.03088331928, 0.005382945079, -0.02225833125,
-    -0.04917024018, -0.07248251218, -0.08932487772, -0.09682706728, -0.09211881133,
-    -0.07232984033, -0.03458988477, 0.02397132489, 0.1062240582, 0.2150385846,
-]  # fmt: skip
+    -0.09166196123,
+    -0.02180847375,
+    0.0258122249,
+    0.05407040425,
+    0.06583633384,
+    0.06398028319,
+    0.05137252183,
+    0.03088331928,
+    0.005382945079,
+    -0.02225833125,
+    -0.04917024018,
+    -0.07248251218,
+    -0.08932487772,
+    -0.09682706728,
+    -0.09211881133,
+    -0.07232984033,
+    -0.03458988477,
+    0.02397132489,
+    0.1062240582,
+    0.2150385846,
+]
 
 
 def feed(estimator, stamps, values):
@@ -27,7 +48,9 @@ def feed(estimator, stamps, values):
 
 def cubic(t):
     """A cubic test signal (3 components) and its exact derivative."""
-    coeffs = np.array([[0.3, -1.2, 4.0, -7.5], [-0.1, 0.4, 2.0, 3.0], [1.0, 0.0, -5.0, 20.0]])  # a0 + a1 t + ...
+    coeffs = np.array(
+        [[0.3, -1.2, 4.0, -7.5], [-0.1, 0.4, 2.0, 3.0], [1.0, 0.0, -5.0, 20.0]]
+    )  # a0 + a1 t + ...
     powers = np.asarray(t)[..., None] ** np.arange(4)
     d_powers = np.arange(4) * np.asarray(t)[..., None] ** np.maximum(np.arange(4) - 1, 0)
     return powers @ coeffs.T, d_powers @ coeffs.T
@@ -35,7 +58,9 @@ def cubic(t):
 
 def test_precomputed_coefficients_match_spec():
     est = SavitzkyGolayDifferentiator()
-    np.testing.assert_allclose(est.coefficients, SPEC_COEFFICIENTS, rtol=5.1e-10, atol=1e-13)  # 10 printed digits
+    np.testing.assert_allclose(
+        est.coefficients, SPEC_COEFFICIENTS, rtol=5.1e-10, atol=1e-13
+    )  # 10 printed digits
     tau = np.arange(20) - 19.0
     assert abs(est.coefficients.sum()) < 1e-12
     assert abs(est.coefficients @ tau - 1.0) < 1e-12
@@ -44,7 +69,9 @@ def test_precomputed_coefficients_match_spec():
 @pytest.mark.parametrize(("window", "order"), [(20, 3), (11, 2), (31, 4)])
 def test_coefficients_match_scipy_endpoint(window, order):
     expected = savgol_coeffs(window, order, deriv=1, pos=window - 1, use="dot")
-    np.testing.assert_allclose(derivative_coefficients(np.arange(window) - (window - 1.0), order), expected, atol=1e-12)
+    np.testing.assert_allclose(
+        derivative_coefficients(np.arange(window) - (window - 1.0), order), expected, atol=1e-12
+    )
 
 
 def test_regular_window_equals_scipy_savgol_at_last_sample():
@@ -55,7 +82,9 @@ def test_regular_window_equals_scipy_savgol_at_last_sample():
     for k, e in enumerate(feed(est, stamps, x)):
         if k < 19:
             continue
-        expected = savgol_filter(x[k - 19 : k + 1], 20, 3, deriv=1, delta=T, axis=0, mode="interp")[-1]
+        expected = savgol_filter(x[k - 19 : k + 1], 20, 3, deriv=1, delta=T, axis=0, mode="interp")[
+            -1
+        ]
         assert e.mode == "regular" and e.ready
         np.testing.assert_allclose(e.derivative, expected, rtol=1e-9, atol=1e-9)
 
@@ -132,7 +161,8 @@ def test_uniform_stamps_at_another_rate_use_true_times_and_agree_with_scipy():
 
 @pytest.mark.parametrize(("offset", "mode"), [(0.45e-3, "regular"), (0.55e-3, "irregular")])
 def test_jitter_rule_on_stamp_intervals(offset, mode):
-    # alternating stamp offsets ±offset·T change every interval by 2·offset·T; the tolerance is 1e-3·T
+    # alternating stamp offsets ±offset·T change every interval by 2·offset·T; the tolerance is
+    # 1e-3·T
     stamps = T * np.arange(30) + offset * T * (-1.0) ** np.arange(30)
     x, _ = cubic(stamps)
     out = feed(SavitzkyGolayDifferentiator(), stamps, x)
@@ -145,7 +175,9 @@ def test_gap_restarts_window():
     stamps += [stamps[-1] + 1.6 * T + T * k for k in range(20)]
     out = feed(est, stamps, np.ones((45, 1)))
     assert out[24].ready
-    assert out[25].mode == "not_ready" and "restarted" in out[25].reason and out[25].derivative is None
+    assert (
+        out[25].mode == "not_ready" and "restarted" in out[25].reason and out[25].derivative is None
+    )
     assert all(e.mode == "not_ready" for e in out[25:44])
     assert out[44].ready and out[44].mode == "regular"
 
@@ -186,9 +218,11 @@ def test_rejections_carry_a_typed_reason():
     x, _ = cubic(stamps)
     est = SavitzkyGolayDifferentiator()
     assert feed(est, stamps, x)[-1].mode is EstimateMode.REGULAR
-    for t, xi, rejection in ((stamps[19], x[19], SampleRejection.DUPLICATE),
-                             (stamps[10], x[10], SampleRejection.OUT_OF_ORDER),
-                             (math.nan, x[0], SampleRejection.NON_FINITE)):
+    for t, xi, rejection in (
+        (stamps[19], x[19], SampleRejection.DUPLICATE),
+        (stamps[10], x[10], SampleRejection.OUT_OF_ORDER),
+        (math.nan, x[0], SampleRejection.NON_FINITE),
+    ):
         e = est.update(t, xi)
         assert e.mode is EstimateMode.REJECTED and e.rejection is rejection
         assert e.reason.startswith(str(rejection))
@@ -206,13 +240,19 @@ def test_value_is_a_private_copy_of_the_sample():
 
 def test_sine_velocity_within_the_documented_gain():
     stamps = T * np.arange(400)
-    x = np.column_stack([0.01 * np.sin(2 * np.pi * 1.0 * stamps), 0.01 * np.cos(2 * np.pi * 2.0 * stamps)])
+    x = np.column_stack(
+        [0.01 * np.sin(2 * np.pi * 1.0 * stamps), 0.01 * np.cos(2 * np.pi * 2.0 * stamps)]
+    )
     out = feed(SavitzkyGolayDifferentiator(dim=2), stamps, x)
     true = np.column_stack(
-        [0.02 * np.pi * np.cos(2 * np.pi * stamps), -0.04 * np.pi * np.sin(2 * np.pi * 2.0 * stamps)]
+        [
+            0.02 * np.pi * np.cos(2 * np.pi * stamps),
+            -0.04 * np.pi * np.sin(2 * np.pi * 2.0 * stamps),
+        ]
     )
     err = np.array([e.derivative - v for e, v in zip(out[19:], true[19:])])
-    # spec gains 1.0006 (1 Hz) and 1.009 (2 Hz); the causal end-point fit adds a phase lead of a few mrad
+    # spec gains 1.0006 (1 Hz) and 1.009 (2 Hz); the causal end-point fit adds a phase lead of a few
+    # mrad
     assert np.max(np.abs(err[:, 0])) < 3e-3 * 0.02 * np.pi
     assert np.max(np.abs(err[:, 1])) < 2e-2 * 0.04 * np.pi
 
@@ -229,7 +269,8 @@ def test_invalid_arguments():
 
 
 def _forward_kinematics(xi, l=0.059, l_pc=0.025, l_dc=0.014, h_p=0.012):
-    """EE pose of model.md §6.1–6.2 (closed form for κ ≠ 0, χ_off = 0), written out independently of hsa_core."""
+    """EE pose of model.md §6.1–6.2 (closed form for κ ≠ 0, χ_off = 0), written out independently of
+    hsa_core."""
     kappa, sigma_sh, sigma_ax = xi
     th = kappa * l
     p_x = (sigma_sh * math.sin(th) - sigma_ax * (1 - math.cos(th))) / kappa
@@ -240,8 +281,8 @@ def _forward_kinematics(xi, l=0.059, l_pc=0.025, l_dc=0.014, h_p=0.012):
 
 @pytest.mark.parametrize("sigma_a_eq", [1.0, 1.02])
 def test_configuration_from_pose_inverts_forward_kinematics(sigma_a_eq):
-    from hsa_core.sensing.estimation import configuration_from_pose
     from hsa_core.model.params import load_params
+    from hsa_core.sensing.estimation import configuration_from_pose
 
     params = load_params("fpu").replace(sigma_a_eq=np.array([sigma_a_eq, sigma_a_eq]))
     for xi in ([-8.86, 0.0068, 1.298], [5.0, -0.05, 1.3], [0.3, 0.01, 1.1]):
@@ -249,4 +290,6 @@ def test_configuration_from_pose_inverts_forward_kinematics(sigma_a_eq):
         assert isinstance(q, np.ndarray) and q.shape == (3,)
         np.testing.assert_allclose(q, np.array(xi) - [0.0, 0.0, sigma_a_eq], atol=1e-10)
     # straight robot at its undeformed height: ξ = [0, 0, 1]
-    np.testing.assert_allclose(configuration_from_pose(params, [0.0, 0.110, 0.0]), [0, 0, 1 - sigma_a_eq], atol=1e-12)
+    np.testing.assert_allclose(
+        configuration_from_pose(params, [0.0, 0.110, 0.0]), [0, 0, 1 - sigma_a_eq], atol=1e-12
+    )

@@ -1,4 +1,5 @@
-"""Excitation sequences (identification.md §2.2, §2.4): timing, levels, GBN statistics, seeding, zero-order hold."""
+"""Excitation sequences (identification.md §2.2, §2.4): timing, levels, GBN statistics, seeding,
+zero-order hold."""
 
 from __future__ import annotations
 
@@ -38,18 +39,25 @@ def test_staircase_has_equal_increments_each_held_for_the_hold_time():
     np.testing.assert_array_equal(exc.phi[:, 0], exc.phi[:, 1])
 
 
-def test_gbn_levels_are_uniform_holds_average_the_settling_time_and_the_seed_fixes_the_realisation():
-    exc = excitation.gbn(PHI_MAX, duration=1200.0, seed=7, settling_time=0.5, mode="combined", dt=0.04)
+def test_gbn_levels_are_uniform_holds_average_the_settling_time_and_the_seed_fixes_the_draw():
+    exc = excitation.gbn(
+        PHI_MAX, duration=1200.0, seed=7, settling_time=0.5, mode="combined", dt=0.04
+    )
     assert np.all((exc.phi >= 0.0) & (exc.phi <= PHI_MAX))
     for rod in range(2):
         lengths, values = runs(exc.phi[:, rod])
-        # every switch draws a new level, so the run count equals the switch count: mean hold = settling time
+        # every switch draws a new level, so the run count equals the switch count: mean hold =
+        # settling time
         assert np.mean(lengths[:-1]) * 0.04 == pytest.approx(0.5, rel=0.08)
         assert stats.kstest(values / PHI_MAX, "uniform").pvalue > 1e-3
         assert lengths.min() >= 1
     assert abs(np.corrcoef(exc.phi[:, 0], exc.phi[:, 1])[0, 1]) < 0.1  # combined: independent rods
-    again = excitation.gbn(PHI_MAX, duration=1200.0, seed=7, settling_time=0.5, mode="combined", dt=0.04)
-    other = excitation.gbn(PHI_MAX, duration=1200.0, seed=8, settling_time=0.5, mode="combined", dt=0.04)
+    again = excitation.gbn(
+        PHI_MAX, duration=1200.0, seed=7, settling_time=0.5, mode="combined", dt=0.04
+    )
+    other = excitation.gbn(
+        PHI_MAX, duration=1200.0, seed=8, settling_time=0.5, mode="combined", dt=0.04
+    )
     np.testing.assert_array_equal(exc.phi, again.phi)
     assert not np.array_equal(exc.phi, other.phi)
     assert exc.seed == 7 and exc.kind == "gbn"
@@ -67,7 +75,9 @@ def test_hold_lookup_and_resampling():
     assert exc.at(-0.1).tolist() == [0.0, 0.0]
     assert exc.at(1.0).tolist() == [0.5, 0.0] and exc.at(1.49).tolist() == [0.5, 0.0]
     assert exc.at(100.0).tolist() == [1.0, 0.0]
-    out = excitation.zero_order_hold([0.0, 1.0, 2.0], [[0, 0], [1, 1], [2, 2]], [-1.0, 0.0, 0.99, 1.0, 5.0])
+    out = excitation.zero_order_hold(
+        [0.0, 1.0, 2.0], [[0, 0], [1, 1], [2, 2]], [-1.0, 0.0, 0.99, 1.0, 5.0]
+    )
     np.testing.assert_array_equal(out[:, 0], [0, 0, 0, 1, 2])
 
 
@@ -105,4 +115,3 @@ def test_kind_and_mode_are_enum_members_whichever_way_they_were_named() -> None:
     refusal = r"^kind must be one of \['step', 'staircase', 'gbn'\], got 'sine'$"
     with pytest.raises(ValueError, match=refusal):
         excitation.make("sine", PHI_MAX)
-

@@ -1,5 +1,5 @@
-"""Offline experiment pieces: the disturbance model, the per-tick RunLog and its exports, figures, and a short
-closed-loop run whose outcome is checked against the reference it was asked to track."""
+"""Offline experiment pieces: the disturbance model, the per-tick RunLog and its exports, figures,
+and a short closed-loop run whose outcome is checked against the reference it was asked to track."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from hsa_core.analysis import plotting
+from hsa_core.analysis.runlog import RunLog
+from hsa_core.model.params import load_params
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, main, run_experiment
-from hsa_core.model.params import load_params
-from hsa_core.analysis.runlog import RunLog
 from hsa_core.task.trajectories import step_reference
 
 
@@ -20,9 +20,21 @@ def make_log(n: int = 50) -> RunLog:
     """A RunLog with recognisable contents (row k holds k in every column)."""
     k = np.arange(n, dtype=float)
     col = lambda w: np.repeat(k[:, None], w, axis=1)  # noqa: E731
-    return RunLog(t=k * 0.025, chiee=col(3), chiee_des=col(3) + 1, q=col(3), q_des=col(3), varphi=col(3),
-                  varphi_des=col(3), phi_ss=col(2), phi_unsat=col(2), phi_sat=col(2), e_int=col(2),
-                  saturated=k % 2 == 0, meta={"material": "fpu", "controller": "psatid"})
+    return RunLog(
+        t=k * 0.025,
+        chiee=col(3),
+        chiee_des=col(3) + 1,
+        q=col(3),
+        q_des=col(3),
+        varphi=col(3),
+        varphi_des=col(3),
+        phi_ss=col(2),
+        phi_unsat=col(2),
+        phi_sat=col(2),
+        e_int=col(2),
+        saturated=k % 2 == 0,
+        meta={"material": "fpu", "controller": "psatid"},
+    )
 
 
 def test_runlog_rejects_inconsistent_rows() -> None:
@@ -41,8 +53,12 @@ def test_runlog_npz_and_csv_round_trip(tmp_path) -> None:
     assert back.meta == log.meta
     rows = np.loadtxt(log.save_csv(tmp_path / "log.csv"), delimiter=",", skiprows=1)
     header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
-    assert len(header) == 1 + 3 * 6 + 2 * 4 + 1 and header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]",
-                                                                    "chiee_theta [rad]"]
+    assert len(header) == 1 + 3 * 6 + 2 * 4 + 1 and header[:4] == [
+        "t [s]",
+        "chiee_x [m]",
+        "chiee_y [m]",
+        "chiee_theta [rad]",
+    ]
     np.testing.assert_array_equal(rows[:, header.index("chiee_des_y [m]")], np.arange(50) + 1)
     assert rows.shape == (50, len(header))
 
@@ -54,7 +70,13 @@ def test_trimmed_keeps_the_window() -> None:
 
 def test_figures_are_written(tmp_path) -> None:
     paths = plotting.all_figures(make_log(), tmp_path, prefix="x_", phi_max=3.49, contour=True)
-    stems = ["x_end_effector", "x_path", "x_actuation", "x_configuration", "x_collocated"]  # contour: no steps
+    stems = [
+        "x_end_effector",
+        "x_path",
+        "x_actuation",
+        "x_configuration",
+        "x_collocated",
+    ]  # contour: no steps
     assert [p.name for p in paths] == [f"{s}.{fmt}" for s in stems for fmt in ("pdf", "png")]
     assert all(p.read_bytes()[:4] == (b"%PDF" if p.suffix == ".pdf" else b"\x89PNG") for p in paths)
 
@@ -63,9 +85,13 @@ def test_disturbance_none_is_the_model_and_default_is_the_declared_mismatch() ->
     model = load_params("fpu")
     same = DisturbanceModel.none().plant_params(model)
     for key in ("S_a_hat", "S_sh_hat", "C_eps", "sigma_a_eq"):
-        np.testing.assert_array_equal(np.asarray(getattr(same, key)), np.asarray(getattr(model, key)))
+        np.testing.assert_array_equal(
+            np.asarray(getattr(same, key)), np.asarray(getattr(model, key))
+        )
     plant = DisturbanceModel().plant_params(model)
-    np.testing.assert_allclose(plant.S_a_hat, 1.05 * 2 * 5.66472469)  # virtual rod = 2 x physical (model.md §5.3)
+    np.testing.assert_allclose(
+        plant.S_a_hat, 1.05 * 2 * 5.66472469
+    )  # virtual rod = 2 x physical (model.md §5.3)
     np.testing.assert_allclose(plant.C_eps, 0.97 * 0.00984819)
     np.testing.assert_allclose(plant.sigma_a_eq, [1.005, 1.005])
     sheared = DisturbanceModel.shear_mismatch().plant_params(model)
@@ -76,7 +102,9 @@ def test_disturbance_none_is_the_model_and_default_is_the_declared_mismatch() ->
 
 def test_noise_is_seeded() -> None:
     dist = DisturbanceModel()
-    assert dist.servo_max_speed == pytest.approx(55 * 2 * math.pi / 60)  # MX-28 no-load speed at 12 V
+    assert dist.servo_max_speed == pytest.approx(
+        55 * 2 * math.pi / 60
+    )  # MX-28 no-load speed at 12 V
     noise = np.array([dist.measure(dist.rng(), np.zeros(3)) for _ in range(3)])
     assert np.all(noise == noise[0])  # same seed, same sample
 
@@ -92,7 +120,9 @@ def epu_run():
 def test_closed_loop_tracks_the_steps(epu_run) -> None:
     log, m = epu_run.log, epu_run.metrics
     assert abs(len(log) - 400) <= 1 and m.control_rate == pytest.approx(40.0)  # 10 s at 40 Hz
-    np.testing.assert_allclose(log.chiee_des[-1, :2], [-0.01137064, 0.13488599])  # EPU step 2 (experiments.md §2)
+    np.testing.assert_allclose(
+        log.chiee_des[-1, :2], [-0.01137064, 0.13488599]
+    )  # EPU step 2 (experiments.md §2)
     step = m.steps[1]
     assert step.response_time < 1.5  # the paper's EPU P-satI-D responds in ~0.5 s
     # noise-free plant position at the end of the step: within 0.5 mm of the target
@@ -102,10 +132,29 @@ def test_closed_loop_tracks_the_steps(epu_run) -> None:
 
 
 def test_cli_writes_table_logs_and_figures(tmp_path, capsys) -> None:
-    assert main(["--material", "epu", "--controller", "psatid", "--duration", "2", "--quiet",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "--material",
+                "epu",
+                "--controller",
+                "psatid",
+                "--duration",
+                "2",
+                "--quiet",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "epu_psatid" in out and "RMSE [mm]" in out
     run_dir = tmp_path / "epu_psatid"
-    assert {p.name for p in run_dir.iterdir()} >= {"log.npz", "log.csv", "end_effector.png", "actuation.png"}
+    assert {p.name for p in run_dir.iterdir()} >= {
+        "log.npz",
+        "log.csv",
+        "end_effector.png",
+        "actuation.png",
+    }
     assert len(RunLog.load_npz(run_dir / "log.npz")) == 80

@@ -82,8 +82,9 @@ print(json.dumps({"at_import": at_import, "on_access": opened, "kp": kp}))
 def _run(script: str) -> dict:
     """Run ``script`` in a fresh interpreter (no MPLBACKEND from outside); its last line, parsed."""
     env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=300, env=env)
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300, env=env
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(done.stdout.splitlines()[-1])
 
@@ -92,7 +93,12 @@ def test_importing_every_hsa_core_module_changes_no_global_state() -> None:
     """No backend chosen, no JAX flag, no signal handler, no environment variable, no numpy,
     logging or warnings setting."""
     result = _run(SNAPSHOT)
-    expected = {"hsa_core.analysis.plotting", "hsa_core.sim.playback", "hsa_core.apps.tune", "hsa_core.apps.robustness"}
+    expected = {
+        "hsa_core.analysis.plotting",
+        "hsa_core.sim.playback",
+        "hsa_core.apps.tune",
+        "hsa_core.apps.robustness",
+    }
     assert expected <= set(result["modules"])
     assert result["changed"] == {}
 

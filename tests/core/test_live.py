@@ -1,5 +1,5 @@
-"""hsa_core.analysis.live: the scene throttle, the JSON payloads of the live view (no NaN, no null), the diagnostics table,
-progress."""
+"""hsa_core.analysis.live: the scene throttle, the JSON payloads of the live view (no NaN, no null),
+the diagnostics table, progress."""
 
 from __future__ import annotations
 
@@ -27,13 +27,19 @@ def test_throttle_lets_one_event_per_period_through_and_restarts_after_a_clock_r
 
 
 def test_non_finite_numbers_are_left_out_so_the_json_stays_valid_and_single_typed() -> None:
-    sample = live.actuation_sample([math.nan, 0.5], [math.inf, 0.6], [0.7, 0.9], [0.0, 0.0], [3.1, 3.1], True)
+    sample = live.actuation_sample(
+        [math.nan, 0.5], [math.inf, 0.6], [0.7, 0.9], [0.0, 0.0], [3.1, 3.1], True
+    )
     text = json.dumps(sample, allow_nan=False)  # raises on NaN
     assert "null" not in text and "phi_cmd" not in sample and "phi_unsat" not in sample
     assert sample["phi_ss"] == [0.7, 0.9] and sample["saturated"] is True
-    assert live.phi_present_sample([math.nan, 0.2]) == {} and live.phi_present_sample([0.1, 0.2]) == {"phi": [0.1, 0.2]}
-    assert live.finite({"a": {"x": None, "y": 1.0}, "b": None, "c": [1.0], "d": [None]}) == {"a": {"y": 1.0},
-                                                                                            "c": [1.0]}
+    assert live.phi_present_sample([math.nan, 0.2]) == {} and live.phi_present_sample(
+        [0.1, 0.2]
+    ) == {"phi": [0.1, 0.2]}
+    assert live.finite({"a": {"x": None, "y": 1.0}, "b": None, "c": [1.0], "d": [None]}) == {
+        "a": {"y": 1.0},
+        "c": [1.0],
+    }
 
 
 def test_tracking_error_is_reference_minus_measurement() -> None:
@@ -47,8 +53,10 @@ def test_tracking_error_is_reference_minus_measurement() -> None:
 
 def test_configuration_sample_names_the_components() -> None:
     sample = live.configuration_sample([1.0, 0.01, 0.2], [2.0, 0.02, 0.3])
-    assert sample == {"q": {"kappa_be": 1.0, "sigma_sh": 0.01, "sigma_ax": 0.2},
-                      "q_des": {"kappa_be": 2.0, "sigma_sh": 0.02, "sigma_ax": 0.3}}
+    assert sample == {
+        "q": {"kappa_be": 1.0, "sigma_sh": 0.01, "sigma_ax": 0.2},
+        "q_des": {"kappa_be": 2.0, "sigma_sh": 0.02, "sigma_ax": 0.3},
+    }
 
 
 def test_diagnostics_table_keeps_the_newest_status_and_marks_silent_ones_stale() -> None:
@@ -67,14 +75,26 @@ def test_diagnostics_table_keeps_the_newest_status_and_marks_silent_ones_stale()
 
 
 def test_progress_line_from_the_sequencer_status_and_the_controller() -> None:
-    status = json.dumps({"state": "running", "trajectory": "steps", "index": 2, "setpoint_index": 2, "length": 11,
-                         "finished": False, "failures": 1})
+    status = json.dumps(
+        {
+            "state": "running",
+            "trajectory": "steps",
+            "index": 2,
+            "setpoint_index": 2,
+            "length": 11,
+            "finished": False,
+            "failures": 1,
+        }
+    )
     p = live.progress(status, 2, 0.00125)
     assert (p["step"], p["steps"], p["controller_state"], p["failures"]) == (3, 11, "tracking", 1)
     assert p["text"] == "step 3/11 · tracking · ‖e‖ 1.25 mm · 1 failed"
     done = json.dumps({"setpoint_index": 10, "length": 11, "finished": True, "failures": 0})
     assert live.progress(done, 3, None)["text"] == "step 11/11 · holding (stale) · finished"
-    assert live.progress(None, None, None)["text"] == "no sequencer status yet · no controller_info yet"
+    assert (
+        live.progress(None, None, None)["text"]
+        == "no sequencer status yet · no controller_info yet"
+    )
     assert "e_norm" not in live.progress(None, None, None)
     assert live.progress("not json", 7, None)["text"] == "no sequencer status yet · state 7"
     waiting = json.dumps({"setpoint_index": -1, "length": 11})
@@ -84,14 +104,23 @@ def test_progress_line_from_the_sequencer_status_and_the_controller() -> None:
 def test_json_schema_describes_the_payload_with_one_type_per_field() -> None:
     schema = live.json_schema("hsa_live.Tracking", live.tracking_sample([0.0, 0.1], [0.0, 0.1]))
     assert schema["title"] == "hsa_live.Tracking" and schema["type"] == "object"
-    assert schema["properties"]["p_ee"]["properties"]["x"]["type"] == "number"  # a string: Foxglove-family viewers
-    actuation = live.json_schema("a", live.actuation_sample([0, 0], [0, 0], [0, 0], [0, 0], [1, 1], False))
+    assert (
+        schema["properties"]["p_ee"]["properties"]["x"]["type"] == "number"
+    )  # a string: Foxglove-family viewers
+    actuation = live.json_schema(
+        "a", live.actuation_sample([0, 0], [0, 0], [0, 0], [0, 0], [1, 1], False)
+    )
     assert actuation["properties"]["phi_cmd"] == {"type": "array", "items": {"type": "number"}}
     assert actuation["properties"]["saturated"] == {"type": "boolean"}
 
 
 def test_every_controller_state_of_the_message_definition_has_its_name() -> None:
     definition = Path(__file__).parents[2] / "hsa_msgs" / "msg" / "ControllerInfo.msg"
-    codes = {int(m[2]): m[1] for m in re.finditer(r"uint8 (STATE_\w+) = (\d+)", definition.read_text())}
+    codes = {
+        int(m[2]): m[1] for m in re.finditer(r"uint8 (STATE_\w+) = (\d+)", definition.read_text())
+    }
     assert set(codes) == set(range(len(live.CONTROLLER_STATES)))
-    assert live.controller_state_name(max(codes)) == "driver torque off" and codes[max(codes)] == "STATE_TORQUE_OFF"
+    assert (
+        live.controller_state_name(max(codes)) == "driver torque off"
+        and codes[max(codes)] == "STATE_TORQUE_OFF"
+    )

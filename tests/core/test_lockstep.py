@@ -1,4 +1,5 @@
-"""The lockstep barrier's decisions (hsa_core.sim.lockstep): start, settle, finish, late joiners, leavers."""
+"""The lockstep barrier's decisions (hsa_core.sim.lockstep): start, settle, finish, late joiners,
+leavers."""
 
 from __future__ import annotations
 
@@ -8,9 +9,12 @@ MS = 1_000_000
 
 
 def graph(**changes: Report) -> Barrier:
-    """A three-node pipeline at rest: bridge → kinematics → controller, the simulator publishing poses."""
+    """A three-node pipeline at rest: bridge → kinematics → controller, the simulator publishing
+    poses."""
     reports = {
-        "/bridge": Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, taken={"/pose": 0}),
+        "/bridge": Report(
+            "/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, taken={"/pose": 0}
+        ),
         "/kin": Report("/kin", 0, published={"/state": 0}, matched={"/state": 1}, taken={"/ee": 0}),
         "/ctrl": Report("/ctrl", 0, next_due_ns=25 * MS, taken={"/state": 0}),
     }
@@ -35,10 +39,15 @@ def test_time_starts_only_when_every_expected_participant_is_ready_and_matched()
 
 
 def test_time_starts_only_when_every_subscription_knows_every_publisher() -> None:
-    """DDS matches the ends separately: a reader that does not know a writer yet drops what it sends."""
+    """DDS matches the ends separately: a reader that does not know a writer yet drops what it
+    sends."""
     barrier = Barrier(["/bridge", "/kin"])
-    barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, heard={"/clock": 1}))
-    barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1}))  # the writer knows the reader
+    barrier.report(
+        Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, heard={"/clock": 1})
+    )
+    barrier.report(
+        Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1})
+    )  # the writer knows the reader
     assert barrier.start_problem() == "/kin: subscription to '/ee' matched 0 of 1 publishers"
     barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 1}))
     assert barrier.start_problem() is None
@@ -50,8 +59,14 @@ def test_time_starts_only_when_every_subscription_knows_every_publisher() -> Non
 def test_the_simulators_own_publishers_must_reach_every_participant_subscription() -> None:
     barrier = Barrier(["/kin", "/rec"])
     barrier.report(Report("/kin", 0, heard={"/pose": 1, "/clock": 1}))
-    barrier.report(Report("/rec", 0, taken={"/pose": 0}, heard={"/clock": 1}))  # takers: from taken as well
-    barrier.own_matched = {"/pose": 1, "/clock": 2, "/diagnostics": 0}  # nobody subscribes to /diagnostics
+    barrier.report(
+        Report("/rec", 0, taken={"/pose": 0}, heard={"/clock": 1})
+    )  # takers: from taken as well
+    barrier.own_matched = {
+        "/pose": 1,
+        "/clock": 2,
+        "/diagnostics": 0,
+    }  # nobody subscribes to /diagnostics
     assert barrier.start_problem() == "simulator: '/pose' matched 1 of 2 participant subscriptions"
     barrier.own_matched = {"/pose": 2, "/clock": 1, "/diagnostics": 0}
     assert barrier.start_problem() == "simulator: '/clock' matched 1 of 2 participant subscriptions"
@@ -82,7 +97,9 @@ def test_an_instant_is_finished_when_no_timer_due_is_left_and_all_is_settled() -
     assert barrier.next_due_ns() == 25 * MS
     assert barrier.finish_problem(24 * MS) is None  # nothing due yet
     assert barrier.finish_problem(25 * MS) == "timers due at 25000000 ns not yet run by ['/ctrl']"
-    barrier.report(Report("/ctrl", 25 * MS, next_due_ns=50 * MS, published={"/cmd": 1}, taken={"/state": 0}))
+    barrier.report(
+        Report("/ctrl", 25 * MS, next_due_ns=50 * MS, published={"/cmd": 1}, taken={"/state": 0})
+    )
     assert barrier.finish_problem(25 * MS) is None  # nobody takes /cmd among the participants
     barrier.report(Report("/drv", 25 * MS, taken={"/cmd": 0}))
     assert barrier.finish_problem(25 * MS) == "/drv has taken 0 of 1 messages on '/cmd'"
@@ -92,8 +109,8 @@ def test_an_instant_is_finished_when_no_timer_due_is_left_and_all_is_settled() -
 
 
 def test_an_instant_waits_for_the_clock_of_a_clock_acking_participant_only() -> None:
-    """A recorder (clock_acks) must have reported the instant's clock before the instant ends; other nodes need not
-    report a clock move at all (their clocks stay behind in the barrier's view)."""
+    """A recorder (clock_acks) must have reported the instant's clock before the instant ends; other
+    nodes need not report a clock move at all (their clocks stay behind in the barrier's view)."""
     barrier = graph(**{"/rec": Report("/rec", 0, taken={"/pose": 0}, clock_acks=True)})
     assert barrier.finish_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"
     barrier.report(Report("/rec", 5 * MS, taken={"/pose": 0}, clock_acks=True))
@@ -102,9 +119,13 @@ def test_an_instant_waits_for_the_clock_of_a_clock_acking_participant_only() -> 
     assert barrier.finish_problem(10 * MS) is None  # /bridge, /kin and /ctrl still report clock 0
 
 
-def test_the_lead_clock_is_needed_only_with_a_clock_acking_participant_and_waits_for_it_alone() -> None:
+def test_the_lead_clock_is_needed_only_with_a_clock_acking_participant_and_waits_for_it_alone() -> (
+    None
+):
     barrier = graph()
-    assert not barrier.needs_lead() and barrier.lead_problem(10 * MS) is None  # nobody logs in simulated time
+    assert (
+        not barrier.needs_lead() and barrier.lead_problem(10 * MS) is None
+    )  # nobody logs in simulated time
     barrier.report(Report("/rec", 0, taken={"/pose": 0}, clock_acks=True))
     assert barrier.needs_lead()
     assert barrier.lead_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"

@@ -1,4 +1,5 @@
-"""Tests of hsa_core.analysis.metrics on signals whose metrics are known by construction (experiments.md §4)."""
+"""Tests of hsa_core.analysis.metrics on signals whose metrics are known by construction
+(experiments.md §4)."""
 
 import math
 
@@ -25,7 +26,9 @@ def step_run(targets, response, period=10.0, dt=DT, t0=123.0):
     k = np.minimum((np.arange(n) * dt // period).astype(int), len(targets) - 1)
     targets = np.asarray(targets, dtype=float)
     p_des = targets[k]
-    start = np.vstack([targets[:1] + [0.0, -0.01], targets[:-1]])[k]  # the first step starts 10 mm away
+    start = np.vstack([targets[:1] + [0.0, -0.01], targets[:-1]])[
+        k
+    ]  # the first step starts 10 mm away
     tau = dt * np.arange(n) - k * period
     p_ee = p_des + (start - p_des) * response(tau)[:, None]
     return t, p_des, p_ee
@@ -52,7 +55,9 @@ def test_first_order_response_time_is_tau_ln10():
     for s in run.steps:
         assert s.response_time == pytest.approx(expected)
         assert s.overshoot == 0.0 and s.overshoot_percent == 0.0
-        assert s.steady_state_error < s.initial_error * math.exp(-8.0 / tau)  # e0·exp(−8 s/τ) bounds the last 2 s
+        assert s.steady_state_error < s.initial_error * math.exp(
+            -8.0 / tau
+        )  # e0·exp(−8 s/τ) bounds the last 2 s
     assert run.response_time_mean == pytest.approx(expected) and run.n_not_reached == 0
 
 
@@ -64,9 +69,13 @@ def test_settling_time_uses_max_of_10_percent_and_1_mm():
     run = evaluate_run(t, p_des, p_ee)
     big, small = run.steps[1], run.steps[2]
     assert big.initial_error == pytest.approx(0.025)
-    assert big.settling_time == pytest.approx(first_index_time(lambda s: 0.025 * math.exp(-s / tau) <= 0.0025))
+    assert big.settling_time == pytest.approx(
+        first_index_time(lambda s: 0.025 * math.exp(-s / tau) <= 0.0025)
+    )
     assert small.initial_error == pytest.approx(0.005)
-    assert small.settling_time == pytest.approx(first_index_time(lambda s: 0.005 * math.exp(-s / tau) <= 0.001))
+    assert small.settling_time == pytest.approx(
+        first_index_time(lambda s: 0.005 * math.exp(-s / tau) <= 0.001)
+    )
     assert small.settling_time < small.response_time  # the 1 mm floor is wider than 10 % of 5 mm
 
 
@@ -75,7 +84,9 @@ def test_overshoot_of_underdamped_second_order_response():
     wd = omega * math.sqrt(1 - zeta**2)
 
     def response(s):
-        return np.exp(-zeta * omega * s) * (np.cos(wd * s) + zeta / math.sqrt(1 - zeta**2) * np.sin(wd * s))
+        return np.exp(-zeta * omega * s) * (
+            np.cos(wd * s) + zeta / math.sqrt(1 - zeta**2) * np.sin(wd * s)
+        )
 
     dt = 0.001
     targets = [[0.0, 0.12], [0.012, 0.136]]  # 20 mm step along (0.6, 0.8)
@@ -84,7 +95,9 @@ def test_overshoot_of_underdamped_second_order_response():
     across = np.array([-0.8, 0.6]) * 0.002 * np.sin(7.0 * t)[:, None]
     run = evaluate_run(t, p_des, p_ee + across)
     step = run.steps[1]
-    expected_fraction = math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))  # peak overshoot of a 2nd-order system
+    expected_fraction = math.exp(
+        -zeta * math.pi / math.sqrt(1 - zeta**2)
+    )  # peak overshoot of a 2nd-order system
     assert step.step_size == pytest.approx(0.02)
     assert step.overshoot_percent == pytest.approx(100 * expected_fraction, rel=1e-3)
     assert step.overshoot == pytest.approx(0.02 * expected_fraction, rel=1e-3)
@@ -134,8 +147,12 @@ def test_summary_means_exclude_the_first_step():
     first = slice(0, int(round(10.0 / DT)))  # the first step responds 20× slower
     p_ee[first] = p_des[first] + [0.0, -0.01] * np.exp(-(t[first] - t[0]) / 2.0)[:, None]
     run = evaluate_run(t, p_des, p_ee)
-    assert run.steps[0].response_time == pytest.approx(first_index_time(lambda s: math.exp(-s / 2.0) < 0.1))
-    assert run.response_time_mean == pytest.approx(first_index_time(lambda s: math.exp(-s / 0.1) < 0.1))
+    assert run.steps[0].response_time == pytest.approx(
+        first_index_time(lambda s: math.exp(-s / 2.0) < 0.1)
+    )
+    assert run.response_time_mean == pytest.approx(
+        first_index_time(lambda s: math.exp(-s / 0.1) < 0.1)
+    )
 
 
 def test_saturation_rate_and_step_detection():

@@ -1,4 +1,5 @@
-"""Tests of hsa_core.sensing.mocap: world → {0} → SE(2) chain of spec §6.1–6.2, its inverse and the validity checks."""
+"""Tests of hsa_core.sensing.mocap: world → {0} → SE(2) chain of spec §6.1–6.2, its inverse and the
+validity checks."""
 
 import math
 
@@ -29,13 +30,16 @@ def quat_about_world_x(angle):
 def test_spec_base_rotation_matrix():
     # spec §6.1: (−0.7071068, 0, 0, 0.7071068) is R_W0 = [[1, 0, 0], [0, 0, 1], [0, −1, 0]]
     np.testing.assert_allclose(
-        quaternion_to_matrix([-0.7071068, 0, 0, 0.7071068]), [[1, 0, 0], [0, 0, 1], [0, -1, 0]], atol=1e-7
+        quaternion_to_matrix([-0.7071068, 0, 0, 0.7071068]),
+        [[1, 0, 0], [0, 0, 1], [0, -1, 0]],
+        atol=1e-7,
     )
 
 
 def test_straight_robot_at_rest_maps_to_0_110_0():
-    # Hand-built with the documented chain: R_W0 maps z₀ to world +Y, the base origin is 3.5 mm along z₀ from the base
-    # markers, the EE is 0.110 m further along z₀ and the platform marker 7 mm beyond it; the body reads identity.
+    # Hand-built with the documented chain: R_W0 maps z₀ to world +Y, the base origin is 3.5 mm
+    # along z₀ from the base markers, the EE is 0.110 m further along z₀ and the platform marker 7
+    # mm beyond it; the body reads identity.
     platform = BASE + np.array([0.0, 0.0035 + 0.110 + 0.007, 0.0])
     chiee = world_to_planar(BASE, platform, IDENTITY)
     np.testing.assert_allclose(chiee, [0.0, 0.110, 0.0], atol=1e-9)
@@ -43,7 +47,8 @@ def test_straight_robot_at_rest_maps_to_0_110_0():
 
 
 def test_rotation_about_base_x_gives_documented_signs():
-    # Platform rotated by a > 0 about base x (= world x here) and displaced along its own z axis by L.
+    # Platform rotated by a > 0 about base x (= world x here) and displaced along its own z axis by
+    # L.
     a, length = 0.3, 0.12
     r_x = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
     r_w0 = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]])
@@ -71,7 +76,9 @@ def test_planar_to_world_of_rest_pose_matches_hand_construction():
 
 def test_measured_base_orientation_option():
     cfg = MocapConfig(use_base_orientation=True)
-    tilt = np.array([0.0, math.sin(0.1), 0.0, math.cos(0.1)])  # whole robot yawed by 0.2 rad about world Y
+    tilt = np.array(
+        [0.0, math.sin(0.1), 0.0, math.cos(0.1)]
+    )  # whole robot yawed by 0.2 rad about world Y
     chiee = [0.01, 0.12, -0.2]
     position, quaternion = planar_to_world(chiee, BASE, cfg, base_quaternion=tilt)
     back = world_to_planar(BASE, position, quaternion, cfg, base_quaternion=tilt)
@@ -91,7 +98,9 @@ def test_measured_base_orientation_option():
 def test_configurable_offsets():
     cfg = MocapConfig(base_offset=(0.0, 0.0, 0.0), marker_offset=(0.0, 0.0, 0.0))
     platform = BASE + np.array([0.0, 0.13, 0.0])
-    np.testing.assert_allclose(world_to_planar(BASE, platform, IDENTITY, cfg), [0.0, 0.13, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        world_to_planar(BASE, platform, IDENTITY, cfg), [0.0, 0.13, 0.0], atol=1e-12
+    )
     with pytest.raises(ValueError):
         MocapConfig(base_quaternion=(0.0, 0.0, 0.0, 2.0))
 
@@ -119,4 +128,6 @@ def test_validity_helpers():
     assert box.problem([0.0, 0.12, 0.1]) is None
     assert "y" in box.problem([0.0, 0.5, 0.0])
     assert "theta" in box.problem([0.0, 0.12, 2.0])
-    assert "rest pose" in rest_pose_problem([0.0, -0.110, 0.0])  # a flipped world axis is caught at start-up
+    assert "rest pose" in rest_pose_problem(
+        [0.0, -0.110, 0.0]
+    )  # a flipped world axis is caught at start-up

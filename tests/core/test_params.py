@@ -54,28 +54,42 @@ def test_packaged_yaml_holds_per_physical_rod_values(index: int, material: str) 
 
 
 @pytest.mark.parametrize("index, material", [(0, "fpu"), (1, "epu")])
-def test_virtual_rod_values_are_doubled_exactly_as_model_section2(index: int, material: str) -> None:
+def test_virtual_rod_values_are_doubled_exactly_as_model_section2(
+    index: int, material: str
+) -> None:
     p = load_params(material)
     assert p.material == material and p.kappa_rule == "exact"
     for key, values in VIRTUAL.items():
-        np.testing.assert_allclose(np.asarray(getattr(p, key)), [values[index]] * 2, rtol=2e-9, err_msg=key)
+        np.testing.assert_allclose(
+            np.asarray(getattr(p, key)), [values[index]] * 2, rtol=2e-9, err_msg=key
+        )
     for key, values in NOT_DOUBLED.items():
-        np.testing.assert_allclose(np.asarray(getattr(p, key)), [values[index]] * 2, rtol=1e-9, err_msg=key)
+        np.testing.assert_allclose(
+            np.asarray(getattr(p, key)), [values[index]] * 2, rtol=1e-9, err_msg=key
+        )
     # geometry and platform density are not doubled (model.md §2)
     np.testing.assert_array_equal(p.r_out, [0.0127, 0.0127])
     np.testing.assert_array_equal(p.r_in, [[0.01027, 0.00794][index]] * 2)
     np.testing.assert_array_equal(p.roff, [-0.024, 0.024])
     np.testing.assert_array_equal(p.h, [1.0, 1.0])
-    assert float(p.rho_p) == 925.0 and float(p.l) == 0.059 and float(p.l_pc) == 0.025 and float(p.l_dc) == 0.014
+    assert (
+        float(p.rho_p) == 925.0
+        and float(p.l) == 0.059
+        and float(p.l_pc) == 0.025
+        and float(p.l_dc) == 0.014
+    )
     np.testing.assert_array_equal(p.platform_size, [0.08, 0.012, 0.08])
     np.testing.assert_array_equal(p.g, [0.0, 9.81])
     np.testing.assert_array_equal(p.xi_eq, [0.0, 0.0, 1.0])
 
 
 @pytest.mark.parametrize(
-    "material, area, second_moment, rod_mass", [("fpu", 1.75355e-4, 1.16945e-8, 16.520e-3), ("epu", 3.08650e-4, 1.73102e-8, 30.154e-3)]
+    "material, area, second_moment, rod_mass",
+    [("fpu", 1.75355e-4, 1.16945e-8, 16.520e-3), ("epu", 3.08650e-4, 1.73102e-8, 30.154e-3)],
 )
-def test_derived_quantities_match_worked_numbers(material: str, area: float, second_moment: float, rod_mass: float) -> None:
+def test_derived_quantities_match_worked_numbers(
+    material: str, area: float, second_moment: float, rod_mass: float
+) -> None:
     p = load_params(material)
     np.testing.assert_allclose(p.area, area, rtol=5e-6)
     np.testing.assert_allclose(p.second_moment, second_moment, rtol=5e-6)
@@ -110,7 +124,9 @@ def test_overrides_use_file_semantics_and_rest_strains(fpu: HsaParams) -> None:
     assert p.kappa_rule == "exp2023_shift"
     # sigma_ax,eq = mean(sigma_a_eq) - mean(roff kappa_b_eq) (model.md §5.4)
     p = fpu.replace(kappa_b_eq=jnp.array([1.0, 3.0]), sigma_a_eq=jnp.array([1.01, 1.03]))
-    np.testing.assert_allclose(p.xi_eq, [2.0, 0.0, 1.02 - (-0.024 * 1.0 + 0.024 * 3.0) / 2], rtol=1e-15)
+    np.testing.assert_allclose(
+        p.xi_eq, [2.0, 0.0, 1.02 - (-0.024 * 1.0 + 0.024 * 3.0) / 2], rtol=1e-15
+    )
 
 
 def test_replace_is_validated_and_keeps_stored_units(fpu: HsaParams) -> None:
@@ -157,7 +173,11 @@ BAD_FILES = [
     ("negative cap", lambda d: d.update(l_dc=-0.014), "l_dc"),
     ("zero radius", lambda d: d.update(r_in=[0.0, 0.01]), "r_in"),
     ("r_in >= r_out", lambda d: d.update(r_in=[0.0127, 0.0127]), "r_in"),
-    ("negative platform size", lambda d: d.update(platform_size=[0.08, -0.012, 0.08]), "platform_size"),
+    (
+        "negative platform size",
+        lambda d: d.update(platform_size=[0.08, -0.012, 0.08]),
+        "platform_size",
+    ),
     ("negative density", lambda d: d.update(rho_r=[-798.38, 798.38]), "rho_r"),
     ("negative platform density", lambda d: d.update(rho_p=-925.0), "rho_p"),
     ("negative payload", lambda d: d.update(m_pl=-0.2), "m_pl"),
@@ -170,7 +190,9 @@ BAD_FILES = [
 
 
 @pytest.mark.parametrize("case, mutate, key", BAD_FILES, ids=[c[0] for c in BAD_FILES])
-def test_bad_parameter_files_name_the_key_and_file(tmp_path: Path, case: str, mutate, key: str) -> None:
+def test_bad_parameter_files_name_the_key_and_file(
+    tmp_path: Path, case: str, mutate, key: str
+) -> None:
     raw = _fpu_raw()
     mutate(raw)
     path = tmp_path / "bad.yaml"
@@ -188,8 +210,13 @@ def test_yaml_syntax_and_top_level_type_errors(tmp_path: Path) -> None:
     path.write_text("- 1\n- 2\n")
     with pytest.raises(ParameterError, match="mapping"):
         load_params(path)
-    # a YAML 1.1 pitfall: "3e-5" without a dot is a string, and must be rejected, not silently accepted
-    raw = (CONFIG_DIR / "fpu.yaml").read_text().replace("zeta_b: [3.0e-5, 3.0e-5]", "zeta_b: [3e-5, 3e-5]")
+    # a YAML 1.1 pitfall: "3e-5" without a dot is a string, and must be rejected, not silently
+    # accepted
+    raw = (
+        (CONFIG_DIR / "fpu.yaml")
+        .read_text()
+        .replace("zeta_b: [3.0e-5, 3.0e-5]", "zeta_b: [3e-5, 3e-5]")
+    )
     path.write_text(raw)
     with pytest.raises(ParameterError, match="zeta_b"):
         load_params(path)

@@ -1,5 +1,6 @@
-"""Lockstep playback decisions (hsa_core.sim.playback): start, instants from log times and timer dues, settle before the
-clock moves, finish before the next message, /clock resend, wall-clock timeouts."""
+"""Lockstep playback decisions (hsa_core.sim.playback): start, instants from log times and timer
+dues, settle before the clock moves, finish before the next message, /clock resend, wall-clock
+timeouts."""
 
 from __future__ import annotations
 
@@ -10,14 +11,23 @@ MS = 1_000_000
 T0 = 1_760_000_000 * 10**9  # a real bag's log times: ns since the epoch
 
 
-def kinematics(clock_ns: int = 0, taken: int = 0, published: int = 0, due: int | None = None) -> Report:
+def kinematics(
+    clock_ns: int = 0, taken: int = 0, published: int = 0, due: int | None = None
+) -> Report:
     """The one participant: takes /ee, publishes /state (taken by nobody), maybe has a timer due."""
-    return Report("/kin", clock_ns, next_due_ns=due, published={"/state": published}, matched={"/state": 0},
-                  taken={"/ee": taken})
+    return Report(
+        "/kin",
+        clock_ns,
+        next_due_ns=due,
+        published={"/state": published},
+        matched={"/state": 0},
+        taken={"/ee": taken},
+    )
 
 
 def started(timeout: float = 5.0) -> tuple[Barrier, LockstepPlayback]:
-    """A playback whose start condition holds (the participant reported, the player's /ee matched)."""
+    """A playback whose start condition holds (the participant reported, the player's /ee
+    matched)."""
     barrier = Barrier(["/kin"])
     barrier.own = {"/ee": 0}
     barrier.report(kinematics())
@@ -32,9 +42,15 @@ def test_time_starts_when_the_participants_are_ready_and_take_the_players_topics
     assert step.action == "wait" and "waiting for participants ['/kin']" in step.reason
     barrier.report(kinematics())
     step = playback.step(T0, {"/ee": 0}, now=0.1)
-    assert step.action == "wait" and step.reason == "simulator: '/ee' matched 0 of 1 participant subscriptions"
+    assert (
+        step.action == "wait"
+        and step.reason == "simulator: '/ee' matched 0 of 1 participant subscriptions"
+    )
     step = playback.step(T0, {"/ee": 1}, now=0.2)
-    assert (step.action, step.t_ns) == ("clock", T0) and barrier.started  # the first instant: the first log time
+    assert (step.action, step.t_ns) == (
+        "clock",
+        T0,
+    ) and barrier.started  # the first instant: the first log time
 
 
 def test_a_message_is_published_only_after_its_instant_is_finished() -> None:
@@ -46,7 +62,9 @@ def test_a_message_is_published_only_after_its_instant_is_finished() -> None:
     barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))  # it ran
     assert playback.step(T0, {"/ee": 1}, now=0.002).action == "publish"
     barrier.own["/ee"] = 1
-    assert playback.step(T0, {"/ee": 1}, now=0.003).action == "publish"  # a second message of the same log time
+    assert (
+        playback.step(T0, {"/ee": 1}, now=0.003).action == "publish"
+    )  # a second message of the same log time
 
 
 def test_the_clock_moves_only_when_every_published_message_was_taken() -> None:
@@ -67,16 +85,25 @@ def test_a_timer_due_before_the_next_message_gets_its_own_instant() -> None:
     playback.step(T0, {"/ee": 1}, now=0.0)
     barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
-    assert (step.action, step.t_ns) == ("clock", T0 + 25 * MS)  # the timer's instant, not the message's
+    assert (step.action, step.t_ns) == (
+        "clock",
+        T0 + 25 * MS,
+    )  # the timer's instant, not the message's
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.01)
     assert step.action == "wait" and "timers due" in step.reason
-    barrier.report(kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS))  # the timer ran at its instant
+    barrier.report(
+        kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS)
+    )  # the timer ran at its instant
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
-    assert (step.action, step.t_ns) == ("clock", T0 + 40 * MS)  # the message, before the next due (50 ms)
+    assert (step.action, step.t_ns) == (
+        "clock",
+        T0 + 40 * MS,
+    )  # the message, before the next due (50 ms)
 
 
 def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> None:
-    """A timer's messages at an instant may reach the recorder before /clock: its lead clock must be there first."""
+    """A timer's messages at an instant may reach the recorder before /clock: its lead clock must be
+    there first."""
     barrier, playback = started()
     barrier.report(Report("/rec", 0, taken={"/ee": 0}, clock_acks=True))
     playback.step(T0, {"/ee": 2}, now=0.0)
@@ -91,7 +118,10 @@ def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> Non
     assert (step.action, step.t_ns, step.reason) == ("clock", T0 + 25 * MS, "")
     barrier.report(kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS))
     step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.3)
-    assert (step.action, step.t_ns) == ("clock", T0 + 40 * MS)  # no timer due: the player's messages wait anyway
+    assert (step.action, step.t_ns) == (
+        "clock",
+        T0 + 40 * MS,
+    )  # no timer due: the player's messages wait anyway
 
 
 def test_timer_dues_before_the_first_message_are_not_stepped_through() -> None:
@@ -130,7 +160,9 @@ def test_an_instant_that_does_not_finish_in_time_fails_naming_the_holder() -> No
     assert playback.step(T0, {"/ee": 1}, now=11.9).action in ("wait", "clock")
     step = playback.step(T0, {"/ee": 1}, now=12.1)
     assert step.action == "fail"
-    assert step.reason.startswith("lockstep barrier at t = 1760000000.000 s not finished after 2.1 s of wall time")
+    assert step.reason.startswith(
+        "lockstep barrier at t = 1760000000.000 s not finished after 2.1 s of wall time"
+    )
     assert step.reason.endswith("timers due at 1760000000000000000 ns not yet run by ['/kin']")
 
 
@@ -138,14 +170,18 @@ def test_each_instant_has_its_own_timeout_and_the_start_ten_times_as_long() -> N
     barrier = Barrier(["/kin"])
     playback = LockstepPlayback(barrier, timeout=1.0)
     assert playback.step(T0, {}, now=0.0).action == "wait"
-    assert playback.step(T0, {}, now=9.9).action == "wait"  # start-up (nodes compiling) may take 10 timeouts
+    assert (
+        playback.step(T0, {}, now=9.9).action == "wait"
+    )  # start-up (nodes compiling) may take 10 timeouts
     step = playback.step(T0, {}, now=10.1)
     assert step.action == "fail" and "before simulated time started" in step.reason
     barrier, playback = started(timeout=1.0)
     for k in range(5):  # five instants, each finished 0.9 s after its clock: no failure
         barrier.report(kinematics(clock_ns=T0 + (k - 1) * MS, due=T0 + k * MS))
         assert playback.step(T0 + k * MS, {"/ee": 1}, now=0.9 * k).action == "clock"
-    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"  # instant 4 waits 0.9 s: a resend
+    assert (
+        playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"
+    )  # instant 4 waits 0.9 s: a resend
     assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.7).action == "fail"  # its timer never runs
 
 
@@ -164,5 +200,10 @@ def test_every_step_carries_an_action_member() -> None:
     stuck.step(T0, {}, now=0.0)
     steps.append(stuck.step(T0, {}, now=10.1))  # start-up may take 10 timeouts
     assert [type(step.action) for step in steps] == [Action] * 5
-    assert [step.action for step in steps] == [Action.WAIT, Action.CLOCK, Action.PUBLISH,
-                                               Action.DONE, Action.FAIL]
+    assert [step.action for step in steps] == [
+        Action.WAIT,
+        Action.CLOCK,
+        Action.PUBLISH,
+        Action.DONE,
+        Action.FAIL,
+    ]

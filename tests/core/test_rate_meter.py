@@ -1,4 +1,5 @@
-"""hsa_core.rate_meter: per-period rates of cumulative counters, with the time passed in as nanoseconds."""
+"""hsa_core.rate_meter: per-period rates of cumulative counters, with the time passed in as
+nanoseconds."""
 
 from __future__ import annotations
 
@@ -9,7 +10,10 @@ S = 1_000_000_000  # ns per s
 
 def test_rate_is_the_increase_over_the_period_since_the_start():
     meter = RateMeter(start_ns=5 * S)
-    assert meter.rates(7 * S, {"received": 400, "published": 390}) == {"received": 200.0, "published": 195.0}
+    assert meter.rates(7 * S, {"received": 400, "published": 390}) == {
+        "received": 200.0,
+        "published": 195.0,
+    }
 
 
 def test_each_reading_starts_the_next_period_and_counts_from_its_totals():

@@ -16,8 +16,16 @@ L_SHAPE = [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (1.0, 1.0), (1.0, 2.0), (0.0, 2.0
 
 def test_the_boundary_walks_once_around_the_box_each_corner_once() -> None:
     walk = boundary_phis([0.0, 0.0], [1.0, 2.0], n_per_edge=2)
-    expected = [(0.0, 0.0), (0.5, 0.0), (1.0, 0.0), (1.0, 1.0), (1.0, 2.0), (0.5, 2.0), (0.0, 2.0),
-                (0.0, 1.0)]
+    expected = [
+        (0.0, 0.0),
+        (0.5, 0.0),
+        (1.0, 0.0),
+        (1.0, 1.0),
+        (1.0, 2.0),
+        (0.5, 2.0),
+        (0.0, 2.0),
+        (0.0, 1.0),
+    ]
     np.testing.assert_allclose(walk, expected)
     assert boundary_phis([0.1, 0.2], [3.0, 4.0]).shape == (4 * 32, 2)
 
@@ -62,12 +70,15 @@ def test_the_image_of_a_one_to_one_map_of_the_box() -> None:
         assert not region.contains(a @ np.asarray(phi) + b), phi
 
 
-@pytest.mark.parametrize(("boundary", "margin", "message"), [
-    ([(0.0, 0.0), (1.0, 0.0)], 0.0, "boundary must be (M >= 3, 2) positions, got shape (2, 2)"),
-    ([0.0, 1.0, 2.0], 0.0, "boundary must be (M >= 3, 2) positions, got shape (3,)"),
-    (SQUARE, -0.1, "margin must be >= 0, got -0.1"),
-    (SQUARE, math.nan, "margin must be >= 0, got nan"),
-])
+@pytest.mark.parametrize(
+    ("boundary", "margin", "message"),
+    [
+        ([(0.0, 0.0), (1.0, 0.0)], 0.0, "boundary must be (M >= 3, 2) positions, got shape (2, 2)"),
+        ([0.0, 1.0, 2.0], 0.0, "boundary must be (M >= 3, 2) positions, got shape (3,)"),
+        (SQUARE, -0.1, "margin must be >= 0, got -0.1"),
+        (SQUARE, math.nan, "margin must be >= 0, got nan"),
+    ],
+)
 def test_bad_input_is_refused_in_one_line(boundary, margin: float, message: str) -> None:
     with pytest.raises(ValueError) as error:
         ReachabilityRegion(boundary, margin)

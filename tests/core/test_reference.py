@@ -1,5 +1,6 @@
-"""The packaged real-robot reference runs (hsa_core.analysis.reference): every run loads with its logbook conditions, the
-RMSE recomputed from its traces is the provenance README's, and the step instants are where the reference moves."""
+"""The packaged real-robot reference runs (hsa_core.analysis.reference): every run loads with its
+logbook conditions, the RMSE recomputed from its traces is the provenance README's, and the step
+instants are where the reference moves."""
 
 from __future__ import annotations
 
@@ -12,7 +13,12 @@ from hsa_core.analysis import reference
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains
 from hsa_core.sim.profiles import VelocityEstimator, load_profile
 
-README_RMSE = {"20230925_092200": 5.92, "20230925_093236": 4.18, "20230925_094023": 4.23, "20231019_143126": 3.67}
+README_RMSE = {
+    "20230925_092200": 5.92,
+    "20230925_093236": 4.18,
+    "20230925_094023": 4.23,
+    "20231019_143126": 3.67,
+}
 """[mm] "RMSE from these traces", as the source README (shared/realdata/README.md) states them."""
 
 
@@ -25,13 +31,16 @@ def test_each_run_loads_its_series_and_the_rmse_of_its_traces_is_the_readme_s(ba
     run = reference.load_run(bag)
     assert run.conditions.bag == bag
     n = len(run.t)
-    assert 10_990 <= n <= 11_000 and np.allclose(np.diff(run.t), 0.01, atol=1e-6) and run.t[0] == 0.0
+    assert (
+        10_990 <= n <= 11_000 and np.allclose(np.diff(run.t), 0.01, atol=1e-6) and run.t[0] == 0.0
+    )
     assert run.p.shape == run.p_des.shape == (n, 2) and np.all(np.isfinite(run.p))
     assert len(run.pee.t) > 700 and set(run.pee.columns) == {"px_des", "py_des", "px", "py"}
     assert {"phi1", "phi2"} <= set(run.phi.columns) and "kappa_be" in run.q.columns
     assert (run.varphi is None) == (run.conditions.law is ControllerKind.PID)
     assert list(run.step_metrics["step"]) == list(range(11))
-    # the README's figures are rounded to 0.01 mm and were computed in a way it does not record: within 0.5 %
+    # the README's figures are rounded to 0.01 mm and were computed in a way it does not record:
+    # within 0.5 %
     assert run.rmse() * 1e3 == pytest.approx(README_RMSE[bag], rel=5e-3)
 
 
@@ -41,14 +50,26 @@ def test_conditions_are_the_logbook_s() -> None:
     assert pid.gains == PidGains(10.0, 110.0, 0.25)
     assert pid.sigma_a_eq == (1.02775671, 1.02775671) and pid.payload == 0.0
     assert pid.date == datetime.date(2023, 9, 25) and pid.profile == load_profile("sep2023")
-    assert pid.profile.bus_baud == 2_000_000 and pid.profile.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
+    assert (
+        pid.profile.bus_baud == 2_000_000
+        and pid.profile.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
+    )
     gc = reference.load_run("20230925_094023").conditions
-    assert gc.law is ControllerKind.PSATID_GC and gc.gains == CollocatedGains(0.3, 0.05, 0.02, 100.0)
+    assert gc.law is ControllerKind.PSATID_GC and gc.gains == CollocatedGains(
+        0.3, 0.05, 0.02, 100.0
+    )
     assert gc.tanh_slope == 100.0 and gc.sigma_a_eq == (1.00443883, 1.00443883)
     epu = reference.load_run("20231019_143126").conditions
-    assert (epu.material, epu.law, epu.sigma_a_eq) == ("epu", ControllerKind.PSATID, (1.05440951, 1.04468428))
+    assert (epu.material, epu.law, epu.sigma_a_eq) == (
+        "epu",
+        ControllerKind.PSATID,
+        (1.05440951, 1.04468428),
+    )
     assert epu.profile == load_profile("oct2023") and epu.profile.control_period_ms == 25
-    assert epu.profile.bus_baud == 4_000_000 and epu.profile.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
+    assert (
+        epu.profile.bus_baud == 4_000_000
+        and epu.profile.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
+    )
 
 
 @pytest.mark.parametrize("bag", sorted(README_RMSE))
@@ -56,22 +77,28 @@ def test_step_instants_are_where_the_reference_changes(bag: str) -> None:
     run = reference.load_run(bag)
     steps = run.step_instants
     assert len(steps) == 10
-    # the step-metrics table (computed from the plotted lines) starts the same steps within one 10 ms sample
+    # the step-metrics table (computed from the plotted lines) starts the same steps within one 10
+    # ms sample
     assert np.allclose(steps, run.step_metrics["t_start"][1:], atol=0.0101)
     for t_step in steps:
         k = int(np.argmin(np.abs(run.t - t_step)))
         assert np.linalg.norm(run.p_des[k] - run.p_des[k - 1]) > reference.STEP_THRESHOLD
-        assert np.ptp(run.p_des[k:k + 50], axis=0).max() == 0.0  # held after it
+        assert np.ptp(run.p_des[k : k + 50], axis=0).max() == 0.0  # held after it
     assert not np.allclose(np.diff(steps), 10.0, atol=0.05)  # not every 10 s: read, not assumed
 
 
 def test_the_epu_reference_drift_is_no_step() -> None:
     t = np.arange(6) * 0.01
-    p_des = np.array([[0.0, 0.0], [0.0, 0.01], [0.0, 0.02], [5.0, 0.02], [5.0, 0.03], [5.0, 0.03]]) * 1e-3  # [m]
+    p_des = (
+        np.array([[0.0, 0.0], [0.0, 0.01], [0.0, 0.02], [5.0, 0.02], [5.0, 0.03], [5.0, 0.03]])
+        * 1e-3
+    )  # [m]
     assert list(reference.step_instants(t, p_des)) == [0.03]
 
 
 def test_an_unknown_run_is_a_one_line_error() -> None:
-    with pytest.raises(ValueError, match=r"^unknown reference run '20230925_000000'; known: 20230925_092200, ") as err:
+    with pytest.raises(
+        ValueError, match=r"^unknown reference run '20230925_000000'; known: 20230925_092200, "
+    ) as err:
         reference.load_run("20230925_000000")
     assert "\n" not in str(err.value)

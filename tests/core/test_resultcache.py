@@ -1,4 +1,5 @@
-"""hsa_core.resultcache: start-up results kept on disk, keyed by their inputs and the core's source."""
+"""hsa_core.resultcache: start-up results kept on disk, keyed by their inputs and the core's
+source."""
 
 from __future__ import annotations
 
@@ -40,8 +41,12 @@ def test_second_call_reads_the_entry(cache: Path) -> None:
 
 def test_other_inputs_name_or_dtype_compute_afresh(cache: Path) -> None:
     resultcache.cached("t", (np.arange(3),), Counting(1.0))
-    for name, inputs in (("t", (np.arange(4),)), ("u", (np.arange(3),)), ("t", (np.arange(3.0),)),
-                         ("t", (load_params("fpu"),))):
+    for name, inputs in (
+        ("t", (np.arange(4),)),
+        ("u", (np.arange(3),)),
+        ("t", (np.arange(3.0),)),
+        ("t", (load_params("fpu"),)),
+    ):
         fresh = Counting(2.0)
         assert resultcache.cached(name, inputs, fresh)["x"].tolist() == [2.0, 4.0]
         assert fresh.calls == 1
@@ -51,7 +56,9 @@ def test_parameter_sets_differ_in_their_key() -> None:
     fpu = load_params("fpu")
     assert resultcache.key("r", fpu) == resultcache.key("r", load_params("fpu"))
     assert resultcache.key("r", fpu) != resultcache.key("r", load_params("epu"))
-    assert resultcache.key("r", fpu) != resultcache.key("r", fpu.replace(kappa_rule="exp2023_shift"))
+    assert resultcache.key("r", fpu) != resultcache.key(
+        "r", fpu.replace(kappa_rule="exp2023_shift")
+    )
 
 
 def test_unreadable_entry_is_recomputed(cache: Path) -> None:
@@ -70,8 +77,11 @@ def test_empty_setting_disables_the_cache(monkeypatch: pytest.MonkeyPatch) -> No
     assert counting.calls == 2
 
 
-def test_planner_region_is_the_same_from_the_cache(cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A planner built on a cached region holds the very polygon a planner without cache computes."""
+def test_planner_region_is_the_same_from_the_cache(
+    cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A planner built on a cached region holds the very polygon a planner without cache
+    computes."""
     params = load_params("fpu")
     monkeypatch.setenv("HSA_JAX_CACHE_DIR", "")
     computed = Planner(params, "static")._region.boundary
@@ -81,10 +91,13 @@ def test_planner_region_is_the_same_from_the_cache(cache: Path, monkeypatch: pyt
     np.testing.assert_array_equal(Planner(params, "static")._region.boundary, computed)
 
 
-def test_world_starts_from_the_same_state_from_the_cache(cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The world's hanging-at-rest start state read from the cache is the one it computes without a cache."""
-    from hsa_core.sim.disturbance import DisturbanceModel
+def test_world_starts_from_the_same_state_from_the_cache(
+    cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The world's hanging-at-rest start state read from the cache is the one it computes without a
+    cache."""
     from hsa_core.model.wiring import load_wiring
+    from hsa_core.sim.disturbance import DisturbanceModel
     from hsa_core.sim.world import World
 
     params = load_params("fpu")
@@ -94,5 +107,7 @@ def test_world_starts_from_the_same_state_from_the_cache(cache: Path, monkeypatc
     monkeypatch.setenv("HSA_JAX_CACHE_DIR", str(cache))
     World(params, DisturbanceModel(), motor_map)  # fills the entry
     assert len(list((cache / "results").glob("hanging_at_rest-*.npz"))) == 1
-    np.testing.assert_array_equal(np.asarray(World(params, DisturbanceModel(), motor_map).x), computed)
+    np.testing.assert_array_equal(
+        np.asarray(World(params, DisturbanceModel(), motor_map).x), computed
+    )
     assert computed[2] != 0.0 and np.all(computed[3:] == 0.0)  # hanging under gravity, at rest

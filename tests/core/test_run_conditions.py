@@ -1,16 +1,17 @@
-"""hsa_core.sim.run_conditions: a profile's or a real run's conditions as the lockstep graph's launch arguments, a real
-run's schedule for the sequencer, and the September 2023 tick estimator (expected values from profiles.yaml,
-runs.yaml and a hand-built cubic, not from the code under test)."""
+"""hsa_core.sim.run_conditions: a profile's or a real run's conditions as the lockstep graph's
+launch arguments, a real run's schedule for the sequencer, and the September 2023 tick estimator
+(expected values from profiles.yaml, runs.yaml and a hand-built cubic, not from the code under
+test)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.model.params import load_params
-from hsa_core.sim.profiles import load_profile
 from hsa_core.analysis.reference import load_run
+from hsa_core.model.params import load_params
+from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.profiles import load_profile
 from hsa_core.sim.run_conditions import (
     TickEstimator,
     graph_arguments,
@@ -22,20 +23,32 @@ from hsa_core.sim.run_conditions import (
 
 def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
     assert graph_arguments(load_profile("lab")) == {
-        "rate": "40.0", "integrator_dt": "0.0", "velocity_estimator": "savitzky_golay_20", "payload": "0.0",
-        "sigma_a_eq": "[]", "command_latency": "0.0"}
+        "rate": "40.0",
+        "integrator_dt": "0.0",
+        "velocity_estimator": "savitzky_golay_20",
+        "payload": "0.0",
+        "sigma_a_eq": "[]",
+        "command_latency": "0.0",
+    }
     sep = graph_arguments(load_profile("sep2023"), sigma_a_eq=(0.98, 1.01), payload=0.2)
     assert 1000.0 / float(sep["rate"]) == pytest.approx(36.0, abs=1e-12)  # the period in whole ms
-    assert sep | {"rate": ""} == {"rate": "", "integrator_dt": "0.025", "velocity_estimator": "smoothing_spline_16",
-                                  "payload": "0.2", "sigma_a_eq": "[0.98, 1.01]",
-                                  "command_latency": "0.011"}
+    assert sep | {"rate": ""} == {
+        "rate": "",
+        "integrator_dt": "0.025",
+        "velocity_estimator": "smoothing_spline_16",
+        "payload": "0.2",
+        "sigma_a_eq": "[0.98, 1.01]",
+        "command_latency": "0.011",
+    }
 
 
 def test_a_command_latency_adds_to_the_world_s_actuation_latency_only() -> None:
     world = DisturbanceModel(actuation_latency=0.002, servo_time_constant=0.01)
     run = run_disturbance(world, 0.011)
     assert run.actuation_latency == pytest.approx(0.013)
-    assert run == DisturbanceModel(actuation_latency=run.actuation_latency, servo_time_constant=0.01)
+    assert run == DisturbanceModel(
+        actuation_latency=run.actuation_latency, servo_time_constant=0.01
+    )
     assert run_disturbance(world, 0.0) is world
     with pytest.raises(ValueError, match="command_latency must be >= 0 s"):
         run_disturbance(world, -0.001)
@@ -45,26 +58,34 @@ def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:
     run = load_run("20231019_143126")
     args = graph_arguments(load_profile("lab"), run=run)
     assert args["material"] == "epu" and args["controller"] == "psatid"
-    assert args["velocity_estimator"] == "savitzky_golay_20" and args["integrator_dt"] == "0.025"  # oct2023
+    assert (
+        args["velocity_estimator"] == "savitzky_golay_20" and args["integrator_dt"] == "0.025"
+    )  # oct2023
     assert args["command_latency"] == "0.006"
     sigma = run.conditions.sigma_a_eq
     assert args["sigma_a_eq"] == f"[{sigma[0]!r}, {sigma[1]!r}]"
     schedule = run_schedule(run)
-    assert schedule["times"][0] == 0.0 and schedule["times"][1:] == pytest.approx(list(run.step_instants))
+    assert schedule["times"][0] == 0.0 and schedule["times"][1:] == pytest.approx(
+        list(run.step_instants)
+    )
     assert len(schedule["points"]) == 2 * len(schedule["times"]) == 22
     assert schedule["times"][-1] + 1.0 / schedule["rate"] == pytest.approx(run.t[-1] + 0.01)
 
 
 def test_the_tick_estimator_differentiates_a_cubic_after_sixteen_ticks() -> None:
     estimator = TickEstimator(0.036)
-    t = np.arange(20) * 0.036 + np.array([0.0, 0.004] * 10)  # the newest sample's stamp wanders with the mocap grid
+    t = np.arange(20) * 0.036 + np.array(
+        [0.0, 0.004] * 10
+    )  # the newest sample's stamp wanders with the mocap grid
     coeffs = np.array([0.1, -0.5, 2.0, 0.3])  # x = c0 + c1 t + c2 t^2 + c3 t^3 in every coordinate
     results = []
     for k, tk in enumerate(t):
         x = np.polyval(coeffs[::-1], tk) * np.ones(6)
         results.append(estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]))
         if k == 3:
-            assert estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]) is None  # same stamp
+            assert (
+                estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]) is None
+            )  # same stamp
     assert all(r is None for r in results[:15]) and all(r is not None for r in results[15:])
     slope = coeffs[1] + 2 * coeffs[2] * t[-1] + 3 * coeffs[3] * t[-1] ** 2
     np.testing.assert_allclose(np.concatenate(results[-1]), slope, rtol=1e-7)

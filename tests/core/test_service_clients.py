@@ -1,6 +1,7 @@
-"""Every plan_setpoint client in this repository uses hsa_common.qos.SERVICE: with rclpy's default client profile
-(keep last 10) a burst loses answers in the client's own histories (docs/nodes/hsa_planner_node.md), and
-tests/ros/test_plan_burst.py proves the burst only for the SERVICE profile. Reads the sources, imports nothing."""
+"""Every plan_setpoint client in this repository uses hsa_common.qos.SERVICE: with rclpy's default
+client profile (keep last 10) a burst loses answers in the client's own histories
+(docs/nodes/hsa_planner_node.md), and tests/ros/test_plan_burst.py proves the burst only for the
+SERVICE profile. Reads the sources, imports nothing."""
 
 from __future__ import annotations
 
@@ -8,9 +9,14 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).parents[2]
-TREES = [*REPO.glob("hsa_*"), *(REPO / d for d in ("tests", "tools", "launch_scripts", "benchmarks"))]
+TREES = [
+    *REPO.glob("hsa_*"),
+    *(REPO / d for d in ("tests", "tools", "launch_scripts", "benchmarks")),
+]
 """Where our sources are (out/, build/ and .venv/ hold none)."""
-DELIBERATE = {REPO / "tests" / "ros" / "peers" / "plan_burst_peer.py"}  # measures rclpy's default on request
+DELIBERATE = {
+    REPO / "tests" / "ros" / "peers" / "plan_burst_peer.py"
+}  # measures rclpy's default on request
 
 
 def plan_clients(path: Path) -> list[ast.Call]:
@@ -18,15 +24,24 @@ def plan_clients(path: Path) -> list[ast.Call]:
     text = path.read_text()
     if "PlanSetpoint" not in text:
         return []
-    return [node for node in ast.walk(ast.parse(text, str(path)))
-            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "create_client"
-            and node.args and isinstance(node.args[0], ast.Name) and node.args[0].id == "PlanSetpoint"]
+    return [
+        node
+        for node in ast.walk(ast.parse(text, str(path)))
+        if isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and node.func.attr == "create_client"
+        and node.args
+        and isinstance(node.args[0], ast.Name)
+        and node.args[0].id == "PlanSetpoint"
+    ]
 
 
 def uses_service_profile(call: ast.Call) -> bool:
     """``qos_profile=qos.SERVICE`` is among the call's keywords."""
-    return any(k.arg == "qos_profile" and ast.unparse(k.value) in ("qos.SERVICE", "hsa_common.qos.SERVICE")
-               for k in call.keywords)
+    return any(
+        k.arg == "qos_profile" and ast.unparse(k.value) in ("qos.SERVICE", "hsa_common.qos.SERVICE")
+        for k in call.keywords
+    )
 
 
 def test_every_plan_client_uses_the_service_profile() -> None:

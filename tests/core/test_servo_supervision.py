@@ -1,15 +1,15 @@
-"""Tests of hsa_core.driver.servo_supervision.ServoSupervisor: the dynamixel_driver's torque, watchdog, E-stop, link,
-hardware-error, start-up position and reboot decisions (docs/nodes/hsa_dynamixel_driver.md).
+"""Tests of hsa_core.driver.servo_supervision.ServoSupervisor: the dynamixel_driver's torque,
+watchdog, E-stop, link, hardware-error, start-up position and reboot decisions
+(docs/nodes/hsa_dynamixel_driver.md).
 
-Expected values come from the rules of that document: e.g. the sane range of motor 21 (sign +1, neutral 1000) is
-1000 + ⌊−(0.02 + 0.1) rad · 2048/π⌋ = 1000 − 79 = 921 ticks at its lower end.
+Expected values come from the rules of that document: e.g. the sane range of motor 21 (sign +1,
+neutral 1000) is 1000 + ⌊−(0.02 + 0.1) rad · 2048/π⌋ = 1000 − 79 = 921 ticks at its lower end.
 """
 
 import math
 
 import pytest
 
-from hsa_core.model.actuation import MotorMap
 from hsa_core.driver.servo_supervision import (
     MULTI_TURN_NOTE,
     Alert,
@@ -19,13 +19,19 @@ from hsa_core.driver.servo_supervision import (
     Watchdog,
     WatchdogEvent,
 )
+from hsa_core.model.actuation import MotorMap
 
 IDS = (21, 22, 23, 24)
 NEUTRAL = (1000, 3000, -500, 5000)
 TOLERANCE = 0.1  # rad
 MAP = MotorMap(NEUTRAL, IDS, phi_max=math.radians(200.0), margin=0.02)
 AT_NEUTRAL = list(NEUTRAL)
-TWISTED = [1000 + 200, 3000 - 200, -500 + 200, 5000 - 200]  # 200 ticks = 0.307 rad of twist on every motor
+TWISTED = [
+    1000 + 200,
+    3000 - 200,
+    -500 + 200,
+    5000 - 200,
+]  # 200 ticks = 0.307 rad of twist on every motor
 
 
 def describe(bits: int) -> str:
@@ -34,7 +40,8 @@ def describe(bits: int) -> str:
 
 
 def configured(error_limit: int = 3) -> ServoSupervisor:
-    """A supervisor after configure with the configured neutral NEUTRAL (not yet connected or active)."""
+    """A supervisor after configure with the configured neutral NEUTRAL (not yet connected or
+    active)."""
     sup = ServoSupervisor(IDS, error_limit, TOLERANCE, describe)
     sup.configured(neutral_known=True)
     sup.positions.calibrate(MAP)
@@ -51,7 +58,8 @@ def running(error_limit: int = 3) -> ServoSupervisor:
     return sup
 
 
-# ------------------------------------------------------------------ lifecycle, link and torque wanted
+# ------------------------------------------------------------------ lifecycle, link and torque
+# wanted
 def test_torque_is_due_only_when_active_connected_wanted_and_not_stopped() -> None:
     sup = configured()
     assert not sup.torque_due() and sup.note == "inactive"
@@ -98,7 +106,9 @@ def test_set_torque_true_is_refused_while_stopped_inactive_or_disconnected() -> 
     sup.link.connected(0.0)
     assert sup.set_torque_refusal() is None  # try it
     sup.estop.engage("estop service", 1.0)
-    assert sup.set_torque_refusal() == Answer(False, "E-stop engaged (estop service): call clear_estop")
+    assert sup.set_torque_refusal() == Answer(
+        False, "E-stop engaged (estop service): call clear_estop"
+    )
 
 
 def test_set_torque_true_when_already_on_and_after_a_try() -> None:
@@ -133,10 +143,14 @@ def test_command_verdicts() -> None:
 
 def test_watchdog_arms_with_the_first_command_and_holds() -> None:
     sup = running()
-    assert sup.check_watchdog(100.0, 0.5, "hold").event is WatchdogEvent.NONE  # no command yet: nothing expires
+    assert (
+        sup.check_watchdog(100.0, 0.5, "hold").event is WatchdogEvent.NONE
+    )  # no command yet: nothing expires
     sup.commands.taken(2.0)
     assert sup.commands.state is Watchdog.WAITING
-    assert sup.check_watchdog(2.5, 0.5, "hold").event is WatchdogEvent.NONE  # age == timeout: not older
+    assert (
+        sup.check_watchdog(2.5, 0.5, "hold").event is WatchdogEvent.NONE
+    )  # age == timeout: not older
     assert sup.commands.state is Watchdog.FRESH
     first = sup.check_watchdog(2.75, 0.5, "hold")
     assert first.event is WatchdogEvent.HOLD and first.stale and not first.torque_off
@@ -205,7 +219,10 @@ def test_torque_off_outcome() -> None:
     assert sup.torque_off_outcome(frozenset()) == "torque off confirmed"
     assert sup.torque_off_outcome(frozenset({23, 22})) == "torque off not confirmed by IDs [22, 23]"
     sup.link_lost("port vanished", 1.0)
-    assert sup.torque_off_outcome(frozenset(IDS)) == "bus not connected (port vanished): torque off not possible"
+    assert (
+        sup.torque_off_outcome(frozenset(IDS))
+        == "bus not connected (port vanished): torque off not possible"
+    )
 
 
 def test_estop_survives_lifecycle_and_reconnect() -> None:
@@ -226,10 +243,14 @@ def test_clear_estop_refusals_and_release() -> None:
     assert sup.clear_estop_refusal() == Answer(False, "E-stop stays engaged: node is not active")
     sup.activate()
     sup.link.connect_failed("no servo answers")
-    assert sup.clear_estop_refusal() == Answer(False, "E-stop stays engaged: bus not connected: no servo answers")
+    assert sup.clear_estop_refusal() == Answer(
+        False, "E-stop stays engaged: bus not connected: no servo answers"
+    )
     sup.link.connected(2.0)
     assert sup.clear_estop_refusal() is None  # try torque on
-    assert sup.clear_estop_result("hardware error X") == Answer(False, "E-stop stays engaged: hardware error X")
+    assert sup.clear_estop_result("hardware error X") == Answer(
+        False, "E-stop stays engaged: hardware error X"
+    )
     assert sup.estop.reason == "estop service"
     sup.torque_unwanted()
     assert sup.clear_estop_result(None) == Answer(True, "E-stop cleared, torque on")
@@ -296,7 +317,9 @@ def test_a_failed_torque_on_is_retried_with_backoff_until_it_comes_on() -> None:
         assert sup.torque_failed(problem, 30.0 + k) == ((0.5, 1.0)[k] if k < 2 else 1.5)
 
 
-@pytest.mark.parametrize("end", ["refusal", "set_torque(false)", "E-stop", "bus lost", "deactivate"])
+@pytest.mark.parametrize(
+    "end", ["refusal", "set_torque(false)", "E-stop", "bus lost", "deactivate"]
+)
 def test_retries_end_when_torque_is_refused_or_no_longer_due(end: str) -> None:
     sup = running()
     _failed_torque_on(sup)
@@ -319,7 +342,9 @@ def test_a_failure_while_torque_is_not_due_schedules_no_retry() -> None:
     sup = running()
     sup.torque_disabled("set_torque service")
     sup.torque_unwanted()
-    assert sup.torque_failed("torque-on failed: no status", 1.0) is None and not sup.torque_retry_due(100.0)
+    assert sup.torque_failed(
+        "torque-on failed: no status", 1.0
+    ) is None and not sup.torque_retry_due(100.0)
 
 
 def test_takes_commands_while_torque_is_on_or_relaxed_by_the_watchdog() -> None:
@@ -339,9 +364,12 @@ def test_hardware_error_turns_torque_off_until_asked_again() -> None:
     assert sup.hardware.changed(frozenset({22}))
     assert sup.hardware_errors(frozenset({22}), {22: 4}) is Alert.FAULT
     assert not sup.torque_wanted and not sup.hardware.changed(frozenset({22}))
-    assert sup.hardware.problem() == ("hardware error {22: 'bits 4'}: call reboot "
-                                      "(or reboot_<id>), or power-cycle the servo")
-    assert sup.hardware_errors(frozenset({22, 23}), {22: 4}) is Alert.NONE  # same errors: nothing new
+    assert sup.hardware.problem() == (
+        "hardware error {22: 'bits 4'}: call reboot (or reboot_<id>), or power-cycle the servo"
+    )
+    assert (
+        sup.hardware_errors(frozenset({22, 23}), {22: 4}) is Alert.NONE
+    )  # same errors: nothing new
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset({22}), None) == sup.hardware.problem()
     assert sup.hardware_errors(frozenset(), {}) is Alert.CLEARED
     assert sup.hardware.problem() is None
@@ -370,7 +398,9 @@ def test_start_up_check_refuses_a_twisted_pose_unless_held() -> None:
 def test_start_up_check_runs_once_per_configure() -> None:
     sup = configured()
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
-    assert sup.torque_on_problem(TWISTED, frozenset(), None) is None  # later: only the sane range applies
+    assert (
+        sup.torque_on_problem(TWISTED, frozenset(), None) is None
+    )  # later: only the sane range applies
     sup.configured(neutral_known=True)
     sup.positions.calibrate(MAP)
     assert sup.torque_on_problem(TWISTED, frozenset(), None) is not None
@@ -381,9 +411,11 @@ def test_sane_range_is_the_goal_limits_widened_by_the_tolerance() -> None:
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
     assert sup.torque_on_problem([921, 3000, -500, 5000], frozenset(), None) is None
     assert sup.torque_on_problem([920, 3000, -500, 5079], frozenset(), None) == (
-        "present positions of IDs [21] are outside the goal limits (servo power-cycled or turned?)")
+        "present positions of IDs [21] are outside the goal limits (servo power-cycled or turned?)"
+    )
     assert sup.torque_on_problem([920, 3000, -500, 5080], frozenset(), None).startswith(
-        "present positions of IDs [21, 24] are outside")
+        "present positions of IDs [21, 24] are outside"
+    )
 
 
 def test_first_calibration_is_refused_on_held_servos() -> None:
@@ -394,7 +426,9 @@ def test_first_calibration_is_refused_on_held_servos() -> None:
     sup.positions.held = True
     sup.positions.calibrate(MAP)  # the present positions give the map its zero
     problem = sup.positions.first_calibration("/tmp/neutral.yaml")
-    assert problem is not None and "no neutral file /tmp/neutral.yaml" in problem and "held" in problem
+    assert (
+        problem is not None and "no neutral file /tmp/neutral.yaml" in problem and "held" in problem
+    )
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) == problem  # torque stays off
 
 
@@ -444,7 +478,8 @@ def test_reboot_names_the_lost_multi_turn_count_or_the_error() -> None:
     sup.reboot_started()
     beyond = [1000 + 4096, 3000, -500, 5000]  # one turn off: the multi-turn count was reset
     assert sup.rebooted(beyond, frozenset(), {}) == (
-        "present positions of IDs [21] are outside the goal limits (servo power-cycled or turned?); "
-        + MULTI_TURN_NOTE)
+        "present positions of IDs [21] are outside the goal limits (servo power-cycled or "
+        "turned?); " + MULTI_TURN_NOTE
+    )
     # the error, no note
     assert sup.rebooted(beyond, frozenset({21}), {21: 1}) == sup.hardware.problem()

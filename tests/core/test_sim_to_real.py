@@ -1,5 +1,6 @@
-"""The sim-versus-real measures (hsa_core.analysis.sim_to_real) on synthetic step runs whose answers are known by
-construction: first-order responses to 11 setpoints at irregular instants, with offsets, delays and ripples added."""
+"""The sim-versus-real measures (hsa_core.analysis.sim_to_real) on synthetic step runs whose answers
+are known by construction: first-order responses to 11 setpoints at irregular instants, with
+offsets, delays and ripples added."""
 
 from __future__ import annotations
 
@@ -11,15 +12,39 @@ import pytest
 from hsa_core.analysis import sim_to_real
 from hsa_core.analysis.sim_to_real import StepRun
 
-SETPOINTS = np.array([[0.0, 120.0], [4.8, 127.8], [-35.0, 122.0], [-7.8, 130.2], [8.2, 114.6], [-14.2, 123.9],
-                      [0.0, 140.0], [25.2, 130.4], [-6.0, 139.9], [7.3, 114.8], [5.7, 127.1]]) * 1e-3  # [m]
-INSTANTS = np.array([9.87, 19.55, 29.96, 39.91, 49.51, 59.88, 69.93, 79.45, 89.90, 99.55])  # [s], not every 10 s
+SETPOINTS = (
+    np.array(
+        [
+            [0.0, 120.0],
+            [4.8, 127.8],
+            [-35.0, 122.0],
+            [-7.8, 130.2],
+            [8.2, 114.6],
+            [-14.2, 123.9],
+            [0.0, 140.0],
+            [25.2, 130.4],
+            [-6.0, 139.9],
+            [7.3, 114.8],
+            [5.7, 127.1],
+        ]
+    )
+    * 1e-3
+)  # [m]
+INSTANTS = np.array(
+    [9.87, 19.55, 29.96, 39.91, 49.51, 59.88, 69.93, 79.45, 89.90, 99.55]
+)  # [s], not every 10 s
 
 
-def step_run(dt: float = 0.01, tau: float = 0.2, shift: float = 0.0, offset=(0.0, 0.0), end: float = 110.0,
-             ripple: float = 0.0) -> StepRun:
-    """Samples every dt of a first-order response (time constant tau) to SETPOINTS switched at INSTANTS + shift,
-    plus a constant offset and an alternating ± ripple on x (sample by sample)."""
+def step_run(
+    dt: float = 0.01,
+    tau: float = 0.2,
+    shift: float = 0.0,
+    offset=(0.0, 0.0),
+    end: float = 110.0,
+    ripple: float = 0.0,
+) -> StepRun:
+    """Samples every dt of a first-order response (time constant tau) to SETPOINTS switched at
+    INSTANTS + shift, plus a constant offset and an alternating ± ripple on x (sample by sample)."""
     t = np.round(np.arange(0.0, end, dt), 9)
     instants = INSTANTS + shift
     k = np.searchsorted(instants, t, side="right")  # setpoint index in force
@@ -27,7 +52,9 @@ def step_run(dt: float = 0.01, tau: float = 0.2, shift: float = 0.0, offset=(0.0
     p = p_des.copy()
     for i, t_k in enumerate(instants, start=1):
         m = k == i
-        p[m] = SETPOINTS[i] + (SETPOINTS[i - 1] - SETPOINTS[i]) * np.exp(-(t[m] - t_k) / tau)[:, None]
+        p[m] = (
+            SETPOINTS[i] + (SETPOINTS[i - 1] - SETPOINTS[i]) * np.exp(-(t[m] - t_k) / tau)[:, None]
+        )
     p = p + np.asarray(offset)
     p[:, 0] += ripple * (-1.0) ** np.arange(len(t))
     return StepRun(t, p, p_des, end)
@@ -35,8 +62,12 @@ def step_run(dt: float = 0.01, tau: float = 0.2, shift: float = 0.0, offset=(0.0
 
 def test_identical_runs_are_zero_apart() -> None:
     c = sim_to_real.compare(step_run(), step_run())
-    assert c.deviation == 0.0 and c.response_time_difference == 0.0 and c.rise_time_difference == 0.0
-    assert c.rmse[0] == c.rmse[1] and c.end_error[0] == c.end_error[1] and c.x_peak_to_peak[0] < 1e-15
+    assert (
+        c.deviation == 0.0 and c.response_time_difference == 0.0 and c.rise_time_difference == 0.0
+    )
+    assert (
+        c.rmse[0] == c.rmse[1] and c.end_error[0] == c.end_error[1] and c.x_peak_to_peak[0] < 1e-15
+    )
 
 
 def test_each_run_is_aligned_at_its_own_step_instants() -> None:
@@ -44,7 +75,9 @@ def test_each_run_is_aligned_at_its_own_step_instants() -> None:
     late = step_run(dt=0.005, shift=0.3)  # the same responses, 0.3 s later, sampled twice as often
     np.testing.assert_allclose(late.step_starts, INSTANTS + 0.3)
     assert sim_to_real.deviation(late, ref) < 1e-12
-    assert sim_to_real.response_times(late) == pytest.approx(sim_to_real.response_times(ref), abs=1e-12)
+    assert sim_to_real.response_times(late) == pytest.approx(
+        sim_to_real.response_times(ref), abs=1e-12
+    )
 
 
 def test_deviation_of_a_constant_offset_is_its_length() -> None:
@@ -67,16 +100,25 @@ def test_end_error_and_peak_to_peak_of_the_last_two_seconds() -> None:
 def test_response_time_is_the_first_sample_below_ten_percent() -> None:
     # e = e0 exp(−t/τ) < 0.1 e0 from t = τ ln 10 on: the first 10 ms sample after it
     fast, slow = step_run(tau=0.2), step_run(tau=0.3)
-    np.testing.assert_allclose(sim_to_real.response_times(fast), 0.47, atol=1e-9)  # 0.2 ln 10 = 0.4605
-    np.testing.assert_allclose(sim_to_real.response_times(slow), 0.70, atol=1e-9)  # 0.3 ln 10 = 0.6908
+    np.testing.assert_allclose(
+        sim_to_real.response_times(fast), 0.47, atol=1e-9
+    )  # 0.2 ln 10 = 0.4605
+    np.testing.assert_allclose(
+        sim_to_real.response_times(slow), 0.70, atol=1e-9
+    )  # 0.3 ln 10 = 0.6908
     assert sim_to_real.compare(slow, fast).response_time_difference == pytest.approx(0.23 / 0.47)
 
 
 def test_rise_time_is_ten_to_ninety_percent_of_the_way() -> None:
-    # progress 1 − exp(−t/τ): 10 % at τ ln(10/9), 90 % at τ ln 10; each at the first 10 ms sample after it
+    # progress 1 − exp(−t/τ): 10 % at τ ln(10/9), 90 % at τ ln 10; each at the first 10 ms sample
+    # after it
     fast, slow = step_run(tau=0.2), step_run(tau=0.3)
-    np.testing.assert_allclose(sim_to_real.rise_times(fast), 0.47 - 0.03, atol=1e-9)  # 0.0211 → 0.03, 0.4605 → 0.47
-    np.testing.assert_allclose(sim_to_real.rise_times(slow), 0.70 - 0.04, atol=1e-9)  # 0.0316 → 0.04, 0.6908 → 0.70
+    np.testing.assert_allclose(
+        sim_to_real.rise_times(fast), 0.47 - 0.03, atol=1e-9
+    )  # 0.0211 → 0.03, 0.4605 → 0.47
+    np.testing.assert_allclose(
+        sim_to_real.rise_times(slow), 0.70 - 0.04, atol=1e-9
+    )  # 0.0316 → 0.04, 0.6908 → 0.70
     assert sim_to_real.compare(slow, fast).rise_time_difference == pytest.approx(0.22 / 0.44)
 
 
@@ -100,13 +142,16 @@ def test_bad_runs_are_one_line_errors() -> None:
     short = step_run(end=45.0)
     with pytest.raises(ValueError, match=r"^the run has 5 steps, 11 are compared$"):
         sim_to_real.deviation(short, step_run())
-    with pytest.raises(ValueError, match=r"^the run ends at 104\.99 s, before 9\.3 s after the step at 99\.55 s$"):
+    with pytest.raises(
+        ValueError, match=r"^the run ends at 104\.99 s, before 9\.3 s after the step at 99\.55 s$"
+    ):
         sim_to_real.aligned_responses(step_run(end=105.0))
 
 
 def overshooting_run(past: float, across: float = 0.0) -> StepRun:
-    """The setpoints of step_run, followed exactly except for the first second of every step, where p sits ``past``
-    beyond the new setpoint along the step's direction and ``across`` to its left."""
+    """The setpoints of step_run, followed exactly except for the first second of every step, where
+    p sits ``past`` beyond the new setpoint along the step's direction and ``across`` to its
+    left."""
     run = step_run()
     p = run.p_des.copy()
     for i, t_k in enumerate(INSTANTS, start=1):
@@ -119,7 +164,9 @@ def overshooting_run(past: float, across: float = 0.0) -> StepRun:
 def test_overshoot_is_the_distance_past_the_setpoint_along_the_step() -> None:
     np.testing.assert_allclose(sim_to_real.overshoots(overshooting_run(0.002)), 0.002, rtol=1e-9)
     # an error across the step direction is not an overshoot; falling short is none either
-    np.testing.assert_allclose(sim_to_real.overshoots(overshooting_run(0.002, across=0.005)), 0.002, rtol=1e-9)
+    np.testing.assert_allclose(
+        sim_to_real.overshoots(overshooting_run(0.002, across=0.005)), 0.002, rtol=1e-9
+    )
     np.testing.assert_array_equal(sim_to_real.overshoots(overshooting_run(-0.003)), 0.0)
 
 
@@ -131,13 +178,21 @@ def test_deviation_per_step_and_the_side_by_side_table() -> None:
     assert table.steps == sim_to_real.STEPS
     np.testing.assert_allclose(table.start[0], INSTANTS, atol=1e-9)
     np.testing.assert_allclose(table.start[1], INSTANTS, atol=1e-9)
-    np.testing.assert_allclose(table.end_error[0], 0.005, rtol=1e-6)  # the offset, once the response has settled
+    np.testing.assert_allclose(
+        table.end_error[0], 0.005, rtol=1e-6
+    )  # the offset, once the response has settled
     np.testing.assert_allclose(table.end_error[1], 0.0, atol=1e-12)
-    np.testing.assert_allclose(table.rise_time[1], 0.2 * math.log(9.0), atol=0.011)  # first order: τ ln 9
+    np.testing.assert_allclose(
+        table.rise_time[1], 0.2 * math.log(9.0), atol=0.011
+    )  # first order: τ ln 9
     rows = table.rows()
     assert [r["step"] for r in rows] == list(range(1, 11))
     assert rows[0]["deviation"] == pytest.approx(0.005)
     assert rows[0]["peak_to_peak"]["run"] == pytest.approx([0.0, 0.0], abs=1e-6)
     d = np.diff(SETPOINTS, axis=0) / np.linalg.norm(np.diff(SETPOINTS, axis=0), axis=1)[:, None]
-    np.testing.assert_allclose(table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9)  # settles there
-    np.testing.assert_array_equal(table.overshoot[1], 0.0)  # a first-order response never passes its target
+    np.testing.assert_allclose(
+        table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9
+    )  # settles there
+    np.testing.assert_array_equal(
+        table.overshoot[1], 0.0
+    )  # a first-order response never passes its target

@@ -1,4 +1,5 @@
-"""Controller supervision state machine (hsa_core.controller.supervision): every mode transition, with the time passed in."""
+"""Controller supervision state machine (hsa_core.controller.supervision): every mode transition,
+with the time passed in."""
 
 from __future__ import annotations
 
@@ -49,8 +50,12 @@ def test_no_driver_in_the_graph_tracks_without_heartbeats() -> None:
 def test_age_by_stamp_tracks_holds_then_stops_and_resumes() -> None:
     t = 1000 * MS
     s = _tracking(t)
-    for dt, mode, action in ((STALE, Mode.TRACKING, Action.STEP), (STALE + 1, Mode.HOLD, Action.HOLD),
-                             (HOLD, Mode.HOLD, Action.HOLD), (HOLD + 1, Mode.STALE, Action.NONE)):
+    for dt, mode, action in (
+        (STALE, Mode.TRACKING, Action.STEP),
+        (STALE + 1, Mode.HOLD, Action.HOLD),
+        (HOLD, Mode.HOLD, Action.HOLD),
+        (HOLD + 1, Mode.STALE, Action.NONE),
+    ):
         s.driver_heartbeat(t + dt)
         decision = s.tick(t + dt)
         assert (decision.mode, decision.action) == (mode, action), dt
@@ -63,7 +68,9 @@ def test_a_state_with_an_old_stamp_is_stale_even_if_it_just_arrived() -> None:
     t = 1000 * MS
     s = _tracking(t)
     s.driver_heartbeat(t + 2000 * MS)
-    assert s.state(t + 10 * MS, t + 2000 * MS) is None  # newer than the newest, but stamped ~2 s ago
+    assert (
+        s.state(t + 10 * MS, t + 2000 * MS) is None
+    )  # newer than the newest, but stamped ~2 s ago
     decision = s.tick(t + 2000 * MS)
     assert decision.action is not Action.STEP and decision.age_s == pytest.approx(1.99)
 
@@ -114,7 +121,9 @@ def test_driver_torque_off_sends_nothing_until_it_is_on_again() -> None:
     s = _tracking(t)
     assert s.driver_torque(True) is False  # no report yet counts as on: nothing changes
     assert s.driver_torque(False) is True and s.driver_torque(False) is False
-    for k in range(1, 5):  # heartbeats and fresh states keep coming: the driver is alive, its servos powerless
+    for k in range(
+        1, 5
+    ):  # heartbeats and fresh states keep coming: the driver is alive, its servos powerless
         now = t + k * 25 * MS
         s.driver_heartbeat(now)
         assert s.state(now, now) is None
@@ -122,7 +131,9 @@ def test_driver_torque_off_sends_nothing_until_it_is_on_again() -> None:
     assert s.tick(t + 400 * MS).mode is Mode.DRIVER_LOST  # silence outranks the torque report
     s.driver_heartbeat(t + 400 * MS)
     assert s.driver_torque(True) is True
-    assert s.tick(t + 400 * MS).mode is Mode.STALE  # state 300 ms old: nothing held across the torque-off
+    assert (
+        s.tick(t + 400 * MS).mode is Mode.STALE
+    )  # state 300 ms old: nothing held across the torque-off
     assert s.state(t + 400 * MS, t + 400 * MS) is None
     assert s.tick(t + 400 * MS).mode is Mode.TRACKING
     s.driver_torque(False)
@@ -137,12 +148,16 @@ def test_estop_has_priority_and_drops_the_hold() -> None:
     assert (s.tick(t).mode, s.tick(t).action) == (Mode.ESTOP, Action.NONE)
     assert s.set_estop(False) is False
     s.driver_heartbeat(t + 150 * MS)
-    assert s.tick(t + 150 * MS).mode is Mode.STALE  # stale after the E-stop: no command from before it is re-sent
+    assert (
+        s.tick(t + 150 * MS).mode is Mode.STALE
+    )  # stale after the E-stop: no command from before it is re-sent
     assert s.state(t + 150 * MS, t + 150 * MS) is None
     assert s.tick(t + 150 * MS).mode is Mode.TRACKING
 
 
-@pytest.mark.parametrize("stale, hold, driver", [(0.0, 0.25, 0.25), (0.3, 0.25, 0.25), (0.1, 0.25, -1.0)])
+@pytest.mark.parametrize(
+    "stale, hold, driver", [(0.0, 0.25, 0.25), (0.3, 0.25, 0.25), (0.1, 0.25, -1.0)]
+)
 def test_inconsistent_bounds_are_refused(stale: float, hold: float, driver: float) -> None:
     with pytest.raises(ValueError):
         SupervisorConfig(stale, hold, driver)

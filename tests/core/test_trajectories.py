@@ -1,4 +1,5 @@
-"""Tests of hsa_core.task.trajectories: step lists, image-contour and parametric references (experiments.md §2–§3)."""
+"""Tests of hsa_core.task.trajectories: step lists, image-contour and parametric references
+(experiments.md §2–§3)."""
 
 import math
 
@@ -29,7 +30,8 @@ def write_image(path, image):
 
 @pytest.fixture
 def circle_png(tmp_path):
-    """Dark filled circle, radius 100 px, centre (150, 120), on a light background (inverted-threshold asset)."""
+    """Dark filled circle, radius 100 px, centre (150, 120), on a light background
+    (inverted-threshold asset)."""
     img = np.full((260, 320, 3), 255, np.uint8)
     cv2.circle(img, (150, 120), 100, (0, 0, 0), -1)
     return write_image(tmp_path / "circle.png", img)
@@ -37,7 +39,8 @@ def circle_png(tmp_path):
 
 @pytest.fixture
 def l_shape_png(tmp_path):
-    """Bright L shape on black: a tall bar on the left (x 40–79, y 20–219) and a foot to the right (y 180–219)."""
+    """Bright L shape on black: a tall bar on the left (x 40–79, y 20–219) and a foot to the right
+    (y 180–219)."""
     img = np.zeros((240, 240), np.uint8)
     img[20:220, 40:80] = 255
     img[180:220, 40:200] = 255
@@ -51,7 +54,9 @@ def test_fpu_step_list_as_in_experiments():
     np.testing.assert_array_equal(ref.p_des[0], [0.0, 0.120])
     np.testing.assert_array_equal(ref.p_des[1], [0.00479247, 0.12781018])
     np.testing.assert_array_equal(ref.p_des[2], [-0.035, 0.122])
-    np.testing.assert_array_equal(ref.p_des[4], [0.00823294, 0.114643])  # 09-25 list, not the 09-26 variant
+    np.testing.assert_array_equal(
+        ref.p_des[4], [0.00823294, 0.114643]
+    )  # 09-25 list, not the 09-26 variant
     np.testing.assert_array_equal(ref.p_des[9], [0.0073023, 0.11479653])
     np.testing.assert_array_equal(ref.p_des[10], [0.00567301, 0.1271345])
 
@@ -93,9 +98,12 @@ def test_contour_of_circle_lies_on_r_max_around_centroid(circle_png):
     ref = contour_reference(circle_png, centroid=centroid, r_max=r_max, k=1)
     radius_px = 100
     dist = np.linalg.norm(ref.p_des - centroid, axis=1)
-    # boundary pixels lie within a pixel of the radius; the centroid is truncated to whole pixels (≤ 1 px more)
+    # boundary pixels lie within a pixel of the radius; the centroid is truncated to whole pixels (≤
+    # 1 px more)
     assert np.all(np.abs(dist - r_max) <= 2.0 * r_max / radius_px)
-    assert np.max(np.abs(ref.p_des - centroid)) == pytest.approx(r_max)  # normalised by the max abs coordinate
+    assert np.max(np.abs(ref.p_des - centroid)) == pytest.approx(
+        r_max
+    )  # normalised by the max abs coordinate
     assert 2 * math.pi * radius_px * 0.7 < len(ref) < 2 * math.pi * radius_px * 1.1
     assert ref.t[1] == pytest.approx(1 / 8.0) and ref.duration == pytest.approx(len(ref) / 8.0)
 
@@ -109,18 +117,24 @@ def test_subsampling_keeps_every_kth_point(circle_png):
 
 def test_contour_orientation_start_and_flip_on_l_shape(l_shape_png):
     centroid, r_max = np.array([0.0, 0.13]), 0.01
-    ref = contour_reference(l_shape_png, centroid=centroid, r_max=r_max, k=1, threshold=128, invert=False)
+    ref = contour_reference(
+        l_shape_png, centroid=centroid, r_max=r_max, k=1, threshold=128, invert=False
+    )
     p = (ref.p_des - centroid) / r_max
     # moments of the L (two rectangles, pixel-centre coordinates): area-weighted centroid
     a1, c1 = 40 * 200, np.array([59.5, 119.5])
     a2, c2 = 120 * 40, np.array([139.5, 199.5])
     pix_centroid = np.floor((a1 * c1 + a2 * c2) / (a1 + a2))
-    # the foot extends to the right (+x) and lies at the bottom of the image, which is −y after negating y
+    # the foot extends to the right (+x) and lies at the bottom of the image, which is −y after
+    # negating y
     far = np.array([199.0, 219.0]) - pix_centroid
     scale = np.max(np.abs(np.array([[40, 20], [199, 219]]) - pix_centroid))
     assert np.min(np.linalg.norm(p - far * [1, -1] / scale, axis=1)) < 2.0 / scale
-    # the first point is the raster-first boundary pixel (top row, left-most): top-left corner of the bar
-    np.testing.assert_allclose(p[0], (np.array([40.0, 20.0]) - pix_centroid) * [1, -1] / scale, atol=1.5 / scale)
+    # the first point is the raster-first boundary pixel (top row, left-most): top-left corner of
+    # the bar
+    np.testing.assert_allclose(
+        p[0], (np.array([40.0, 20.0]) - pix_centroid) * [1, -1] / scale, atol=1.5 / scale
+    )
     assert shoelace(p) > 0  # traced order is counter-clockwise in x-y after negating y
     flipped = contour_reference(
         l_shape_png, centroid=centroid, r_max=r_max, k=1, threshold=128, invert=False, flip=True
@@ -144,14 +158,19 @@ def test_direction_option(l_shape_png):
 
 
 def test_crop_to_centred_square(tmp_path):
-    # landscape image 200 × 400 with a bright square in the centre and a distractor near the left edge
+    # landscape image 200 × 400 with a bright square in the centre and a distractor near the left
+    # edge
     img = np.zeros((200, 400), np.uint8)
     img[60:140, 160:240] = 255
     img[10:30, 5:40] = 255
     path = write_image(tmp_path / "wide.png", img)
-    cropped = contour_reference(path, k=1, threshold=128, invert=False, crop_square=True, r_max=0.01)
+    cropped = contour_reference(
+        path, k=1, threshold=128, invert=False, crop_square=True, r_max=0.01
+    )
     d = cropped.p_des - [0.0, 0.1285]
-    assert np.max(np.abs(d)) == pytest.approx(0.01) and len(cropped) == 4 * 79  # only the central square remains
+    assert (
+        np.max(np.abs(d)) == pytest.approx(0.01) and len(cropped) == 4 * 79
+    )  # only the central square remains
 
 
 def test_clear_errors(tmp_path, circle_png):
@@ -167,7 +186,9 @@ def test_clear_errors(tmp_path, circle_png):
     for r_max in (0.0, -0.01, R_MAX_SAFE + 1e-4):
         with pytest.raises(ValueError, match="safe range"):
             contour_reference(circle_png, r_max=r_max)
-    assert len(contour_reference(circle_png, r_max=0.04, max_radius=0.05)) > 0  # deliberate override
+    assert (
+        len(contour_reference(circle_png, r_max=0.04, max_radius=0.05)) > 0
+    )  # deliberate override
     with pytest.raises(ValueError):
         contour_reference(circle_png, k=0)
     with pytest.raises(ValueError):

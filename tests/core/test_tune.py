@@ -1,4 +1,5 @@
-"""hsa_tune: the objective ranks gain sets as intended, the gains file has the controller's parameter names."""
+"""hsa_tune: the objective ranks gain sets as intended, the gains file has the controller's
+parameter names."""
 
 from __future__ import annotations
 
@@ -7,23 +8,31 @@ import pytest
 import yaml
 
 from hsa_core.apps import robustness, tune
-from hsa_core.sim import closed_loop
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains, default_gains
+from hsa_core.model.params import load_params
+from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig
-from hsa_core.model.params import load_params
 from hsa_core.task.trajectories import TimedReference, step_reference
 
 
 def test_the_gains_file_uses_the_controller_parameter_names() -> None:
-    doc = yaml.safe_load(tune.gains_yaml(ControllerKind.PSATID, CollocatedGains(kp=0.2, ki=0.01, kd=0.005, gamma=100.0), "x"))
+    doc = yaml.safe_load(
+        tune.gains_yaml(
+            ControllerKind.PSATID, CollocatedGains(kp=0.2, ki=0.01, kd=0.005, gamma=100.0), "x"
+        )
+    )
     assert doc == {"/**": {"ros__parameters": {"kp": 0.2, "ki": 0.01, "kd": 0.005, "gamma": 100.0}}}
-    doc = yaml.safe_load(tune.gains_yaml(ControllerKind.PID, PidGains(kp=5.0, ki=50.0, kd=0.1), "x"))
+    doc = yaml.safe_load(
+        tune.gains_yaml(ControllerKind.PID, PidGains(kp=5.0, ki=50.0, kd=0.1), "x")
+    )
     assert doc == {"/**": {"ros__parameters": {"kp_pid": 5.0, "ki_pid": 50.0, "kd_pid": 0.1}}}
 
 
 def test_log_gains_map_back_to_round_values() -> None:
-    gains = tune.to_gains(ControllerKind.PSATID, default_gains("psatid"), np.log10([0.3, 0.05, 0.02]))
+    gains = tune.to_gains(
+        ControllerKind.PSATID, default_gains("psatid"), np.log10([0.3, 0.05, 0.02])
+    )
     assert (gains.kp, gains.ki, gains.kd, gains.gamma) == (0.3, 0.05, 0.02, 100.0)
 
 
@@ -32,14 +41,20 @@ def test_an_oscillating_gain_set_scores_worse_than_a_calm_one() -> None:
     keep = ref.t < 20.0
     reference = TimedReference(ref.t[keep], ref.p_des[keep], ref.name, 20.0)
     disturbance = DisturbanceModel()
-    spec, inputs, constants = closed_loop.prepare(ExperimentConfig("fpu", "psatid", reference=reference,
-                                                                   disturbance=disturbance))
-    plants = robustness.perturbed_plants(disturbance.plant_params(load_params("fpu")), 1, 0.0, seed=0)
+    spec, inputs, constants = closed_loop.prepare(
+        ExperimentConfig("fpu", "psatid", reference=reference, disturbance=disturbance)
+    )
+    plants = robustness.perturbed_plants(
+        disturbance.plant_params(load_params("fpu")), 1, 0.0, seed=0
+    )
     noises = np.asarray(inputs.noise)[None]
-    calm = CollocatedGains(kp=0.01, ki=0.01, kd=0.02, gamma=100.0)  # mostly the setpoint's feedforward phi_ss
+    calm = CollocatedGains(
+        kp=0.01, ki=0.01, kd=0.02, gamma=100.0
+    )  # mostly the setpoint's feedforward phi_ss
     wild = CollocatedGains(kp=3.0, ki=0.05, kd=0.02, gamma=100.0)  # ten times the paper's kp
-    calm_score, wild_score = tune.evaluate_population(ControllerKind.PSATID, [calm, wild], spec, inputs, constants,
-                                                      plants, noises, batch=3)  # padded to 3, the extra run dropped
+    calm_score, wild_score = tune.evaluate_population(
+        ControllerKind.PSATID, [calm, wild], spec, inputs, constants, plants, noises, batch=3
+    )  # padded to 3, the extra run dropped
     assert calm_score.rmse_mm.shape == wild_score.rmse_mm.shape == (1,)
     assert calm_score.terms["bad"] == 0.0 and wild_score.terms["bad"] == 1.0
     assert wild_score.objective > calm_score.objective + tune.WEIGHTS["bad"]
@@ -47,8 +62,11 @@ def test_an_oscillating_gain_set_scores_worse_than_a_calm_one() -> None:
 
 
 def test_bad_arguments_are_refused_in_one_line(capsys) -> None:
-    for argv, text in ((["--law", "pdi"], "invalid choice"), (["--duration", "10"], "at least two steps"),
-                       (["--population", "1"], "at least 2")):
+    for argv, text in (
+        (["--law", "pdi"], "invalid choice"),
+        (["--duration", "10"], "at least two steps"),
+        (["--population", "1"], "at least 2"),
+    ):
         with pytest.raises(SystemExit) as exc:
             tune.main(argv)
         assert exc.value.code == 2 and text in capsys.readouterr().err

@@ -1,5 +1,6 @@
-"""Marker geometry (hsa_core.model.visual): polylines against the model's kinematics (model.md §6.1–6.2) and against closed
-forms written out here (the circular-arc backbone of §6.1, rod offsets of §6.2, arc lengths from the strains)."""
+"""Marker geometry (hsa_core.model.visual): polylines against the model's kinematics (model.md
+§6.1–6.2) and against closed forms written out here (the circular-arc backbone of §6.1, rod offsets
+of §6.2, arc lengths from the strains)."""
 
 from __future__ import annotations
 
@@ -19,9 +20,13 @@ FK = jax.jit(kin.end_effector_pose)
 
 
 def random_configurations(seed: int = 5) -> list[np.ndarray]:
-    """Random q over the workspace plus straight and nearly straight ones (κ = 0, ±1e-9, 1e-4, −0.05 1/m)."""
+    """Random q over the workspace plus straight and nearly straight ones (κ = 0, ±1e-9, 1e-4, −0.05
+    1/m)."""
     rng = np.random.default_rng(seed)
-    qs = [np.array([rng.uniform(-20, 20), rng.uniform(-0.05, 0.05), rng.uniform(-0.1, 0.6)]) for _ in range(12)]
+    qs = [
+        np.array([rng.uniform(-20, 20), rng.uniform(-0.05, 0.05), rng.uniform(-0.1, 0.6)])
+        for _ in range(12)
+    ]
     for kappa in (0.0, 1e-9, -1e-9, 1e-4, -0.05):
         qs.append(np.array([kappa, rng.uniform(-0.05, 0.05), rng.uniform(-0.1, 0.6)]))
     return qs
@@ -44,13 +49,19 @@ def rotation(theta: float) -> np.ndarray:
 
 
 def backbone_closed_form(params: HsaParams, xi: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """p(s) of model.md §6.1: the κ ≠ 0 closed form, or the straight sheared line for |κ| < 1e-6 (exact to ~1e-15 m)."""
+    """p(s) of model.md §6.1: the κ ≠ 0 closed form, or the straight sheared line for |κ| < 1e-6
+    (exact to ~1e-15 m)."""
     kappa, sh, ax = xi
     l_pc = float(params.l_pc)
     if abs(kappa) < 1e-6:
         return np.stack([sh * s + 0.0 * kappa, l_pc + ax * s], axis=-1)
-    return np.stack([(sh * np.sin(kappa * s) - ax * (1 - np.cos(kappa * s))) / kappa,
-                     l_pc + (sh * (1 - np.cos(kappa * s)) + ax * np.sin(kappa * s)) / kappa], axis=-1)  # fmt: skip
+    return np.stack(
+        [
+            (sh * np.sin(kappa * s) - ax * (1 - np.cos(kappa * s))) / kappa,
+            l_pc + (sh * (1 - np.cos(kappa * s)) + ax * np.sin(kappa * s)) / kappa,
+        ],
+        axis=-1,
+    )
 
 
 def polyline_length(points: np.ndarray) -> float:
@@ -59,32 +70,50 @@ def polyline_length(points: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("q", QS, ids=lambda q: f"k{q[0]:.3g}")
-def test_backbone_follows_the_model_and_ends_at_the_fk_end_effector(params: HsaParams, q: np.ndarray) -> None:
+def test_backbone_follows_the_model_and_ends_at_the_fk_end_effector(
+    params: HsaParams, q: np.ndarray
+) -> None:
     g = GEOMETRY(params, q, n_points=N)
     xi = np.asarray(params.xi_eq) + q
-    l, l_pc, l_dc, h_p = (float(v) for v in (params.l, params.l_pc, params.l_dc, params.platform_size[1]))
+    l, l_pc, l_dc, h_p = (
+        float(v) for v in (params.l, params.l_pc, params.l_dc, params.platform_size[1])
+    )
     backbone = np.asarray(g.backbone)
     assert backbone.shape == (N + 3, 2)
-    np.testing.assert_allclose(backbone[0], [0.0, 0.0], atol=1e-15)  # base origin (top of the motor plate)
+    np.testing.assert_allclose(
+        backbone[0], [0.0, 0.0], atol=1e-15
+    )  # base origin (top of the motor plate)
     np.testing.assert_allclose(backbone[1], [0.0, l_pc], atol=1e-15)
     s = np.linspace(0.0, l, N)
     # closed forms lose digits to cancellation for small κ: 1e-11 m is far below anything visible
-    np.testing.assert_allclose(backbone[1:N + 1], backbone_closed_form(params, xi, s), atol=1e-11)
+    np.testing.assert_allclose(backbone[1 : N + 1], backbone_closed_form(params, xi, s), atol=1e-11)
     theta = xi[0] * l
     chiee = np.asarray(FK(params, q))
-    np.testing.assert_allclose(backbone[-1], chiee[:2], atol=1e-14)  # the drawn EE is the FK end-effector
+    np.testing.assert_allclose(
+        backbone[-1], chiee[:2], atol=1e-14
+    )  # the drawn EE is the FK end-effector
     np.testing.assert_allclose(np.asarray(g.end_effector), chiee, atol=1e-14)
-    np.testing.assert_allclose(backbone[-2], backbone[N] + rotation(theta) @ [0.0, l_dc + h_p], atol=1e-14)
-    np.testing.assert_allclose(np.asarray(g.platform_pose),
-                               [*(backbone[N] + rotation(theta) @ [0.0, l_dc + h_p / 2]), theta], atol=1e-14)  # fmt: skip
-    np.testing.assert_allclose(np.asarray(g.platform_orientation), [0, 0, math.sin(theta / 2), math.cos(theta / 2)],
-                               atol=1e-15)  # fmt: skip
+    np.testing.assert_allclose(
+        backbone[-2], backbone[N] + rotation(theta) @ [0.0, l_dc + h_p], atol=1e-14
+    )
+    np.testing.assert_allclose(
+        np.asarray(g.platform_pose),
+        [*(backbone[N] + rotation(theta) @ [0.0, l_dc + h_p / 2]), theta],
+        atol=1e-14,
+    )
+    np.testing.assert_allclose(
+        np.asarray(g.platform_orientation),
+        [0, 0, math.sin(theta / 2), math.cos(theta / 2)],
+        atol=1e-15,
+    )
     tip = np.asarray(kin.backbone_pose(params, q, l))
     np.testing.assert_allclose(backbone[N], tip[:2], atol=1e-14)
 
 
 @pytest.mark.parametrize("q", QS, ids=lambda q: f"k{q[0]:.3g}")
-def test_rods_sit_at_their_offsets_with_the_lengths_their_strains_imply(params: HsaParams, q: np.ndarray) -> None:
+def test_rods_sit_at_their_offsets_with_the_lengths_their_strains_imply(
+    params: HsaParams, q: np.ndarray
+) -> None:
     g = GEOMETRY(params, q, n_points=N)
     xi = np.asarray(params.xi_eq) + q
     kappa, sh, ax = xi
@@ -92,22 +121,36 @@ def test_rods_sit_at_their_offsets_with_the_lengths_their_strains_imply(params: 
     backbone, rods = np.asarray(g.backbone), np.asarray(g.rods)
     assert rods.shape == (2, N + 2, 2)
     s = np.linspace(0.0, l, N)
-    # circular arc sampled at equal turning angles Δ: each chord is (segment arc length)·sin(Δ/2)/(Δ/2)
+    # circular arc sampled at equal turning angles Δ: each chord is (segment arc
+    # length)·sin(Δ/2)/(Δ/2)
     half = kappa * l / (N - 1) / 2
     chord_factor = math.sin(half) / half if half != 0.0 else 1.0
     for i, roff in enumerate(np.asarray(params.roff)):
-        np.testing.assert_allclose(rods[i, 0], [roff, 0.0], atol=1e-15)  # proximal cap on the motor plate
+        np.testing.assert_allclose(
+            rods[i, 0], [roff, 0.0], atol=1e-15
+        )  # proximal cap on the motor plate
         np.testing.assert_allclose(rods[i, 1], [roff, l_pc], atol=1e-15)
         for k in range(N):  # centreline = backbone + R(κ s) [roff, 0] (model.md §6.2)
             local = rotation(-kappa * s[k]) @ (rods[i, k + 1] - backbone[k + 1])
             np.testing.assert_allclose(local, [roff, 0.0], atol=1e-14)
-        axial = ax + roff * kappa  # rod axial strain (model.md §6.4); speed |dp_i/ds| = |[σ_sh, σ_a,i]|
-        np.testing.assert_allclose(polyline_length(rods[i, 1:N + 1]), l * math.hypot(sh, axial) * chord_factor,
-                                   rtol=1e-11)  # fmt: skip
-        np.testing.assert_allclose(np.linalg.norm(rods[i, -1] - rods[i, -2]), l_dc, rtol=1e-12)  # distal cap
-        np.testing.assert_allclose(rods[i, -1] - rods[i, -2], rotation(kappa * l) @ [0.0, l_dc], atol=1e-15)
+        axial = (
+            ax + roff * kappa
+        )  # rod axial strain (model.md §6.4); speed |dp_i/ds| = |[σ_sh, σ_a,i]|
+        np.testing.assert_allclose(
+            polyline_length(rods[i, 1 : N + 1]),
+            l * math.hypot(sh, axial) * chord_factor,
+            rtol=1e-11,
+        )
+        np.testing.assert_allclose(
+            np.linalg.norm(rods[i, -1] - rods[i, -2]), l_dc, rtol=1e-12
+        )  # distal cap
+        np.testing.assert_allclose(
+            rods[i, -1] - rods[i, -2], rotation(kappa * l) @ [0.0, l_dc], atol=1e-15
+        )
         np.testing.assert_allclose(np.linalg.norm(rods[i, 1] - rods[i, 0]), l_pc, rtol=1e-12)
-    np.testing.assert_allclose(polyline_length(backbone[1:N + 1]), l * math.hypot(sh, ax) * chord_factor, rtol=1e-11)
+    np.testing.assert_allclose(
+        polyline_length(backbone[1 : N + 1]), l * math.hypot(sh, ax) * chord_factor, rtol=1e-11
+    )
     np.testing.assert_allclose(np.asarray(kin.rod_positions(params, q, l)), rods[:, N], atol=1e-14)
 
 
@@ -119,10 +162,14 @@ def test_platform_outline_is_the_plate_on_the_distal_caps(params: HsaParams, q: 
     x, y, theta = np.asarray(g.platform_pose)
     assert outline.shape == (5, 2)
     np.testing.assert_array_equal(outline[0], outline[-1])  # closed
-    np.testing.assert_allclose(np.linalg.norm(np.diff(outline, axis=0), axis=-1), [w, h_p, w, h_p], rtol=1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(np.diff(outline, axis=0), axis=-1), [w, h_p, w, h_p], rtol=1e-12
+    )
     local = (outline[:4] - [x, y]) @ rotation(theta)  # rows: R(θ)ᵀ (corner − centre)
     np.testing.assert_allclose(np.abs(local), [[w / 2, h_p / 2]] * 4, atol=1e-15)
-    for i in range(2):  # the distal caps end on the top edge of the plate (local y = −h_p/2 from the centre)
+    for i in range(
+        2
+    ):  # the distal caps end on the top edge of the plate (local y = −h_p/2 from the centre)
         cap_end = rotation(theta).T @ (rods[i, -1] - [x, y])
         np.testing.assert_allclose(cap_end, [float(params.roff[i]), -h_p / 2], atol=1e-15)
 

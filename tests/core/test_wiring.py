@@ -1,4 +1,5 @@
-"""hsa_core.model.wiring: the robot's wiring file (planning_and_control.md §7) and the motor map built from it."""
+"""hsa_core.model.wiring: the robot's wiring file (planning_and_control.md §7) and the motor map
+built from it."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ from hsa_core.model.wiring import WiringError, load_wiring
 
 
 def test_packaged_lab_robot_is_the_spec_wiring() -> None:
-    """Spec §7: motors 21/22 drive rod 2, 23/24 rod 1; ψ = [+φ₂, −φ₂, +φ₁, −φ₁]; power-on neutral 2048."""
+    """Spec §7: motors 21/22 drive rod 2, 23/24 rod 1; ψ = [+φ₂, −φ₂, +φ₁, −φ₁]; power-on neutral
+    2048."""
     wiring = load_wiring()
     assert wiring.motor_ids == (21, 22, 23, 24)
     assert wiring.neutral_ticks == (2048,) * 4
@@ -26,18 +28,23 @@ def test_packaged_lab_robot_is_the_spec_wiring() -> None:
 
 
 @pytest.mark.parametrize("material, degrees", [("fpu", 200.0), ("epu", 270.0)])
-def test_twist_limit_and_handedness_come_from_the_parameter_set(material: str, degrees: float) -> None:
-    """φ_max of the map is the material's (FPU 200°, EPU 270°: the packaged sets); h from the set, not the file."""
+def test_twist_limit_and_handedness_come_from_the_parameter_set(
+    material: str, degrees: float
+) -> None:
+    """φ_max of the map is the material's (FPU 200°, EPU 270°: the packaged sets); h from the set,
+    not the file."""
     params = load_params(material)
     motor_map = load_wiring().motor_map(params, margin=0.0)
     assert motor_map.phi_max == pytest.approx(math.radians(degrees))
     flipped = params.replace(h=[-1.0, 1.0])
-    np.testing.assert_allclose(load_wiring().motor_map(flipped).motor_angles([0.1, 0.7]), [0.7, -0.7, -0.1, 0.1])
+    np.testing.assert_allclose(
+        load_wiring().motor_map(flipped).motor_angles([0.1, 0.7]), [0.7, -0.7, -0.1, 0.1]
+    )
 
 
 def test_one_phi_limit_gives_the_box_the_command_clip_and_the_motor_bound() -> None:
-    """PhiLimit, made from the parameter set, is what the planner/validator box, the laws' clip and the motor map
-    read: rods with different limits and handedness show each view."""
+    """PhiLimit, made from the parameter set, is what the planner/validator box, the laws' clip and
+    the motor map read: rods with different limits and handedness show each view."""
     params = load_params("fpu").replace(phi_max=[2.0, 3.0], h=[-1.0, 1.0])
     limit = params.phi_limit
     lo, hi = limit.box
@@ -58,18 +65,48 @@ def test_given_neutral_overrides_the_nominal() -> None:
     assert motor_map.goal_ticks([0.0, 0.0]).tolist() == [1000, 3000, -500, 5000]
 
 
-@pytest.mark.parametrize("text, key", [
-    ("motor_ids: [1, 2, 3]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "one distinct"),
-    ("motor_ids: [1, 1, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "distinct"),
-    ("motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -2, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "+1 or -1"),
-    ("motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 1, 1]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "every rod"),
-    ("motor_ids: [1, 2, 3, 400]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "0 … 252"),
-    ("motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\n", "'neutral_ticks'"),
-    ("motor_ids: [1, 2, 3, 4.5]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\n", "integers"),
-    ("motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, 0, 0]\nh: [1, 1]\n",
-     "unknown key 'h'"),
-    ("- 1\n", "mapping"),
-])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        (
+            "motor_ids: [1, 2, 3]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, 0, "
+            "0, 0]\n",
+            "one distinct",
+        ),
+        (
+            "motor_ids: [1, 1, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\n",
+            "distinct",
+        ),
+        (
+            "motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -2, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\n",
+            "+1 or -1",
+        ),
+        (
+            "motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 1, 1]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\n",
+            "every rod",
+        ),
+        (
+            "motor_ids: [1, 2, 3, 400]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\n",
+            "0 … 252",
+        ),
+        ("motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\n", "'neutral_ticks'"),
+        (
+            "motor_ids: [1, 2, 3, 4.5]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\n",
+            "integers",
+        ),
+        (
+            "motor_ids: [1, 2, 3, 4]\nrod: [1, 1, 0, 0]\nrho: [1, -1, 1, -1]\nneutral_ticks: [0, "
+            "0, 0, 0]\nh: [1, 1]\n",
+            "unknown key 'h'",
+        ),
+        ("- 1\n", "mapping"),
+    ],
+)
 def test_bad_files_are_refused_naming_the_problem(tmp_path: Path, text: str, key: str) -> None:
     path = tmp_path / "robot.yaml"
     path.write_text(text)

@@ -1,7 +1,8 @@
-"""Workspace map and the planner's reachability test (the paper's Fig. 1b; planning_and_control.md §2).
+"""Workspace map and the planner's reachability test (the paper's Fig. 1b; planning_and_control.md
+§2).
 
-Independent checks: the spec's steady state S1 (model.md §10), the packaged rest pose, polygon geometry on shapes
-with known answers, and the map's own equilibria against the planner's region.
+Independent checks: the spec's steady state S1 (model.md §10), the packaged rest pose, polygon
+geometry on shapes with known answers, and the map's own equilibria against the planner's region.
 """
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ import numpy as np
 import pytest
 
 from hsa_core.model import dynamics, kinematics
-from hsa_core.task import planning, workspace
 from hsa_core.model.params import load_params
+from hsa_core.task import planning, workspace
 from hsa_core.task.planning import REACH_MARGIN, Planner
 
 
@@ -39,7 +40,11 @@ def test_region_geometry_on_a_square_with_margin():
     assert region.inside([0.5, 0.5]) and not region.inside([1.05, 0.5])
     assert region.distance([1.05, 0.5]) == pytest.approx(0.05)
     assert region.distance([2.0, 2.0]) == pytest.approx(np.sqrt(2.0))
-    assert region.contains([1.05, 0.5]) and not region.contains([1.2, 0.5]) and not region.contains([5.0, 5.0])
+    assert (
+        region.contains([1.05, 0.5])
+        and not region.contains([1.2, 0.5])
+        and not region.contains([5.0, 5.0])
+    )
     concave = workspace.ReachabilityRegion([[0, 0], [2, 0], [2, 2], [1, 0.5], [0, 2]], margin=0.0)
     assert not concave.inside([1.0, 1.5]) and concave.inside([1.0, 0.25])  # the notch is outside
     with pytest.raises(ValueError):
@@ -59,8 +64,12 @@ def test_map_equilibria_are_static_solutions_and_match_the_spec(fpu, wmap):
     assert wmap.chiee[-1, 0, 0] > 0.02 and wmap.chiee[0, -1, 0] < -0.02
     # model.md §10 S1, exact model: phi = [2, 3] -> chiee = [-0.014657464, 0.13357871, 0.19616744]
     q, _ = planning.static_equilibrium(fpu, np.array([2.0, 3.0]), np.zeros(3))
-    np.testing.assert_allclose(kinematics.end_effector_pose(fpu, q), [-0.014657464, 0.13357871, 0.19616744], rtol=0,
-                               atol=5e-9)
+    np.testing.assert_allclose(
+        kinematics.end_effector_pose(fpu, q),
+        [-0.014657464, 0.13357871, 0.19616744],
+        rtol=0,
+        atol=5e-9,
+    )
 
 
 def test_planner_region_holds_every_equilibrium_and_rejects_far_targets(fpu, wmap):
@@ -70,11 +79,15 @@ def test_planner_region_holds_every_equilibrium_and_rejects_far_targets(fpu, wma
     pts = dense.chiee[..., :2]
     for p in pts[1:-1, 1:-1].reshape(-1, 2):  # interior of the phi box: strictly inside the polygon
         assert region.inside(p)
-    for p in np.concatenate([pts[0], pts[-1], pts[:, 0], pts[:, -1]]):  # its edges: on the polygon (chord sag)
+    for p in np.concatenate(
+        [pts[0], pts[-1], pts[:, 0], pts[:, -1]]
+    ):  # its edges: on the polygon (chord sag)
         assert region.inside(p) or region.distance(p) < 2e-5
     rest_y = dense.chiee[0, 0, 1]
     assert not planner.in_reach_region([0.0, rest_y - REACH_MARGIN - 1e-3])  # above the rest pose
-    assert planner.in_reach_region([0.0, rest_y - REACH_MARGIN + 1e-3])  # within the margin: the solver decides
+    assert planner.in_reach_region(
+        [0.0, rest_y - REACH_MARGIN + 1e-3]
+    )  # within the margin: the solver decides
 
 
 def test_workspace_figure_and_data(fpu, wmap, tmp_path):

@@ -1,4 +1,5 @@
-"""Fixtures for hardware-layer tests: an emulated MX-28(2.0) bus on a pseudo-terminal and a driver opened on it."""
+"""Fixtures for hardware-layer tests: an emulated MX-28(2.0) bus on a pseudo-terminal and a driver
+opened on it."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ from hsa_sim_node.mx28_emulator import MX28Emulator, ServoModel
 
 IDS = (21, 22, 23, 24)
 BAUD = 4_000_000
-FAST_SERVO = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)  # keeps motion tests short
+FAST_SERVO = ServoModel(
+    time_constant_s=0.01, max_speed_ticks_per_s=50_000.0
+)  # keeps motion tests short
 
 
 @pytest.fixture

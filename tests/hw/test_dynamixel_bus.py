@@ -1,4 +1,5 @@
-"""DynamixelBus (real dynamixel_sdk underneath) against the emulated MX-28(2.0) bus, including injected faults."""
+"""DynamixelBus (real dynamixel_sdk underneath) against the emulated MX-28(2.0) bus, including
+injected faults."""
 
 from __future__ import annotations
 
@@ -52,7 +53,10 @@ def test_wrong_baud_rate_names_the_first_silent_servo(emulator) -> None:
 def test_configure_writes_eeprom_with_torque_off_then_enables(bus, emulator) -> None:
     bus.configure(return_delay=0, torque_on=True)
     for dxl_id in emulator.ids:
-        assert (emulator.peek(dxl_id, ADDR_RETURN_DELAY), emulator.peek(dxl_id, ADDR_MODE)) == (0, 4)
+        assert (emulator.peek(dxl_id, ADDR_RETURN_DELAY), emulator.peek(dxl_id, ADDR_MODE)) == (
+            0,
+            4,
+        )
         assert emulator.torque_enabled(dxl_id)
     bus.configure(return_delay=0)  # already set: EEPROM left alone, torque left off
     assert not any(emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids)
@@ -68,7 +72,9 @@ def test_sync_write_then_sync_read_follows_the_servo_model(bus, emulator, wait_f
     first = bus.read_positions()
     after = emulator.stats()
     assert (after.sync_writes - before.sync_writes, after.sync_reads - before.sync_reads) == (1, 1)
-    assert after.packets_received - before.packets_received == 2  # one instruction each way, no per-servo traffic
+    assert (
+        after.packets_received - before.packets_received == 2
+    )  # one instruction each way, no per-servo traffic
     assert first.ticks != goals and first.alerts == frozenset()
     assert wait_for(lambda: bus.read_positions().ticks == goals)
     assert emulator.goal_ticks() == goals
@@ -98,7 +104,9 @@ def test_enable_torque_holds_where_the_shaft_is(bus, emulator) -> None:
 
 def test_eeprom_write_with_torque_on_is_refused(bus) -> None:
     bus.configure(torque_on=True)
-    with pytest.raises(ServoStatusError, match=r"write_register\(11\) on ID 21: .*not available") as caught:
+    with pytest.raises(
+        ServoStatusError, match=r"write_register\(11\) on ID 21: .*not available"
+    ) as caught:
         bus.write_register(21, ADDR_MODE, 1, 3)
     assert caught.value.packet_error == 7
 
@@ -108,9 +116,13 @@ def test_disable_torque_is_fast_and_reports_what_it_could_not_confirm(bus, emula
     emulator.set_responsive(22, False)
     started = time.perf_counter()
     unconfirmed = bus.disable_torque()
-    assert time.perf_counter() - started < 0.2  # one sync write plus a read-back; the silent servo costs one timeout
+    assert (
+        time.perf_counter() - started < 0.2
+    )  # one sync write plus a read-back; the silent servo costs one timeout
     assert unconfirmed == {22}
-    assert not any(emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids)  # 22 still heard the sync write
+    assert not any(
+        emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids
+    )  # 22 still heard the sync write
     bus.close()
     assert bus.disable_torque() == set(emulator.ids)  # no port: nothing confirmed, nothing raised
 
@@ -151,25 +163,34 @@ def test_hardware_error_is_reported_and_cleared_by_reboot(bus, emulator) -> None
     assert all(emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids)
 
 
-def test_wait_answering_waits_for_a_booting_servo_and_gives_up_at_the_timeout(bus, emulator) -> None:
+def test_wait_answering_waits_for_a_booting_servo_and_gives_up_at_the_timeout(
+    bus, emulator
+) -> None:
     emulator.set_responsive(23, False)  # a servo still booting after a reboot does not answer
     began = time.monotonic()
     with pytest.raises(CommError, match="ping on ID 23") as caught:
         bus.wait_answering((22, 23), timeout=0.3)
-    # gives up: not before the timeout, and long before the next check's timeout (bounds that hold on a busy machine)
+    # gives up: not before the timeout, and long before the next check's timeout (bounds that hold
+    # on a busy machine)
     assert caught.value.comm_result == COMM_RX_TIMEOUT and 0.3 <= time.monotonic() - began < 10.0
     wake = threading.Timer(0.2, emulator.set_responsive, (23, True))
-    began = time.monotonic()  # before the timer starts: it cannot wake the servo sooner than 0.2 s after this
+    began = (
+        time.monotonic()
+    )  # before the timer starts: it cannot wake the servo sooner than 0.2 s after this
     wake.start()
     bus.wait_answering((22, 23), timeout=30.0)
-    assert 0.2 <= time.monotonic() - began < 10.0  # returned once the servo answered, not at the 30 s timeout
+    assert (
+        0.2 <= time.monotonic() - began < 10.0
+    )  # returned once the servo answered, not at the 30 s timeout
     wake.join()
 
 
 def test_unplug_gives_port_errors_until_replug_and_reconnect(bus, emulator, wait_for) -> None:
     bus.configure(torque_on=True)
     bus.write_goals({21: 2500})
-    assert wait_for(lambda: emulator.present_ticks()[21] == 2500)  # bytes still in flight would be lost by unplug
+    assert wait_for(
+        lambda: emulator.present_ticks()[21] == 2500
+    )  # bytes still in flight would be lost by unplug
     emulator.unplug()
     with pytest.raises(PortError, match="unplugged"):
         bus.read_positions()
@@ -181,7 +202,9 @@ def test_unplug_gives_port_errors_until_replug_and_reconnect(bus, emulator, wait
     assert not bus.is_open
     emulator.replug()
     bus.reconnect()
-    assert bus.read_positions().ticks[21] == 2500  # the servos kept their state: only the cable was out
+    assert (
+        bus.read_positions().ticks[21] == 2500
+    )  # the servos kept their state: only the cable was out
     bus.write_goals({21: 2600})
 
 
@@ -199,7 +222,9 @@ def test_latency_timer_check(bus, tmp_path) -> None:
     (tmp_path / "sys" / "ttyUSB7").mkdir(parents=True)
     (tmp_path / "sys" / "ttyUSB7" / "latency_timer").write_text("16\n")
     os.symlink("/dev/ttyUSB7", tmp_path / "ttyDXL7")
-    ftdi = DynamixelBus(str(tmp_path / "ttyDXL7"), 4_000_000, (21,)).latency_timer(sysfs_root=tmp_path / "sys")
+    ftdi = DynamixelBus(str(tmp_path / "ttyDXL7"), 4_000_000, (21,)).latency_timer(
+        sysfs_root=tmp_path / "sys"
+    )
     assert (ftdi.device, ftdi.value_ms, ftdi.slow) == ("/dev/ttyUSB7", 16, True)
     assert "set it to 1" in ftdi.describe()
 
@@ -210,7 +235,9 @@ def test_reconnect_after_a_real_power_cycle_needs_configure_again(tmp_path, baud
         driver = DynamixelBus(str(link), baud, (1, 2))
         driver.open()
         driver.configure(return_delay=1, torque_on=True)
-    with MX28Emulator((1, 2), baudrate=baud, link_path=link) as fresh:  # new servos: factory defaults
+    with MX28Emulator(
+        (1, 2), baudrate=baud, link_path=link
+    ) as fresh:  # new servos: factory defaults
         driver.reconnect()
         assert not fresh.torque_enabled(1) and fresh.peek(1, ADDR_RETURN_DELAY) == 250
         driver.configure(return_delay=1)

@@ -1,4 +1,5 @@
-"""The MX-28(2.0) emulator against the Protocol 2.0 facts of the ROBOTIS e-Manual and the real dynamixel_sdk."""
+"""The MX-28(2.0) emulator against the Protocol 2.0 facts of the ROBOTIS e-Manual and the real
+dynamixel_sdk."""
 
 from __future__ import annotations
 
@@ -49,7 +50,10 @@ ADDR_MODE, ADDR_TORQUE, ADDR_WATCHDOG, ADDR_GOAL, ADDR_PRESENT = 11, 64, 98, 116
         ("FFFFFD00FE030001", "3142"),  # broadcast PING
         ("FFFFFD000107005500060426", "655D"),  # PING status, XM430 model 1030, firmware 38
         ("FFFFFD000107000284000400", "1D15"),  # READ Present Position
-        ("FFFFFD00FE11008374000400019600000002AA000000", "8287"),  # SYNC WRITE Goal Position of ID 1 and 2
+        (
+            "FFFFFD00FE11008374000400019600000002AA000000",
+            "8287",
+        ),  # SYNC WRITE Goal Position of ID 1 and 2
     ],
 )
 def test_crc_matches_the_manual_examples(packet_hex: str, crc_hex: str) -> None:
@@ -61,9 +65,16 @@ def test_encoding_is_byte_identical_to_the_sdk_including_stuffing() -> None:
     ph = PacketHandler(2.0)
     rng = random.Random(7)
     for _ in range(200):
-        params = bytes(rng.choice([0xFF, 0xFD, 0x00, rng.randrange(256)]) for _ in range(rng.randrange(0, 12)))
+        params = bytes(
+            rng.choice([0xFF, 0xFD, 0x00, rng.randrange(256)]) for _ in range(rng.randrange(0, 12))
+        )
         sdk_packet = [0] * (len(params) + 10)
-        sdk_packet[4], sdk_packet[5], sdk_packet[6], sdk_packet[7] = 3, (len(params) + 3) & 0xFF, 0, 0x83
+        sdk_packet[4], sdk_packet[5], sdk_packet[6], sdk_packet[7] = (
+            3,
+            (len(params) + 3) & 0xFF,
+            0,
+            0x83,
+        )
         sdk_packet[8 : 8 + len(params)] = params
         sdk_packet = ph.addStuffing(sdk_packet)
         sdk_packet[0:4] = [0xFF, 0xFF, 0xFD, 0x00]
@@ -92,7 +103,8 @@ def test_reader_resynchronises_and_flags_bad_crc() -> None:
     assert reader.next_packet() is None
 
 
-# ------------------------------------------------------------------ instructions through the real SDK
+# ------------------------------------------------------------------ instructions through the real
+# SDK
 def test_ping_reports_mx28_model_and_firmware(sdk, emulator) -> None:
     port, ph = sdk
     for dxl_id in emulator.ids:
@@ -129,11 +141,20 @@ def test_eeprom_is_locked_while_torque_is_on(sdk, emulator) -> None:
 def test_write_rules_follow_the_control_table(sdk) -> None:
     port, ph = sdk
     assert ph.write1ByteTxRx(port, 21, ADDR_MODE, 2) == (COMM_SUCCESS, ERR_DATA_RANGE)  # no mode 2
-    assert ph.write2ByteTxRx(port, 21, ADDR_GOAL, 100) == (COMM_SUCCESS, ERR_DATA_LENGTH)  # half of a 4-byte item
+    assert ph.write2ByteTxRx(port, 21, ADDR_GOAL, 100) == (
+        COMM_SUCCESS,
+        ERR_DATA_LENGTH,
+    )  # half of a 4-byte item
     assert ph.write4ByteTxRx(port, 21, ADDR_PRESENT, 100) == (COMM_SUCCESS, ERR_ACCESS)  # read-only
     assert ph.write1ByteTxRx(port, 21, 14, 1) == (COMM_SUCCESS, ERR_ACCESS)  # undefined address
-    assert ph.write4ByteTxRx(port, 21, ADDR_GOAL, 5000) == (COMM_SUCCESS, ERR_DATA_LIMIT)  # position mode: 0..4095
-    assert ph.readTxRx(port, 21, 200, 4)[1:] == (COMM_SUCCESS, ERR_ACCESS)  # beyond the emulated table
+    assert ph.write4ByteTxRx(port, 21, ADDR_GOAL, 5000) == (
+        COMM_SUCCESS,
+        ERR_DATA_LIMIT,
+    )  # position mode: 0..4095
+    assert ph.readTxRx(port, 21, 200, 4)[1:] == (
+        COMM_SUCCESS,
+        ERR_ACCESS,
+    )  # beyond the emulated table
 
 
 def test_goal_moves_the_shaft_only_with_torque_on(sdk, emulator, wait_for) -> None:
@@ -141,21 +162,30 @@ def test_goal_moves_the_shaft_only_with_torque_on(sdk, emulator, wait_for) -> No
     assert ph.write4ByteTxRx(port, 21, ADDR_GOAL, 3000) == (COMM_SUCCESS, 0)
     time.sleep(0.05)
     assert emulator.present_ticks()[21] == 2048
-    assert emulator.goal_ticks()[21] == 3000  # stored: a real servo jumps to it when torque comes on
+    assert (
+        emulator.goal_ticks()[21] == 3000
+    )  # stored: a real servo jumps to it when torque comes on
     assert ph.write1ByteTxRx(port, 21, ADDR_TORQUE, 1) == (COMM_SUCCESS, 0)
     assert wait_for(lambda: ph.read4ByteTxRx(port, 21, ADDR_PRESENT)[0] == 3000)
     assert ph.read1ByteTxRx(port, 21, 122)[0] == 0  # Moving cleared once there
 
 
-def test_extended_position_mode_goes_multi_turn_and_clear_resets_the_count(sdk, emulator, wait_for) -> None:
+def test_extended_position_mode_goes_multi_turn_and_clear_resets_the_count(
+    sdk, emulator, wait_for
+) -> None:
     port, ph = sdk
     ph.write1ByteTxRx(port, 22, ADDR_MODE, 4)
     ph.write1ByteTxRx(port, 22, ADDR_TORQUE, 1)
     assert ph.write4ByteTxRx(port, 22, ADDR_GOAL, -9000) == (COMM_SUCCESS, 0)
-    assert ph.write4ByteTxRx(port, 22, ADDR_GOAL, 2_000_000) == (COMM_SUCCESS, ERR_DATA_RANGE)  # beyond ±256 rev
+    assert ph.write4ByteTxRx(port, 22, ADDR_GOAL, 2_000_000) == (
+        COMM_SUCCESS,
+        ERR_DATA_RANGE,
+    )  # beyond ±256 rev
     assert wait_for(lambda: emulator.present_ticks()[22] == -9000)
     value, result, _ = ph.read4ByteTxRx(port, 22, ADDR_PRESENT)
-    assert result == COMM_SUCCESS and value == (-9000) & 0xFFFFFFFF  # the SDK returns the raw unsigned word
+    assert (
+        result == COMM_SUCCESS and value == (-9000) & 0xFFFFFFFF
+    )  # the SDK returns the raw unsigned word
     assert ph.clearMultiTurn(port, 22) == (COMM_SUCCESS, 0)
     assert emulator.present_ticks()[22] == -9000 % 4096
     assert emulator.goal_ticks()[22] == -9000 % 4096  # the goal moves with it, so nothing turns
@@ -189,7 +219,10 @@ def test_hardware_error_sets_alert_trips_torque_and_needs_reboot(sdk, emulator) 
     assert not emulator.torque_enabled(23)  # Overload is in the default Shutdown(63) mask
     value, result, error = ph.read1ByteTxRx(port, 23, 70)
     assert (value, result, error) == (HW_OVERLOAD, COMM_SUCCESS, ERRBIT_ALERT)
-    assert ph.write1ByteTxRx(port, 23, ADDR_TORQUE, 1) == (COMM_SUCCESS, ERRBIT_ALERT | ERR_RESULT_FAIL)
+    assert ph.write1ByteTxRx(port, 23, ADDR_TORQUE, 1) == (
+        COMM_SUCCESS,
+        ERRBIT_ALERT | ERR_RESULT_FAIL,
+    )
     assert ph.reboot(port, 23) == (COMM_SUCCESS, ERRBIT_ALERT)
     assert ph.read1ByteTxRx(port, 23, 70) == (0, COMM_SUCCESS, 0)
     assert emulator.present_ticks()[23] == 5000 % 4096  # multi-turn count lost on reboot
@@ -202,7 +235,9 @@ def test_bus_watchdog_stops_the_servo_and_locks_goals(sdk, emulator) -> None:
     ph.write1ByteTxRx(port, 24, ADDR_MODE, 4)
     ph.write1ByteTxRx(port, 24, ADDR_TORQUE, 1)
     assert ph.write1ByteTxRx(port, 24, ADDR_WATCHDOG, 3) == (COMM_SUCCESS, 0)  # 60 ms
-    ph.write4ByteTxRx(port, 24, ADDR_GOAL, 2048 + 4096 * 20)  # far away: still moving when the bus goes quiet
+    ph.write4ByteTxRx(
+        port, 24, ADDR_GOAL, 2048 + 4096 * 20
+    )  # far away: still moving when the bus goes quiet
     time.sleep(0.12)
     assert emulator.peek(24, ADDR_WATCHDOG) == -1
     stopped = emulator.present_ticks()[24]
@@ -232,7 +267,9 @@ def test_external_drive_api(tmp_path) -> None:
         assert (emu.torque_enabled(1), emu.torque_enabled(2)) == (True, False)
         emu.set_present_ticks(1, -6999.6, velocity_ticks_per_s=300.0)
         assert ph.read4ByteTxRx(port, 1, ADDR_PRESENT)[0] == (-7000) & 0xFFFFFFFF
-        assert ph.read1ByteTxRx(port, 1, 122)[0] == 1  # 300 ticks/s ≈ 19 units of 0.229 rpm > threshold 10
+        assert (
+            ph.read1ByteTxRx(port, 1, 122)[0] == 1
+        )  # 300 ticks/s ≈ 19 units of 0.229 rpm > threshold 10
         port.closePort()
 
 
@@ -287,7 +324,9 @@ def test_write_log_stamps_every_applied_write_and_skips_refused_ones(sdk, emulat
     port, ph = sdk
     before = time.monotonic()
     assert ph.write1ByteTxRx(port, 21, ADDR_TORQUE, 1) == (COMM_SUCCESS, 0)
-    assert ph.write1ByteTxRx(port, 21, ADDR_MODE, 4)[1] == ERR_ACCESS  # EEPROM locked: refused, not logged
+    assert (
+        ph.write1ByteTxRx(port, 21, ADDR_MODE, 4)[1] == ERR_ACCESS
+    )  # EEPROM locked: refused, not logged
     writer = GroupSyncWrite(port, ph, ADDR_GOAL, 4)
     for dxl_id, goal in ((21, 3000), (22, 100), (23, -5)):  # 23 is in position mode: -5 refused
         writer.addParam(dxl_id, list(goal.to_bytes(4, "little", signed=True)))
@@ -295,8 +334,11 @@ def test_write_log_stamps_every_applied_write_and_skips_refused_ones(sdk, emulat
     time.sleep(0.05)
     after = time.monotonic()
     log = emulator.writes(since=before)
-    assert [(w.dxl_id, w.address, w.value) for w in log] == [(21, ADDR_TORQUE, 1), (21, ADDR_GOAL, 3000),
-                                                             (22, ADDR_GOAL, 100)]
+    assert [(w.dxl_id, w.address, w.value) for w in log] == [
+        (21, ADDR_TORQUE, 1),
+        (21, ADDR_GOAL, 3000),
+        (22, ADDR_GOAL, 100),
+    ]
     assert all(before <= w.time <= after for w in log) and log[0].time <= log[1].time
     assert [w.value for w in emulator.writes(ADDR_GOAL)] == [3000, 100]
     assert emulator.writes(since=after) == []

@@ -1,4 +1,5 @@
-"""Fixtures for tests that run real rclpy processes: process groups, and an rclpy node in the test process."""
+"""Fixtures for tests that run real rclpy processes: process groups, and an rclpy node in the test
+process."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ from pathlib import Path
 
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
@@ -26,21 +27,29 @@ PEERS = Path(__file__).parent / "peers"
 LAUNCHER = (sys.executable, "-m", "hsa_common.launcher")
 """hsa_launch as the tests run it."""
 GRAPH_STOP = ("--sigterm-timeout", "20")
-"""Launcher options of a test whose graph must end cleanly (exit 0): its nodes get 20 s, not 5, between SIGINT and
-SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside two busy processes a bridge, a
-planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM + 5 s and were SIGKILLed (launcher exit 137)."""
+"""Launcher options of a test whose graph must end cleanly (exit 0): its nodes get 20 s, not 5,
+between SIGINT and SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside
+two busy processes a bridge, a planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM +
+5 s and were SIGKILLed (launcher exit 137)."""
 
 
 def start_process(args: list[str], **popen: object) -> subprocess.Popen:
-    """Start a ROS process in its own session with the project ROS environment (stop it with stop_process)."""
+    """Start a ROS process in its own session with the project ROS environment (stop it with
+    stop_process)."""
     return subprocess.Popen(
-        args, env=rosenv.ros_environment(), start_new_session=True, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True, **popen,
+        args,
+        env=rosenv.ros_environment(),
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        **popen,
     )
 
 
-def start_node(package: str, executable: str, params: Sequence[str],
-               remaps: Sequence[str] = ("__ns:=/hsa",)) -> subprocess.Popen:
+def start_node(
+    package: str, executable: str, params: Sequence[str], remaps: Sequence[str] = ("__ns:=/hsa",)
+) -> subprocess.Popen:
     """A node process (start_process) with ``-r`` remaps (default: namespace /hsa) and
     ``-p name:=value`` parameters."""
     args = ["--ros-args"]
@@ -52,7 +61,8 @@ def start_node(package: str, executable: str, params: Sequence[str],
 
 
 def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int:
-    """SIGINT the process group, escalating to SIGTERM and SIGKILL after timeouts; return the exit code."""
+    """SIGINT the process group, escalating to SIGTERM and SIGKILL after timeouts; return the exit
+    code."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         if proc.poll() is not None:
             break
@@ -80,7 +90,8 @@ def assert_refused_at_start(procs: dict[str, subprocess.Popen], timeout: float =
 
 
 def wait_for_line(proc: subprocess.Popen, text: str, timeout: float = 60.0) -> list[str]:
-    """Read the process output until a line contains ``text``; fail with the output so far on timeout or exit."""
+    """Read the process output until a line contains ``text``; fail with the output so far on
+    timeout or exit."""
     lines: list[str] = []
     deadline = time.monotonic() + timeout
     assert proc.stdout is not None
@@ -130,9 +141,14 @@ def ros_node() -> Iterator[Node]:
         rclpy.try_shutdown()
 
 
-def wait_until(condition: Callable[[], object], timeout: float = 20.0, step: Callable[[], None] | None = None,
-               poll: float = 0.01) -> bool:
-    """Poll ``condition`` (calling ``step`` between polls) until it holds or ``timeout`` s pass; return whether it held."""
+def wait_until(
+    condition: Callable[[], object],
+    timeout: float = 20.0,
+    step: Callable[[], None] | None = None,
+    poll: float = 0.01,
+) -> bool:
+    """Poll ``condition`` (calling ``step`` between polls) until it holds or ``timeout`` s pass;
+    return whether it held."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if condition():
@@ -144,7 +160,8 @@ def wait_until(condition: Callable[[], object], timeout: float = 20.0, step: Cal
 
 
 class CollectedProcess:
-    """A started process whose output is collected by a reader thread once it has logged ``ready``."""
+    """A started process whose output is collected by a reader thread once it has logged
+    ``ready``."""
 
     def __init__(self, proc: subprocess.Popen) -> None:
         self.proc = proc
@@ -187,16 +204,21 @@ class CollectedProcess:
 
 
 class ParameterClient:
-    """Set and get single parameters of a running node through its parameter services (arrays come back as lists)."""
+    """Set and get single parameters of a running node through its parameter services (arrays come
+    back as lists)."""
 
     def __init__(self, node: Node, target: str) -> None:
         self._setter = node.create_client(SetParameters, f"{target}/set_parameters")
         self._getter = node.create_client(GetParameters, f"{target}/get_parameters")
-        assert self._setter.wait_for_service(timeout_sec=20.0) and self._getter.wait_for_service(timeout_sec=20.0)
+        assert self._setter.wait_for_service(timeout_sec=20.0) and self._getter.wait_for_service(
+            timeout_sec=20.0
+        )
 
     def set(self, name: str, value: object) -> SetParametersResult:
         """Request one update; return the node's answer (successful, reason)."""
-        request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()]
+        )
         response = self._setter.call(request, timeout_sec=10.0)
         assert response is not None, f"no answer to setting {name}"
         return response.results[0]
@@ -206,4 +228,6 @@ class ParameterClient:
         response = self._getter.call(GetParameters.Request(names=[name]), timeout_sec=10.0)
         assert response is not None, f"no answer to getting {name}"
         value = parameter_value_to_python(response.values[0])
-        return list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+        return (
+            list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
+        )

@@ -1,5 +1,6 @@
-"""Shared pieces of the fault-injection tests (issue 6): node start-up with a captured log, a pausable 200 Hz mocap
-stream with sample injection, /diagnostics collection, and the one-line ``FAULT`` summaries for the closing report."""
+"""Shared pieces of the fault-injection tests (issue 6): node start-up with a captured log, a
+pausable 200 Hz mocap stream with sample injection, /diagnostics collection, and the one-line
+``FAULT`` summaries for the closing report."""
 
 from __future__ import annotations
 
@@ -22,26 +23,48 @@ from tests.ros.conftest import CollectedProcess, start_process
 from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until
 
-__all__ = ["BEST_EFFORT", "EXECUTABLES", "OFFSET_CHIEE", "SETPOINT_CHIEE", "DiagnosticsLog", "MocapStream",
-           "NodeProcess", "Recorder", "fault", "sec", "setpoint", "start_all", "wait_until"]
+__all__ = [
+    "BEST_EFFORT",
+    "EXECUTABLES",
+    "OFFSET_CHIEE",
+    "SETPOINT_CHIEE",
+    "DiagnosticsLog",
+    "MocapStream",
+    "NodeProcess",
+    "Recorder",
+    "fault",
+    "sec",
+    "setpoint",
+    "start_all",
+    "wait_until",
+]
 
-EXECUTABLES = {"mocap_bridge": "hsa_mocap_bridge", "kinematics_node": "hsa_kinematics_node",
-               "controller_node": "hsa_controller_node", "planner_node": "hsa_planner_node",
-               "setpoint_sequencer": "hsa_planner_node"}
+EXECUTABLES = {
+    "mocap_bridge": "hsa_mocap_bridge",
+    "kinematics_node": "hsa_kinematics_node",
+    "controller_node": "hsa_controller_node",
+    "planner_node": "hsa_planner_node",
+    "setpoint_sequencer": "hsa_planner_node",
+}
 SETPOINT_CHIEE = np.array([0.00479247, 0.12781018, -0.066980133])
 """χ_ee^d of the FPU worked example (planning_and_control.md §2.2) that ``setpoint()`` returns."""
 OFFSET_CHIEE = SETPOINT_CHIEE + np.array([0.002, 0.001, 0.0])
-"""A pose 2.2 mm from the setpoint: the controller's integrator state grows steadily while it tracks it."""
+"""A pose 2.2 mm from the setpoint: the controller's integrator state grows steadily while it tracks
+it."""
 
 
 BEST_EFFORT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
-"""Subscription profile for the SENSOR streams (a reliable subscription does not match a best-effort publisher)."""
+"""Subscription profile for the SENSOR streams (a reliable subscription does not match a best-effort
+publisher)."""
 
 
 class Recorder:
-    """Raw subscription, decoded only when read (keeps the observing test process fast enough for 200 Hz)."""
+    """Raw subscription, decoded only when read (keeps the observing test process fast enough for
+    200 Hz)."""
 
-    def __init__(self, node: Node, msg_type: type, topic: str, profile: QoSProfile | int = 500) -> None:
+    def __init__(
+        self, node: Node, msg_type: type, topic: str, profile: QoSProfile | int = 500
+    ) -> None:
         self.msg_type = msg_type
         self.raw: list[bytes] = []
         node.create_subscription(msg_type, topic, self.raw.append, profile, raw=True)
@@ -73,11 +96,15 @@ def fault(name: str, behaviour: str, recovery: float | str) -> str:
 
 
 class NodeProcess(CollectedProcess):
-    """One node process (console script, ``--ros-args`` list) whose output is collected by a reader thread."""
+    """One node process (console script, ``--ros-args`` list) whose output is collected by a reader
+    thread."""
 
     def __init__(self, executable: str, ros_args: Sequence[str]) -> None:
-        super().__init__(start_process([find_executable(EXECUTABLES[executable], executable), "--ros-args",
-                                        *ros_args]))
+        super().__init__(
+            start_process(
+                [find_executable(EXECUTABLES[executable], executable), "--ros-args", *ros_args]
+            )
+        )
 
 
 def start_all(specs: dict[str, tuple[str, Sequence[str]]]) -> dict[str, NodeProcess]:
@@ -89,8 +116,9 @@ def start_all(specs: dict[str, tuple[str, Sequence[str]]]) -> dict[str, NodeProc
 
 
 class MocapStream:
-    """Publishes the platform pose of a planar pose at 200 Hz (node-clock stamps) from a thread; ``paused`` stops it;
-    ``inject`` queues extra messages that go out right after the next regular sample."""
+    """Publishes the platform pose of a planar pose at 200 Hz (node-clock stamps) from a thread;
+    ``paused`` stops it; ``inject`` queues extra messages that go out right after the next regular
+    sample."""
 
     def __init__(self, node: Node, topic: str, chiee: Sequence[float], rate: float = 200.0) -> None:
         self.node = node
@@ -109,7 +137,9 @@ class MocapStream:
         next_t = time.monotonic()
         while not self._stop.is_set():
             next_t += self.period
-            with self._lock:  # pause() cannot interleave: no sample leaves after it read the last stamp
+            with (
+                self._lock
+            ):  # pause() cannot interleave: no sample leaves after it read the last stamp
                 if not self.paused.is_set():
                     stamp = self.node.get_clock().now().nanoseconds
                     self.pub.publish(pose_msg(stamp, *self.world))
@@ -125,8 +155,8 @@ class MocapStream:
             self._extra.append(make)
 
     def pause(self, duration: float) -> tuple[int, int]:
-        """Stop the stream for ``duration`` seconds; return the stamps [ns] of the last sample before and the first
-        after the outage."""
+        """Stop the stream for ``duration`` seconds; return the stamps [ns] of the last sample
+        before and the first after the outage."""
         with self._lock:
             self.paused.set()
             last = self.sent[-1]
@@ -147,7 +177,9 @@ class DiagnosticsLog:
 
     def __init__(self, node: Node) -> None:
         self.arrays: list[DiagnosticArray] = []
-        self.first_seen: dict[str, float] = {}  # status name -> time.monotonic() of its first report
+        self.first_seen: dict[
+            str, float
+        ] = {}  # status name -> time.monotonic() of its first report
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_array, 100)
 
     def _on_array(self, msg: DiagnosticArray) -> None:
@@ -156,21 +188,35 @@ class DiagnosticsLog:
             self.first_seen.setdefault(status.name, now)
         self.arrays.append(msg)
 
-    def statuses(self, name: str, after_ns: int = 0) -> list[tuple[DiagnosticStatus, dict[str, str]]]:
+    def statuses(
+        self, name: str, after_ns: int = 0
+    ) -> list[tuple[DiagnosticStatus, dict[str, str]]]:
         """Statuses called ``name`` from arrays stamped after ``after_ns``, with their values."""
-        return [(s, {kv.key: kv.value for kv in s.values}) for a in list(self.arrays) for s in a.status
-                if s.name == name and Time.from_msg(a.header.stamp).nanoseconds > after_ns]
+        return [
+            (s, {kv.key: kv.value for kv in s.values})
+            for a in list(self.arrays)
+            for s in a.status
+            if s.name == name and Time.from_msg(a.header.stamp).nanoseconds > after_ns
+        ]
 
-    def wait(self, name: str, accept: Callable[[DiagnosticStatus, dict[str, str]], bool] = lambda s, v: True,
-             after_ns: int = 0, timeout: float = 10.0) -> tuple[DiagnosticStatus, dict[str, str]]:
-        """The first status called ``name`` (after ``after_ns``) that ``accept`` takes; fails after ``timeout``."""
+    def wait(
+        self,
+        name: str,
+        accept: Callable[[DiagnosticStatus, dict[str, str]], bool] = lambda s, v: True,
+        after_ns: int = 0,
+        timeout: float = 10.0,
+    ) -> tuple[DiagnosticStatus, dict[str, str]]:
+        """The first status called ``name`` (after ``after_ns``) that ``accept`` takes; fails after
+        ``timeout``."""
         found: list[tuple[DiagnosticStatus, dict[str, str]]] = []
 
         def match() -> bool:
             found[:] = [(s, v) for s, v in self.statuses(name, after_ns) if accept(s, v)]
             return bool(found)
 
-        assert wait_until(match, timeout), f"no matching {name!r} status; last: {self.statuses(name)[-1:]}"
+        assert wait_until(match, timeout), (
+            f"no matching {name!r} status; last: {self.statuses(name)[-1:]}"
+        )
         return found[0]
 
     def names(self) -> set[str]:

@@ -15,19 +15,25 @@ def stop_all(procs: dict[str, NodeProcess]) -> None:
     assert {key: proc.stop() for key, proc in procs.items()} == dict.fromkeys(procs, 0)
 
 
-def estimation_graph(ns: str, controller: Sequence[str] = (),
-                     **more: tuple[str, Sequence[str]]) -> Iterator[dict[str, NodeProcess]]:
+def estimation_graph(
+    ns: str, controller: Sequence[str] = (), **more: tuple[str, Sequence[str]]
+) -> Iterator[dict[str, NodeProcess]]:
     """mocap_bridge (platform poses on ``<ns>/mocap/platform/pose``), kinematics_node and
     controller_node (FPU, P-satI-D, no driver in the graph, ``controller`` arguments added) in
     ``ns``, diagnostics at 5 Hz, and the ``more`` nodes (key: executable, arguments); a module
     fixture yields from it."""
     common = ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ]
-    procs = start_all({
-        "bridge": ("mocap_bridge", [*common, "-p", f"platform_topic:={ns}/mocap/platform/pose"]),
-        "kinematics": ("kinematics_node", common),
-        "controller": ("controller_node", [*common, "-p", "driver_timeout:=0.0", *controller]),
-        **more,
-    })
+    procs = start_all(
+        {
+            "bridge": (
+                "mocap_bridge",
+                [*common, "-p", f"platform_topic:={ns}/mocap/platform/pose"],
+            ),
+            "kinematics": ("kinematics_node", common),
+            "controller": ("controller_node", [*common, "-p", "driver_timeout:=0.0", *controller]),
+            **more,
+        }
+    )
     yield procs
     stop_all(procs)
 
@@ -35,7 +41,13 @@ def estimation_graph(ns: str, controller: Sequence[str] = (),
 def controller_alone(ns: str) -> Iterator[NodeProcess]:
     """controller_node (FPU, P-satI-D, 40 Hz) in ``ns`` without a driver, diagnostics at 5 Hz;
     a module fixture yields from it."""
-    procs = start_all({"controller": ("controller_node", ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ,
-                                                          "-p", "driver_timeout:=0.0"])})
+    procs = start_all(
+        {
+            "controller": (
+                "controller_node",
+                ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ, "-p", "driver_timeout:=0.0"],
+            )
+        }
+    )
     yield procs["controller"]
     stop_all(procs)

@@ -1,8 +1,10 @@
-"""bag_recorder as a process: what it writes is read back by independent readers (mcap + mcap_ros2, rosbags).
+"""bag_recorder as a process: what it writes is read back by independent readers (mcap + mcap_ros2,
+rosbags).
 
-Covers standard and hsa_msgs types, a latched topic published before the recorder started, a late publisher, QoS
-adaptation to a best-effort publisher that joins later, split bags with a SIGTERM close, a SIGKILL mid-run (the bag
-is readable up to the last flush, and complete after bag_recover), and the refusal to overwrite a bag.
+Covers standard and hsa_msgs types, a latched topic published before the recorder started, a late
+publisher, QoS adaptation to a best-effort publisher that joins later, split bags with a SIGTERM
+close, a SIGKILL mid-run (the bag is readable up to the last flush, and complete after bag_recover),
+and the refusal to overwrite a bag.
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from mcap.reader import make_reader
 from mcap.exceptions import McapError
+from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
@@ -43,7 +45,8 @@ UINT32 = "std_msgs/msg/UInt32"
 
 @pytest.fixture
 def recorder() -> Iterator[Callable[..., subprocess.Popen]]:
-    """Start bag_recorder processes (output + extra parameters) and wait for 'ready'; all stopped at teardown."""
+    """Start bag_recorder processes (output + extra parameters) and wait for 'ready'; all stopped at
+    teardown."""
     procs: list[subprocess.Popen] = []
 
     def _start(output: Path, *params: str, ready: bool = True) -> subprocess.Popen:
@@ -62,10 +65,14 @@ def recorder() -> Iterator[Callable[..., subprocess.Popen]]:
 
 
 def wait_recorded(node: Node, topics: list[str], timeout: float = 30.0) -> None:
-    """Wait until bag_recorder has subscribed to every topic (it does once a topic has a publisher)."""
+    """Wait until bag_recorder has subscribed to every topic (it does once a topic has a
+    publisher)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if all(any(s.node_name == "bag_recorder" for s in node.get_subscriptions_info_by_topic(t)) for t in topics):
+        if all(
+            any(s.node_name == "bag_recorder" for s in node.get_subscriptions_info_by_topic(t))
+            for t in topics
+        ):
             return
         time.sleep(0.05)
     pytest.fail(f"bag_recorder did not subscribe to all of {topics}")
@@ -80,21 +87,30 @@ def wait_matched(pub: Publisher, timeout: float = 30.0) -> None:
 
 
 def decoded(bag: Path) -> dict[str, list[tuple[int, object]]]:
-    """(log time, message) per topic of every file of a bag, read with the `mcap` package and mcap_ros2 decoding."""
+    """(log time, message) per topic of every file of a bag, read with the `mcap` package and
+    mcap_ros2 decoding."""
     out: dict[str, list[tuple[int, object]]] = {}
     for file in sorted(bag.glob("*.mcap")):
         with open(file, "rb") as handle:
-            for item in make_reader(handle, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-                out.setdefault(item.channel.topic, []).append((item.message.log_time, item.decoded_message))
+            for item in make_reader(
+                handle, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages():
+                out.setdefault(item.channel.topic, []).append(
+                    (item.message.log_time, item.decoded_message)
+                )
     return out
 
 
-def test_records_standard_custom_latched_and_late_topics(ros_node: Node, recorder, tmp_path: Path) -> None:
+def test_records_standard_custom_latched_and_late_topics(
+    ros_node: Node, recorder, tmp_path: Path
+) -> None:
     bag = tmp_path / "run"
     latched = ros_node.create_publisher(Setpoint, "/hsa/setpoint", qos.LATCHED)
     setpoint = Setpoint(trajectory_length=11, trajectory_index=3)
     setpoint.chiee_des.x = 0.01
-    latched.publish(setpoint)  # before the recorder exists: only transient-local delivery can record it
+    latched.publish(
+        setpoint
+    )  # before the recorder exists: only transient-local delivery can record it
     state = ros_node.create_publisher(PlanarState, "/hsa/state", qos.SENSOR)
     joints = ros_node.create_publisher(JointState, "/hsa/motor_states", qos.SENSOR)
     chatter = ros_node.create_publisher(String, "/chatter", 10)
@@ -109,7 +125,9 @@ def test_records_standard_custom_latched_and_late_topics(ros_node: Node, recorde
         msg.q.kappa_be = 0.1 * i
         state.publish(msg)
         if i % 5 == 0:
-            joints.publish(JointState(name=[f"motor_{21 + k}" for k in range(4)], position=[float(i)] * 4))
+            joints.publish(
+                JointState(name=[f"motor_{21 + k}" for k in range(4)], position=[float(i)] * 4)
+            )
             chatter.publish(String(data=f"hello {i // 5}"))
         time.sleep(0.005)
     after = time.time_ns()
@@ -121,7 +139,9 @@ def test_records_standard_custom_latched_and_late_topics(ros_node: Node, recorde
         late.publish(String(data=f"late {i}"))
     best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
     weak = ros_node.create_publisher(String, "/chatter", best_effort)
-    wait_matched(weak)  # incompatible with the reliable subscription: matches once the recorder re-subscribes
+    wait_matched(
+        weak
+    )  # incompatible with the reliable subscription: matches once the recorder re-subscribes
     for i in range(5):
         weak.publish(String(data=f"weak {i}"))
     time.sleep(1.0)
@@ -131,20 +151,30 @@ def test_records_standard_custom_latched_and_late_topics(ros_node: Node, recorde
 
     got = decoded(bag)  # independent reader 1: mcap + mcap_ros2
     assert "/rosout" not in got and "/parameter_events" not in got
-    latched_got = [(m.trajectory_length, m.trajectory_index, m.chiee_des.x) for _, m in got["/hsa/setpoint"]]
+    latched_got = [
+        (m.trajectory_length, m.trajectory_index, m.chiee_des.x) for _, m in got["/hsa/setpoint"]
+    ]
     assert latched_got == [(11, 3, 0.01)]
     states = [m for _, m in got["/hsa/state"]]
     assert len(states) >= 95  # best effort on loopback: practically all
     assert [m.window_samples for m in states] == sorted(m.window_samples for m in states)
     assert all(m.q.kappa_be == pytest.approx(0.1 * m.window_samples) for m in states)
-    assert all(before <= t <= after + 2 * 10**9 for t, _ in got["/hsa/state"])  # receive time, node clock
-    assert [m.position[0] for _, m in got["/hsa/motor_states"]] == [float(i) for i in range(0, 100, 5)]
+    assert all(
+        before <= t <= after + 2 * 10**9 for t, _ in got["/hsa/state"]
+    )  # receive time, node clock
+    assert [m.position[0] for _, m in got["/hsa/motor_states"]] == [
+        float(i) for i in range(0, 100, 5)
+    ]
     assert got["/hsa/motor_states"][0][1].name == ["motor_21", "motor_22", "motor_23", "motor_24"]
     chat = [m.data for _, m in got["/chatter"]]
-    assert chat[:20] == [f"hello {i}" for i in range(20)] and [c for c in chat if c.startswith("weak")]
+    assert chat[:20] == [f"hello {i}" for i in range(20)] and [
+        c for c in chat if c.startswith("weak")
+    ]
     assert [m.data for _, m in got["/late"]] == [f"late {i}" for i in range(5)]
 
-    with Reader(bag) as reader:  # independent reader 2: rosbags, with the QoS the publishers offered
+    with Reader(
+        bag
+    ) as reader:  # independent reader 2: rosbags, with the QoS the publishers offered
         topics = reader.topics
         assert {t: topics[t].msgcount for t in got} == {t: len(v) for t, v in got.items()}
         qos_of = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
@@ -154,8 +184,11 @@ def test_records_standard_custom_latched_and_late_topics(ros_node: Node, recorde
         assert topics["/hsa/state"].msgtype == "hsa_msgs/msg/PlanarState"
 
 
-def counter_stream(pub: Publisher, rate: float, seconds: float) -> tuple[threading.Thread, list[int]]:
-    """A thread publishing UInt32 0, 1, 2, … at ``rate``; the list holds what was published so far."""
+def counter_stream(
+    pub: Publisher, rate: float, seconds: float
+) -> tuple[threading.Thread, list[int]]:
+    """A thread publishing UInt32 0, 1, 2, … at ``rate``; the list holds what was published so
+    far."""
     sent: list[int] = []
 
     def run() -> None:
@@ -187,29 +220,44 @@ def test_split_bag_closed_by_sigterm(ros_node: Node, recorder, tmp_path: Path) -
     os.killpg(proc.pid, signal.SIGTERM)
     assert proc.wait(timeout=30) == 0
 
-    files = sorted((p for p in bag.iterdir() if p.suffix == ".mcap"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))
-    assert len(files) >= 3 and [p.name for p in files] == [f"split_{k}.mcap" for k in range(len(files))]
+    files = sorted(
+        (p for p in bag.iterdir() if p.suffix == ".mcap"),
+        key=lambda p: int(p.stem.rsplit("_", 1)[1]),
+    )
+    assert len(files) >= 3 and [p.name for p in files] == [
+        f"split_{k}.mcap" for k in range(len(files))
+    ]
     values = []
     for file in files:  # every split is a complete MCAP on its own
         with open(file, "rb") as handle:
-            values += [m.decoded_message.data for m in make_reader(handle, decoder_factories=[DecoderFactory()])
-                       .iter_decoded_messages()]  # fmt: skip
+            values += [
+                m.decoded_message.data
+                for m in make_reader(
+                    handle, decoder_factories=[DecoderFactory()]
+                ).iter_decoded_messages()
+            ]
     assert values == sent
     assert read_metadata(bag)["relative_file_paths"] == [p.name for p in files]
     with Reader(bag) as reader:
         assert counters([(t, d) for _, t, d in reader.messages()]) == sent
 
 
-def test_sigkill_leaves_bag_readable_up_to_the_last_flush(ros_node: Node, recorder, tmp_path: Path) -> None:
+def test_sigkill_leaves_bag_readable_up_to_the_last_flush(
+    ros_node: Node, recorder, tmp_path: Path
+) -> None:
     bag = tmp_path / "killed"
     flush_period, rate = 0.2, 100.0
     pub = ros_node.create_publisher(UInt32, "/counter", 100)
-    proc = recorder(bag, "topics:=[/counter]", "max_bag_duration:=1.0", f"flush_period:={flush_period}")
+    proc = recorder(
+        bag, "topics:=[/counter]", "max_bag_duration:=1.0", f"flush_period:={flush_period}"
+    )
     wait_recorded(ros_node, ["/counter"])
     thread, sent = counter_stream(pub, rate, 3.0)
     thread.start()
     time.sleep(2.6)
-    sent_before_last_flush = len(sent) - round((flush_period + 1.0) * rate)  # 1 s slack for a loaded machine
+    sent_before_last_flush = len(sent) - round(
+        (flush_period + 1.0) * rate
+    )  # 1 s slack for a loaded machine
     os.killpg(proc.pid, signal.SIGKILL)
     assert proc.wait(timeout=30) == -signal.SIGKILL
     thread.join()
@@ -219,7 +267,9 @@ def test_sigkill_leaves_bag_readable_up_to_the_last_flush(ros_node: Node, record
     assert len(listed) >= 100 and listed == list(range(len(listed)))
     open_split = sorted(bag.glob("*.mcap"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))[-1]
     flushed: list[bytes] = []
-    with open(open_split, "rb") as handle:  # the unfinished split, read record by record by the `mcap` package
+    with open(
+        open_split, "rb"
+    ) as handle:  # the unfinished split, read record by record by the `mcap` package
         try:
             for record in StreamReader(handle).records:
                 if isinstance(record, Message):
@@ -232,7 +282,10 @@ def test_sigkill_leaves_bag_readable_up_to_the_last_flush(ros_node: Node, record
     assert everything == list(range(len(everything))) and len(everything) >= sent_before_last_flush
 
     result = subprocess.run(
-        [find_executable("hsa_bag", "bag_recover"), str(bag)], capture_output=True, text=True, timeout=60
+        [find_executable("hsa_bag", "bag_recover"), str(bag)],
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert result.returncode == 0, result.stderr
     assert f"{open_split.name}: completed with {len(flushed_values)} messages" in result.stdout
@@ -252,7 +305,9 @@ def test_existing_output_is_refused(recorder, tmp_path: Path) -> None:
 
 def test_output_ending_in_a_slash_gets_a_new_bag_per_start(recorder, tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    for _ in range(2):  # a graph started twice with the same bag_dir (the launch files' default ends in '/')
+    for _ in range(
+        2
+    ):  # a graph started twice with the same bag_dir (the launch files' default ends in '/')
         assert stop_process(recorder(f"{runs}/")) == 0
     bags = sorted(runs.iterdir())
     assert len(bags) == 2 and all((bag / "metadata.yaml").is_file() for bag in bags), bags

@@ -1,6 +1,7 @@
-"""mocap_bridge stamps and frames (issue 10, item 5) as a real process fed a live 200 Hz stream by the test: one pose
-stamped 0.4 s in the future must not blind the bridge to the genuine samples after it; poses in a wrong frame are
-dropped and counted, not relabelled; drops are logged throttled; malformed CDR on the topic prints nothing."""
+"""mocap_bridge stamps and frames (issue 10, item 5) as a real process fed a live 200 Hz stream by
+the test: one pose stamped 0.4 s in the future must not blind the bridge to the genuine samples
+after it; poses in a wrong frame are dropped and counted, not relabelled; drops are logged
+throttled; malformed CDR on the topic prints nothing."""
 
 from __future__ import annotations
 
@@ -16,8 +17,17 @@ from rclpy.time import Time
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarPoseStamped
-from tests.ros.faults import (BEST_EFFORT, OFFSET_CHIEE, DiagnosticsLog, MocapStream, NodeProcess, Recorder, fault,
-                              start_all, wait_until)
+from tests.ros.faults import (
+    BEST_EFFORT,
+    OFFSET_CHIEE,
+    DiagnosticsLog,
+    MocapStream,
+    NodeProcess,
+    Recorder,
+    fault,
+    start_all,
+    wait_until,
+)
 from tests.ros.test_mocap_bridge import pose_msg
 
 pytestmark = pytest.mark.ros
@@ -32,9 +42,23 @@ DROP_LOG = "dropped platform sample"
 @pytest.fixture(scope="module")
 def bridge() -> Iterator[NodeProcess]:
     """A mocap_bridge in /stamps with default checks, diagnostics at 5 Hz and a deep input queue."""
-    procs = start_all({"bridge": ("mocap_bridge", [
-        "-r", f"__ns:={NS}", "-p", f"platform_topic:={TOPIC}", "-p", "diagnostics_period:=0.2",
-        "-p", f"qos_overrides.{TOPIC}.subscription.depth:=100"])})
+    procs = start_all(
+        {
+            "bridge": (
+                "mocap_bridge",
+                [
+                    "-r",
+                    f"__ns:={NS}",
+                    "-p",
+                    f"platform_topic:={TOPIC}",
+                    "-p",
+                    "diagnostics_period:=0.2",
+                    "-p",
+                    f"qos_overrides.{TOPIC}.subscription.depth:=100",
+                ],
+            )
+        }
+    )
     yield procs["bridge"]
     assert procs["bridge"].stop() == 0
 
@@ -55,7 +79,8 @@ def _report(diagnostics: DiagnosticsLog, node) -> dict[str, str]:  # noqa: ANN00
 
 
 def _started(ros_node, bridge: NodeProcess) -> tuple[MocapStream, Recorder, DiagnosticsLog]:  # noqa: ANN001
-    """A running 200 Hz stream whose poses come out of the bridge, the ee_pose recorder and the diagnostics log."""
+    """A running 200 Hz stream whose poses come out of the bridge, the ee_pose recorder and the
+    diagnostics log."""
     poses = Recorder(ros_node, PlanarPoseStamped, f"{NS}/ee_pose", BEST_EFFORT)
     diagnostics = DiagnosticsLog(ros_node)
     stream = MocapStream(ros_node, TOPIC, OFFSET_CHIEE)
@@ -91,12 +116,20 @@ def test_one_future_stamp_does_not_blind_the_bridge(bridge, ros_node) -> None:
     published = [t for t in genuine if t in out]
     assert len(genuine) >= 60, f"the stream sent only {len(genuine)} samples in 0.4 s"
     following = [t for t in out if t > s]
-    assert following and following[0] in genuine[:2], \
-        f"the first or second genuine sample after the future stamp must be published: {genuine[:2]} vs {following[:2]}"
-    assert len(published) >= 0.9 * len(genuine), f"{len(published)} of {len(genuine)} genuine samples published"
+    assert following and following[0] in genuine[:2], (
+        "the first or second genuine sample after the future stamp must be published: "
+        f"{genuine[:2]} vs {following[:2]}"
+    )
+    assert len(published) >= 0.9 * len(genuine), (
+        f"{len(published)} of {len(genuine)} genuine samples published"
+    )
     assert all(b > a for a, b in zip(out, out[1:])), "ee_pose stamps must increase"
-    fault("mocap pose stamped +0.4 s (inside max_age)", f"dropped (rejected_future), {len(published)} of "
-          f"{len(genuine)} genuine samples in the next 0.4 s published", (published[0] - s) * 1e-9)
+    fault(
+        "mocap pose stamped +0.4 s (inside max_age)",
+        f"dropped (rejected_future), {len(published)} of "
+        f"{len(genuine)} genuine samples in the next 0.4 s published",
+        (published[0] - s) * 1e-9,
+    )
 
 
 def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -> None:
@@ -109,10 +142,13 @@ def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -
 
         def in_frame(frame_id: str):  # noqa: ANN202 - a MocapStream injection
             def make(stamp: int) -> PoseStamped:
-                msg = pose_msg(stamp + 1, *stream.world)  # 1 ns after a genuine sample: only the frame is wrong
+                msg = pose_msg(
+                    stamp + 1, *stream.world
+                )  # 1 ns after a genuine sample: only the frame is wrong
                 msg.header.frame_id = frame_id
                 wrong.append(stamp + 1)
                 return msg
+
             return make
 
         for k in range(n_wrong):
@@ -132,16 +168,23 @@ def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -
     # 200 drops in about 1 s: the bridge logs a drop at most once per 5 s
     times = [float(re.search(r"\[(\d+\.\d+)\]", line).group(1)) for line in bridge.log(DROP_LOG)]
     assert times and all(b - a >= 4.9 for a, b in zip(times, times[1:])), bridge.log(DROP_LOG)
-    fault("mocap pose with frame_id 'map' or ''", "dropped (rejected_frame), not relabelled; one WARN per 5 s",
-          "next sample")
+    fault(
+        "mocap pose with frame_id 'map' or ''",
+        "dropped (rejected_frame), not relabelled; one WARN per 5 s",
+        "next sample",
+    )
 
 
 def test_malformed_cdr_prints_nothing_and_the_stream_goes_on(bridge, ros_node) -> None:
     stream, poses, diagnostics = _started(ros_node, bridge)
     raw = ros_node.create_publisher(PoseStamped, TOPIC, qos.SENSOR)
     good = serialize_message(PoseStamped())
-    malformed = [good[:30], b"\x00\x01\x00\x00" + b"\xff" * 40, b"\x00\x01",
-                 good[:12] + struct.pack("<I", 0x7FFFFFFF) + good[16:]]  # truncated, garbage, short, huge string
+    malformed = [
+        good[:30],
+        b"\x00\x01\x00\x00" + b"\xff" * 40,
+        b"\x00\x01",
+        good[:12] + struct.pack("<I", 0x7FFFFFFF) + good[16:],
+    ]  # truncated, garbage, short, huge string
     try:
         lines = len(bridge.lines)
         for k in range(100):

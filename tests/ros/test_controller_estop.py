@@ -1,9 +1,10 @@
-"""Emergency stop, controller side (issue 6): controller_node as a real process, fed ready states and a setpoint by the
-test, which also plays the driver's latched ``estop`` topic (std_msgs/Bool, reliable + transient local, depth 1).
+"""Emergency stop, controller side (issue 6): controller_node as a real process, fed ready states
+and a setpoint by the test, which also plays the driver's latched ``estop`` topic (std_msgs/Bool,
+reliable + transient local, depth 1).
 
-While the E-stop is set the controller sends no phi_cmd, its integrators are zero (controller_info STATE_STOPPED) and
-/diagnostics is ERROR; once cleared it tracks again from a fresh integrator state. An E-stop latched before the
-controller matched the publisher holds too (late joiner)."""
+While the E-stop is set the controller sends no phi_cmd, its integrators are zero (controller_info
+STATE_STOPPED) and /diagnostics is ERROR; once cleared it tracks again from a fresh integrator
+state. An E-stop latched before the controller matched the publisher holds too (late joiner)."""
 
 from __future__ import annotations
 
@@ -53,7 +54,9 @@ def _first_command_after(cmds: Recorder, t: float, timeout: float = 5.0) -> Plan
 
 def test_estop_stops_commands_resets_integrators_and_resumes_fresh(controller, ros_node) -> None:
     estop = ros_node.create_publisher(Bool, f"{NS}/estop", qos.LATCHED)
-    estop.publish(Bool(data=True))  # before the controller matched this publisher: it must still get it (latched)
+    estop.publish(
+        Bool(data=True)
+    )  # before the controller matched this publisher: it must still get it (latched)
     cmds = Recorder(ros_node, PlanarActuation, f"{NS}/phi_cmd")
     infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
     diagnostics = DiagnosticsLog(ros_node)
@@ -61,23 +64,36 @@ def test_estop_stops_commands_resets_integrators_and_resumes_fresh(controller, r
     feeder = Feeder(ros_node, NS)
     try:
         t0 = _now(ros_node)
-        status, values = diagnostics.wait(CONTROL, lambda s, v: v["estop"] == "True", after_ns=int(t0 * 1e9))
+        status, values = diagnostics.wait(
+            CONTROL, lambda s, v: v["estop"] == "True", after_ns=int(t0 * 1e9)
+        )
         assert status.level == DiagnosticStatus.ERROR and "E-STOP" in status.message
         feeder.running.set()  # states only now: the order of discovery across topics is not defined
         time.sleep(1.0)
-        assert len(cmds) == 0 and len(infos) == 0, "commands while the latched E-stop was set at start"
+        assert len(cmds) == 0 and len(infos) == 0, (
+            "commands while the latched E-stop was set at start"
+        )
 
         t_clear = _now(ros_node)
         estop.publish(Bool(data=False))
         first = _first_command_after(cmds, t_clear)
         resume_start = sec(first.header.stamp) - t_clear
-        # one second of tracking ticks (states judged stale by stamp on a loaded machine freeze the law, not count)
-        assert wait_until(lambda: sum(m.state == ControllerInfo.STATE_TRACKING for m in infos.since())
-                          >= 1.0 / PERIOD, timeout=30.0), "fewer than 1 s of tracking ticks in 30 s"
+        # one second of tracking ticks (states judged stale by stamp on a loaded machine freeze the
+        # law, not count)
+        assert wait_until(
+            lambda: (
+                sum(m.state == ControllerInfo.STATE_TRACKING for m in infos.since()) >= 1.0 / PERIOD
+            ),
+            timeout=30.0,
+        ), "fewer than 1 s of tracking ticks in 30 s"
         tracking = [m for m in infos.since() if m.state == ControllerInfo.STATE_TRACKING]
-        assert np.all(np.abs(tracking[0].e_int) <= PERIOD + 1e-9), "did not start from zero integrators"
+        assert np.all(np.abs(tracking[0].e_int) <= PERIOD + 1e-9), (
+            "did not start from zero integrators"
+        )
         before = tracking[-1]
-        assert np.linalg.norm(before.e_int) > 0.1, "the integrators should have grown while tracking"
+        assert np.linalg.norm(before.e_int) > 0.1, (
+            "the integrators should have grown while tracking"
+        )
 
         n_infos = len(infos)
         t_stop = _now(ros_node)
@@ -87,12 +103,17 @@ def test_estop_stops_commands_resets_integrators_and_resumes_fresh(controller, r
         assert all(dt < 0.2 for dt in late), f"commands {late} s after the E-stop"
         stop_latency = max(late, default=0.0)
         stopped = [m for m in infos.since(n_infos) if m.state == ControllerInfo.STATE_STOPPED]
-        assert len(stopped) >= 0.5 / PERIOD, "controller_info does not report STATE_STOPPED on every tick"
+        assert len(stopped) >= 0.5 / PERIOD, (
+            "controller_info does not report STATE_STOPPED on every tick"
+        )
         for m in stopped:
             np.testing.assert_array_equal(m.e_int, [0.0, 0.0])
             assert np.all(np.isnan(m.phi_des_sat))
-        status, values = diagnostics.wait(CONTROL, lambda s, v: s.level == DiagnosticStatus.ERROR,
-                                          after_ns=int((t_stop + 0.3) * 1e9))
+        status, values = diagnostics.wait(
+            CONTROL,
+            lambda s, v: s.level == DiagnosticStatus.ERROR,
+            after_ns=int((t_stop + 0.3) * 1e9),
+        )
         assert "E-STOP" in status.message and values["mode"] == "stopped (E-stop)"
 
         t_clear = _now(ros_node)
@@ -101,15 +122,29 @@ def test_estop_stops_commands_resets_integrators_and_resumes_fresh(controller, r
         resume = sec(first.header.stamp) - t_clear
         assert resume < 0.5, f"resumed {resume:.3f} s after the E-stop was cleared"
         time.sleep(0.3)
-        resumed = [m for m in infos.since(n_infos)
-                   if m.state == ControllerInfo.STATE_TRACKING and sec(m.header.stamp) > t_clear]
-        assert resumed and np.all(np.abs(resumed[0].e_int) <= PERIOD + 1e-9), "resumed with the old integrators"
-        _, values = diagnostics.wait(CONTROL, lambda s, v: v["mode"] == "tracking",
-                                     after_ns=int(_now(ros_node) * 1e9))
+        resumed = [
+            m
+            for m in infos.since(n_infos)
+            if m.state == ControllerInfo.STATE_TRACKING and sec(m.header.stamp) > t_clear
+        ]
+        assert resumed and np.all(np.abs(resumed[0].e_int) <= PERIOD + 1e-9), (
+            "resumed with the old integrators"
+        )
+        _, values = diagnostics.wait(
+            CONTROL, lambda s, v: v["mode"] == "tracking", after_ns=int(_now(ros_node) * 1e9)
+        )
         assert values["estop"] == "False" and int(values["estop_events"]) == 2
     finally:
         feeder.close()
     assert len(controller.log("E-STOP")) == 2 and len(controller.log("E-stop cleared")) == 2
-    fault("E-stop latched before the controller matched", "no phi_cmd, diagnostics ERROR E-STOP", resume_start)
-    fault("E-stop while tracking", f"{len(late)} phi_cmd stamped after it (last +{stop_latency:.3f} s), e_int reset "
-          "to 0, controller_info STATE_STOPPED, diagnostics ERROR", resume)
+    fault(
+        "E-stop latched before the controller matched",
+        "no phi_cmd, diagnostics ERROR E-STOP",
+        resume_start,
+    )
+    fault(
+        "E-stop while tracking",
+        f"{len(late)} phi_cmd stamped after it (last +{stop_latency:.3f} s), e_int reset "
+        "to 0, controller_info STATE_STOPPED, diagnostics ERROR",
+        resume,
+    )

@@ -1,7 +1,7 @@
-"""controller_node as real processes at 40 Hz and 200 Hz, fed 200 Hz states by the test: rate, source stamps, hold on
-stale states and resume, run-time gain validation, refusal of a bad start parameter, and
-real-time scheduling (the 200 Hz one under SCHED_RR where the OS grants it; refused in one line
-where it does not)."""
+"""controller_node as real processes at 40 Hz and 200 Hz, fed 200 Hz states by the test: rate,
+source stamps, hold on stale states and resume, run-time gain validation, refusal of a bad start
+parameter, and real-time scheduling (the 200 Hz one under SCHED_RR where the OS grants it; refused
+in one line where it does not)."""
 
 from __future__ import annotations
 
@@ -21,11 +21,11 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from tests.ros.conftest import start_process, stop_process, wait_for_line
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_controller_node import scheduling
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
+from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
 
@@ -47,11 +47,25 @@ def controllers() -> Iterator[dict[str, tuple[subprocess.Popen, list[str]]]]:
     RT_PRIORITY where the OS grants it), started together; namespace -> (process, its output up to
     "ready")."""
     realtime = ["-p", f"realtime_priority:={RT_PRIORITY}"] if RT_REFUSED is None else []
-    procs = {ns: start_process([_exe(), "--ros-args", "-r", f"__ns:={ns}", "-p", f"rate:={rate}",
-                                "-p", "driver_timeout:=0.0", *(realtime if ns == RT_NS else [])])
-             for ns, rate in RATES.items()}
-    started = {ns: (proc, wait_for_line(proc, "ready", timeout=120.0))
-               for ns, proc in procs.items()}
+    procs = {
+        ns: start_process(
+            [
+                _exe(),
+                "--ros-args",
+                "-r",
+                f"__ns:={ns}",
+                "-p",
+                f"rate:={rate}",
+                "-p",
+                "driver_timeout:=0.0",
+                *(realtime if ns == RT_NS else []),
+            ]
+        )
+        for ns, rate in RATES.items()
+    }
+    started = {
+        ns: (proc, wait_for_line(proc, "ready", timeout=120.0)) for ns, proc in procs.items()
+    }
     yield started
     for proc in procs.values():
         assert stop_process(proc) == 0
@@ -62,12 +76,17 @@ def _setpoint() -> Setpoint:
     msg = Setpoint(phi_ss=np.array([1.9846028, 1.6323408]), optimality_error=1e-16)
     msg.header.frame_id = "hsa_base"
     msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta = 0.00479247, 0.12781018, -0.066980133
-    msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax = -1.1352565, 0.0080816386, 0.30410104
+    msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax = (
+        -1.1352565,
+        0.0080816386,
+        0.30410104,
+    )
     return msg
 
 
 class Feeder:
-    """Publishes a fixed, ready state near the setpoint at 200 Hz to namespace ns while `running` is set."""
+    """Publishes a fixed, ready state near the setpoint at 200 Hz to namespace ns while `running` is
+    set."""
 
     def __init__(self, node, ns: str) -> None:  # noqa: ANN001 - rclpy node
         self.node = node
@@ -100,7 +119,8 @@ class Feeder:
 
 
 class Recorder:
-    """Raw subscription, decoded only when read: keeps the observing test process fast enough for 200 Hz."""
+    """Raw subscription, decoded only when read: keeps the observing test process fast enough for
+    200 Hz."""
 
     def __init__(self, node, msg_type: type, topic: str) -> None:  # noqa: ANN001 - rclpy node
         self.msg_type = msg_type
@@ -115,7 +135,8 @@ class Recorder:
 
 
 def _last_tracking(infos: list[ControllerInfo]) -> ControllerInfo:
-    """The last info of a tracking tick (a starved feeder can cause an occasional hold on a loaded machine)."""
+    """The last info of a tracking tick (a starved feeder can cause an occasional hold on a loaded
+    machine)."""
     tracking = [m for m in infos if m.state == ControllerInfo.STATE_TRACKING]
     assert tracking, "no tracking tick"
     return tracking[-1]
@@ -140,17 +161,24 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         time.sleep(1.0)
         assert len(cmds) == 0, "no command may be sent before a ready state arrives"
         feeder.running.set()
-        deadline = time.monotonic() + 15.0  # the first command needs a full estimator window of states
+        deadline = (
+            time.monotonic() + 15.0
+        )  # the first command needs a full estimator window of states
         while len(cmds) == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert len(cmds) > 0, "no phi_cmd once ready states arrive"
         time.sleep(2.2)  # then 2 s of steady ticking are measured
         now = _sec(ros_node.get_clock().now().to_msg())
         sent_cmds = cmds.since()
-        recent = [_sec(m.header.stamp) for m in sent_cmds if now - 2.0 <= _sec(m.header.stamp) < now]
-        # Ticks come one period apart (10th percentile of the intervals). On the 2 shared cores of the test machine a
-        # loaded CPU delays some wake-ups past the next period and rcl then skips that tick: a loose bound on the count.
-        assert 0.5 / rate <= np.percentile(np.diff(recent), 10) <= 1.2 / rate, "phi_cmd tick interval"
+        recent = [
+            _sec(m.header.stamp) for m in sent_cmds if now - 2.0 <= _sec(m.header.stamp) < now
+        ]
+        # Ticks come one period apart (10th percentile of the intervals). On the 2 shared cores of
+        # the test machine a loaded CPU delays some wake-ups past the next period and rcl then skips
+        # that tick: a loose bound on the count.
+        assert 0.5 / rate <= np.percentile(np.diff(recent), 10) <= 1.2 / rate, (
+            "phi_cmd tick interval"
+        )
         assert 0.5 * rate <= len(recent) / 2.0 <= 1.1 * rate, "phi_cmd rate"
         assert all(_stamp(m.source_stamp) in feeder.sent for m in sent_cmds)
         info = _last_tracking(infos.since(len(infos) - 20))
@@ -158,7 +186,11 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         assert info.setpoint.phi_ss == pytest.approx([1.9846028, 1.6323408])
         phi = info.phi_des_sat
         np.testing.assert_allclose(info.motor_goal_angles, [phi[1], -phi[1], phi[0], -phi[0]])
-        assert 0.0 <= info.state_age < 0.1 and 0.0 < info.compute_time < 0.05 and np.all(np.isfinite(info.varphi))
+        assert (
+            0.0 <= info.state_age < 0.1
+            and 0.0 < info.compute_time < 0.05
+            and np.all(np.isfinite(info.varphi))
+        )
 
         n_cmds, n_infos = len(cmds), len(infos)
         feeder.running.clear()
@@ -167,10 +199,17 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         stopped_at = _sec(ros_node.get_clock().now().to_msg()) - 1.0
         new_infos = infos.since(n_infos)
         last = _last_tracking(new_infos)
-        held = [m for m in new_infos
-                if m.state == ControllerInfo.STATE_HOLD_STALE and _sec(m.header.stamp) > _sec(last.header.stamp)]
+        held = [
+            m
+            for m in new_infos
+            if m.state == ControllerInfo.STATE_HOLD_STALE
+            and _sec(m.header.stamp) > _sec(last.header.stamp)
+        ]
         assert len(held) >= 2, "no hold while states are stale"
-        assert all(_stamp(m.state_stamp) == _stamp(last.state_stamp) for m in held) and held[0].state_age > 0.1
+        assert (
+            all(_stamp(m.state_stamp) == _stamp(last.state_stamp) for m in held)
+            and held[0].state_age > 0.1
+        )
         new_cmds = cmds.since(n_cmds)
         held_cmds = [m for m in new_cmds if _sec(m.header.stamp) > _sec(last.header.stamp)]
         assert len(held_cmds) >= 2
@@ -189,7 +228,10 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
                 break
             time.sleep(0.1)
         assert len(resumed) >= rate * 0.5, "did not resume tracking"
-        assert _stamp(resumed[-1].state_stamp) in feeder.sent and _stamp(resumed[-1].state_stamp) != last_sent
+        assert (
+            _stamp(resumed[-1].state_stamp) in feeder.sent
+            and _stamp(resumed[-1].state_stamp) != last_sent
+        )
     finally:
         feeder.close()
 
@@ -197,7 +239,9 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
 def _set(node, ns: str, name: str, value: float):  # noqa: ANN001, ANN202
     client = node.create_client(SetParameters, f"{ns}/controller_node/set_parameters")
     assert client.wait_for_service(timeout_sec=10.0)
-    request = SetParameters.Request(parameters=[Parameter(name, Parameter.Type.DOUBLE, value).to_parameter_msg()])
+    request = SetParameters.Request(
+        parameters=[Parameter(name, Parameter.Type.DOUBLE, value).to_parameter_msg()]
+    )
     return client.call(request, timeout_sec=10.0).results[0]
 
 
@@ -270,8 +314,13 @@ done.set()
 def test_scheduling_switches_every_thread_and_back() -> None:
     """scheduling.apply: every thread, and one started afterwards, under SCHED_RR; apply(0), which
     the node's on_shutdown calls before the teardown, puts them all back under SCHED_OTHER."""
-    out = subprocess.run([sys.executable, "-c", SWITCH, str(RT_PRIORITY)], capture_output=True,
-                         text=True, timeout=60.0, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", SWITCH, str(RT_PRIORITY)],
+        capture_output=True,
+        text=True,
+        timeout=60.0,
+        check=True,
+    ).stdout
     on, off = json.loads(out)
     assert on == [[os.SCHED_RR, RT_PRIORITY]] and off == [[os.SCHED_OTHER, 0]]
 

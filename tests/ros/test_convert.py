@@ -1,4 +1,5 @@
-"""hsa_common.convert on real rosidl messages (no process, no DDS): hand-computed values and round trips."""
+"""hsa_common.convert on real rosidl messages (no process, no DDS): hand-computed values and round
+trips."""
 
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ from hsa_msgs.msg import CsConfiguration, PlanarActuation, PlanarPose
 pytestmark = pytest.mark.ros
 
 
-# --- stamps ---------------------------------------------------------------------------------------------------------
+# --- stamps
+# --------------------------------------------------------------------------------------------------
+
 
 def test_stamp_ns_of_a_time_message() -> None:
     assert convert.stamp_ns(Time(sec=12, nanosec=345_678_901)) == 12_345_678_901
@@ -48,8 +51,13 @@ def test_stamp_s_of_a_time_message() -> None:
 def test_stamp_msg_splits_seconds_and_nanoseconds() -> None:
     stamp = convert.stamp_msg(12_345_678_901)
     assert isinstance(stamp, Time) and (stamp.sec, stamp.nanosec) == (12, 345_678_901)
-    assert (convert.stamp_msg(1_000_000_000).sec, convert.stamp_msg(1_000_000_000).nanosec) == (1, 0)
-    assert convert.stamp_msg(np.int64(999)).nanosec == 999  # NumPy integers from array maths are accepted
+    assert (convert.stamp_msg(1_000_000_000).sec, convert.stamp_msg(1_000_000_000).nanosec) == (
+        1,
+        0,
+    )
+    assert (
+        convert.stamp_msg(np.int64(999)).nanosec == 999
+    )  # NumPy integers from array maths are accepted
 
 
 @pytest.mark.parametrize("ns", [0, 1, 999_999_999, 1_000_000_000, 1_704_067_200_123_456_789])
@@ -63,12 +71,19 @@ def test_clock_msg_carries_the_instant() -> None:
     assert isinstance(msg, Clock) and (msg.clock.sec, msg.clock.nanosec) == (40, 25_000_000)
 
 
-# --- poses ----------------------------------------------------------------------------------------------------------
+# --- poses
+# --------------------------------------------------------------------------------------------------
+
 
 def test_position_quaternion_of_a_pose_stamped() -> None:
     msg = PoseStamped()
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = 0.1, -0.2, 0.3
-    msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w = 0.0, 0.6, 0.0, 0.8
+    (
+        msg.pose.orientation.x,
+        msg.pose.orientation.y,
+        msg.pose.orientation.z,
+        msg.pose.orientation.w,
+    ) = 0.0, 0.6, 0.0, 0.8
     assert convert.position_quaternion(msg) == ((0.1, -0.2, 0.3), (0.0, 0.6, 0.0, 0.8))
 
 
@@ -99,7 +114,9 @@ def test_planar_pose_round_trip_and_first_three_entries() -> None:
     msg = convert.planar_pose_msg(np.array([0.01, 0.12, -0.3]))
     assert (msg.x, msg.y, msg.theta) == (0.01, 0.12, -0.3)
     np.testing.assert_array_equal(convert.planar_pose(msg), [0.01, 0.12, -0.3])
-    tail = convert.planar_pose_msg((1.0, 2.0, 3.0, 4.0, 5.0, 6.0)[3:])  # the χ̇_ee half of a [q̇, χ̇_ee] estimate
+    tail = convert.planar_pose_msg(
+        (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)[3:]
+    )  # the χ̇_ee half of a [q̇, χ̇_ee] estimate
     assert (tail.x, tail.y, tail.theta) == (4.0, 5.0, 6.0)
 
 
@@ -109,7 +126,9 @@ def test_planar_pose_msg_carries_nan() -> None:
     assert all(math.isnan(v) for v in (msg.x, msg.y, msg.theta))
 
 
-# --- configuration and actuation ------------------------------------------------------------------------------------
+# --- configuration and actuation
+# ------------------------------------------------------------------------------------
+
 
 def test_configuration_reads_kappa_sigma_sh_sigma_ax_in_order() -> None:
     q = convert.configuration(CsConfiguration(kappa_be=-4.0, sigma_sh=0.02, sigma_ax=0.15))
@@ -134,7 +153,11 @@ def test_actuation_msg_round_trip_with_header_and_source_stamp() -> None:
     stamp, source = Time(sec=10, nanosec=25_000_000), Time(sec=9, nanosec=995_000_000)
     msg = convert.actuation_msg([0.5, 1.25], stamp, frame_id="hsa_base", source_stamp=source)
     assert isinstance(msg, PlanarActuation)
-    assert msg.header.stamp == stamp and msg.header.frame_id == "hsa_base" and msg.source_stamp == source
+    assert (
+        msg.header.stamp == stamp
+        and msg.header.frame_id == "hsa_base"
+        and msg.source_stamp == source
+    )
     np.testing.assert_array_equal(convert.actuation(msg), [0.5, 1.25])
 
 
@@ -144,6 +167,7 @@ def test_actuation_msg_without_source_stamp_leaves_it_zero() -> None:
 
 
 def test_actuation_msg_refuses_a_wrong_length() -> None:
-    """phi is float64[2]: the generated setter's size check (ROS_PYTHON_CHECK_FIELDS=1 in tests) applies."""
+    """phi is float64[2]: the generated setter's size check (ROS_PYTHON_CHECK_FIELDS=1 in tests)
+    applies."""
     with pytest.raises(AssertionError):
         convert.actuation_msg([0.1, 0.2, 0.3], Time())

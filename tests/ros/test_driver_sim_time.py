@@ -1,8 +1,9 @@
-"""dynamixel_driver with use_sim_time on a test-published /clock (issue 11): the command watchdog runs on simulated
-time. The real driver process (on rclpy's SingleThreadedExecutor: the EventsExecutor's timers do not follow a ROS
-clock, rclcpp#2457) and dynamixel_sdk on the emulated MX-28 bus; the test owns /clock and steps it one
-10 ms instant at a time, waiting for the driver's read of that instant (``motor_states`` stamped with it) before it
-looks at the bus, so nothing depends on how fast the loaded machine runs the driver.
+"""dynamixel_driver with use_sim_time on a test-published /clock (issue 11): the command watchdog
+runs on simulated time. The real driver process (on rclpy's SingleThreadedExecutor: the
+EventsExecutor's timers do not follow a ROS clock, rclcpp#2457) and dynamixel_sdk on the emulated
+MX-28 bus; the test owns /clock and steps it one 10 ms instant at a time, waiting for the driver's
+read of that instant (``motor_states`` stamped with it) before it looks at the bus, so nothing
+depends on how fast the loaded machine runs the driver.
 """
 
 from __future__ import annotations
@@ -19,7 +20,14 @@ from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import MX28Emulator
 from tests.ros.driver_fixtures import drivers
-from tests.ros.driver_harness import DriverProcess, command, goal_writes, make_emulator, torque, wait_until
+from tests.ros.driver_harness import (
+    DriverProcess,
+    command,
+    goal_writes,
+    make_emulator,
+    torque,
+    wait_until,
+)
 from tests.ros.faults import BEST_EFFORT, fault
 
 pytestmark = pytest.mark.ros
@@ -31,7 +39,8 @@ START_NS = 100_000_000_000  # simulated time starts at 100 s
 
 
 class SimClock:
-    """Publishes the simulated time ``ns`` on /clock every 10 ms of wall time (re-publishing keeps it still)."""
+    """Publishes the simulated time ``ns`` on /clock every 10 ms of wall time (re-publishing keeps
+    it still)."""
 
     def __init__(self, node) -> None:
         self.ns = START_NS  # held: the test moves it
@@ -64,7 +73,8 @@ class StateStamps:
         self.stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
 
     def wait_cycle(self, ns: int, timeout: float = 20.0) -> bool:
-        """Whether the driver read the bus at simulated time ``ns`` (within ``timeout`` s of wall time)."""
+        """Whether the driver read the bus at simulated time ``ns`` (within ``timeout`` s of wall
+        time)."""
         return wait_until(lambda: ns in self.stamps, timeout=timeout)
 
 
@@ -73,45 +83,72 @@ def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
     emulator: MX28Emulator | None = None
     try:
         states = StateStamps(ros_node)
-        # The driver starts before its bus exists, with simulated time standing still (a lockstep simulator waits
-        # for its participants before it moves /clock): the reconnect timer runs on the wall clock, so it connects.
-        drivers.append(driver := DriverProcess(str(tmp_path / "ttyDXL"), (
-            "use_sim_time:=true", "watchdog_action:=relax", f"command_timeout:={TIMEOUT_S}"),
-            env={"HSA_EXECUTOR": "single"}).wait_ready())
+        # The driver starts before its bus exists, with simulated time standing still (a lockstep
+        # simulator waits for its participants before it moves /clock): the reconnect timer runs on
+        # the wall clock, so it connects.
+        drivers.append(
+            driver := DriverProcess(
+                str(tmp_path / "ttyDXL"),
+                ("use_sim_time:=true", "watchdog_action:=relax", f"command_timeout:={TIMEOUT_S}"),
+                env={"HSA_EXECUTOR": "single"},
+            ).wait_ready()
+        )
         assert wait_until(lambda: bool(driver.log("bus not ready")), timeout=30.0), driver.output()
-        assert wait_until(lambda: clock.subscribers() >= 1, timeout=30.0), "the driver does not subscribe to /clock"
-        time.sleep(1.0)  # the bus appears well after the driver got simulated time (reconnect_period is 0.2 s)
+        assert wait_until(lambda: clock.subscribers() >= 1, timeout=30.0), (
+            "the driver does not subscribe to /clock"
+        )
+        time.sleep(
+            1.0
+        )  # the bus appears well after the driver got simulated time (reconnect_period is 0.2 s)
         emulator = make_emulator(tmp_path)
         assert wait_until(lambda: torque(emulator) == {True}, timeout=30.0), driver.output()
         assert clock.ns == START_NS
         pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
         assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
 
-        # Simulated time stands still at T: a phi_cmd arrives at T, then 2 s of wall time pass without /clock moving.
+        # Simulated time stands still at T: a phi_cmd arrives at T, then 2 s of wall time pass
+        # without /clock moving.
         held = clock.ns = START_NS + STEP_NS
-        assert states.wait_cycle(held), f"no read cycle at the held instant {held}\n{driver.output()}"
+        assert states.wait_cycle(held), (
+            f"no read cycle at the held instant {held}\n{driver.output()}"
+        )
         began = time.monotonic()
         pub.publish(command(0.3, 0.3))
-        assert wait_until(lambda: goal_writes(emulator, began), timeout=10.0), "the command was not written"
+        assert wait_until(lambda: goal_writes(emulator, began), timeout=10.0), (
+            "the command was not written"
+        )
         time.sleep(2.0)
-        assert torque(emulator) == {True} and not driver.log("no phi_cmd"), "watchdog fired while time stood still"
+        assert torque(emulator) == {True} and not driver.log("no phi_cmd"), (
+            "watchdog fired while time stood still"
+        )
 
-        # Step the clock 10 ms at a time: the watchdog fires at the first cycle whose command age exceeds the
-        # timeout in simulated time (T + 0.10 s or T + 0.11 s, by float rounding), not a cycle earlier.
+        # Step the clock 10 ms at a time: the watchdog fires at the first cycle whose command age
+        # exceeds the timeout in simulated time (T + 0.10 s or T + 0.11 s, by float rounding), not a
+        # cycle earlier.
         fired = None
         for k in range(1, 21):
             clock.ns = held + k * STEP_NS
-            assert states.wait_cycle(clock.ns), f"no read cycle at T + {k * 10} ms\n{driver.output()}"
+            assert states.wait_cycle(clock.ns), (
+                f"no read cycle at T + {k * 10} ms\n{driver.output()}"
+            )
             if torque(emulator) == {False}:
                 fired = k * STEP_NS * 1e-9
                 break
-        assert fired is not None, f"watchdog never fired within 0.2 s of simulated time\n{driver.output()}"
-        assert TIMEOUT_S - 1e-6 <= fired <= TIMEOUT_S + STEP_NS * 1e-9 + 1e-6, f"fired {fired:.3f} s after T"
+        assert fired is not None, (
+            f"watchdog never fired within 0.2 s of simulated time\n{driver.output()}"
+        )
+        assert TIMEOUT_S - 1e-6 <= fired <= TIMEOUT_S + STEP_NS * 1e-9 + 1e-6, (
+            f"fired {fired:.3f} s after T"
+        )
         assert driver.log("no phi_cmd for > 0.1 s: relaxing")
         wall = time.monotonic() - began
-        fault("phi_cmd stops with use_sim_time (/clock held 2 s, then stepped 10 ms)",
-              f"watchdog relaxed the motors {fired:.2f} s of simulated time after the last command ({wall:.1f} s of "
-              "wall time), never while /clock stood still", "next phi_cmd")
+        fault(
+            "phi_cmd stops with use_sim_time (/clock held 2 s, then stepped 10 ms)",
+            f"watchdog relaxed the motors {fired:.2f} s of simulated time after the last command "
+            f"({wall:.1f} s of "
+            "wall time), never while /clock stood still",
+            "next phi_cmd",
+        )
     finally:
         clock.close()
         if emulator is not None:

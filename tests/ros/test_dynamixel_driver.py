@@ -1,4 +1,5 @@
-"""dynamixel_driver as a real process (real dynamixel_sdk) against the MX-28 emulator running in the test process."""
+"""dynamixel_driver as a real process (real dynamixel_sdk) against the MX-28 emulator running in the
+test process."""
 
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ from hsa_core.model.params import CONFIG_DIR
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
-
 from tests.ros.conftest import stop_process, wait_for_line, wait_until
 from tests.ros.driver_fixtures import driver, emulator
 from tests.ros.driver_harness import IDS, NEUTRAL, PHI_MAX, clamp_range, torque
@@ -42,12 +42,14 @@ def spec_goal_ticks(phi1: float, phi2: float) -> dict[int, int]:
     return {i: NEUTRAL[i] + math.trunc(psi[i] * 2048 / math.pi) for i in IDS}
 
 
-def assert_signal_turns_torque_off(proc: subprocess.Popen, sig: signal.Signals, emulator: MX28Emulator) -> None:
+def assert_signal_turns_torque_off(
+    proc: subprocess.Popen, sig: signal.Signals, emulator: MX28Emulator
+) -> None:
     """Signal the driver's process group: it must exit by itself with every servo's torque off."""
     assert torque(emulator) == {True}
     os.killpg(proc.pid, sig)
-    # The code is 0, or 1 when the signal's context shutdown races a publish or the executor's wait set (a runner
-    # matter); the runner's hook has switched torque off either way.
+    # The code is 0, or 1 when the signal's context shutdown races a publish or the executor's wait
+    # set (a runner matter); the runner's hook has switched torque off either way.
     assert proc.wait(timeout=20.0) in (0, 1)
     assert torque(emulator) == {False}
 
@@ -59,9 +61,13 @@ def command(phi1: float, phi2: float, source: Time | None = None) -> PlanarActua
 def test_phi_cmd_gives_spec_goal_ticks_state_comes_back_and_sigint_turns_torque_off(
     driver, emulator, ros_node, tmp_path
 ) -> None:
-    stored = tmp_path / "home" / "neutral.yaml"  # absent: the driver stores the present positions there
+    stored = (
+        tmp_path / "home" / "neutral.yaml"
+    )  # absent: the driver stores the present positions there
     proc = driver("neutral_source:=file", f"neutral_file:={stored}")
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), "torque was not enabled at activation"
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), (
+        "torque was not enabled at activation"
+    )
     assert f"neutral_ticks: {[NEUTRAL[i] for i in IDS]}" in stored.read_text()
     states: list[JointState] = []
     present: list[PlanarActuation] = []
@@ -76,11 +82,19 @@ def test_phi_cmd_gives_spec_goal_ticks_state_comes_back_and_sigint_turns_torque_
     def publish() -> None:
         pub.publish(command(0.7, 1.3, source))
 
-    assert wait_until(lambda: emulator.goal_ticks() == expected, step=publish, timeout=10.0), emulator.goal_ticks()
+    assert wait_until(lambda: emulator.goal_ticks() == expected, step=publish, timeout=10.0), (
+        emulator.goal_ticks()
+    )
     psi = [1.3, -1.3, 0.7, -0.7]
-    assert wait_until(lambda: bool(states) and np.allclose(states[-1].position, psi, atol=TICK), step=publish, timeout=10.0)
+    assert wait_until(
+        lambda: bool(states) and np.allclose(states[-1].position, psi, atol=TICK),
+        step=publish,
+        timeout=10.0,
+    )
     assert states[-1].name == [f"motor_{i}" for i in IDS] and len(states[-1].velocity) == 4
-    assert wait_until(lambda: bool(present) and np.allclose(present[-1].phi, [0.7, 1.3], atol=TICK), timeout=10.0)
+    assert wait_until(
+        lambda: bool(present) and np.allclose(present[-1].phi, [0.7, 1.3], atol=TICK), timeout=10.0
+    )
     assert wait_until(lambda: bool(goals), timeout=10.0)
     assert (goals[-1].source_stamp.sec, goals[-1].source_stamp.nanosec) == (123, 456)
     assert np.allclose(goals[-1].phi, [0.7, 1.3], atol=TICK) and goals[-1].header.stamp.sec > 0
@@ -100,23 +114,37 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
         def step() -> None:
             pub.publish(command(phi1, phi2))
             seen.append(emulator.goal_ticks())
+
         return step
 
     saturated = spec_goal_ticks(PHI_MAX, 0.0)  # φ₁ clipped to φ_max, φ₂ to 0
-    assert wait_until(lambda: emulator.goal_ticks() == saturated, step=send(50.0, -20.0), timeout=10.0), emulator.goal_ticks()
-    assert wait_until(lambda: emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX), step=send(-1e300, 1e300), timeout=10.0)
+    assert wait_until(
+        lambda: emulator.goal_ticks() == saturated, step=send(50.0, -20.0), timeout=10.0
+    ), emulator.goal_ticks()
+    assert wait_until(
+        lambda: emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX),
+        step=send(-1e300, 1e300),
+        timeout=10.0,
+    )
     for bad in ((math.nan, 0.5), (math.inf, 0.5)):
         deadline = time.monotonic() + 0.5
         while time.monotonic() < deadline:
             send(*bad)()
             time.sleep(0.02)
-        assert emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX), "a non-finite command moved the servos"
+        assert emulator.goal_ticks() == spec_goal_ticks(0.0, PHI_MAX), (
+            "a non-finite command moved the servos"
+        )
 
-    # Rate limit (set at run time) and watchdog: ramp towards φ = 0 at 1 rad/s, stop commanding, the goal holds.
+    # Rate limit (set at run time) and watchdog: ramp towards φ = 0 at 1 rad/s, stop commanding, the
+    # goal holds.
     params = ros_node.create_client(SetParameters, "/dynamixel_driver/set_parameters")
     assert params.wait_for_service(timeout_sec=10.0)
-    answer = params.call(SetParameters.Request(parameters=[Parameter("max_goal_rate", value=1.0).to_parameter_msg()]),
-                         timeout_sec=10.0)
+    answer = params.call(
+        SetParameters.Request(
+            parameters=[Parameter("max_goal_rate", value=1.0).to_parameter_msg()]
+        ),
+        timeout_sec=10.0,
+    )
     assert answer is not None and answer.results[0].successful
     start = emulator.goal_ticks()[21]
     started = time.monotonic()
@@ -134,11 +162,16 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
     for goals in seen:
         for dxl_id, ticks in goals.items():
             low, high = clamp_range(dxl_id)
-            assert low <= ticks <= high, f"goal {ticks} of ID {dxl_id} outside [{low:.1f}, {high:.1f}]"
+            assert low <= ticks <= high, (
+                f"goal {ticks} of ID {dxl_id} outside [{low:.1f}, {high:.1f}]"
+            )
 
-    # An overload shuts servo 22 down: the driver switches every servo off and refuses torque-on while it lasts.
+    # An overload shuts servo 22 down: the driver switches every servo off and refuses torque-on
+    # while it lasts.
     emulator.set_hardware_error(22, HW_OVERLOAD)
-    assert wait_until(lambda: torque(emulator) == {False}, timeout=10.0), "torque stayed on after a hardware error"
+    assert wait_until(lambda: torque(emulator) == {False}, timeout=10.0), (
+        "torque stayed on after a hardware error"
+    )
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
     answer = client.call(SetBool.Request(data=True), timeout_sec=10.0)
@@ -146,7 +179,9 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
     assert proc.poll() is None
 
 
-def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(driver, emulator, ros_node) -> None:
+def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(
+    driver, emulator, ros_node
+) -> None:
     proc = driver()
     assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0)
     client = ros_node.create_client(SetBool, "set_torque")
@@ -160,7 +195,9 @@ def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(
     time.sleep(1.0)
     assert proc.poll() is None, "the driver died when the bus disappeared"
     emulator.replug()
-    assert wait_until(lambda: torque(emulator) == {True}, timeout=15.0), "torque not re-enabled after the replug"
+    assert wait_until(lambda: torque(emulator) == {True}, timeout=15.0), (
+        "torque not re-enabled after the replug"
+    )
     states: list[JointState] = []
     ros_node.create_subscription(JointState, "motor_states", states.append, qos.SENSOR)
     assert wait_until(lambda: len(states) > 5, timeout=10.0), "no motor_states after the reconnect"
@@ -168,7 +205,9 @@ def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(
     assert_signal_turns_torque_off(proc, signal.SIGTERM, emulator)
 
 
-def test_start_far_from_the_stored_neutral_keeps_torque_off(driver, emulator, ros_node, tmp_path) -> None:
+def test_start_far_from_the_stored_neutral_keeps_torque_off(
+    driver, emulator, ros_node, tmp_path
+) -> None:
     stored = tmp_path / "neutral.yaml"
     stored.write_text(f"ids: {list(IDS)}\nneutral_ticks: {[NEUTRAL[i] + 400 for i in IDS]}\n")
     proc = driver("neutral_source:=file", f"neutral_file:={stored}")
@@ -181,7 +220,8 @@ def test_start_far_from_the_stored_neutral_keeps_torque_off(driver, emulator, ro
 
 
 def test_bus_torque_off_still_works_after_an_exchange_cut_by_a_signal(emulator) -> None:
-    """The shutdown hook's torque-off must not be blocked by the SDK state a KeyboardInterrupt can leave behind."""
+    """The shutdown hook's torque-off must not be blocked by the SDK state a KeyboardInterrupt can
+    leave behind."""
     bus = DynamixelBus(emulator.port, 4_000_000, IDS)
     bus.open()
     bus.configure(torque_on=True)
@@ -190,9 +230,12 @@ def test_bus_torque_off_still_works_after_an_exchange_cut_by_a_signal(emulator) 
     bus.close()
 
 
-def test_lifecycle_without_autostart_publishes_state_only_while_active(driver, emulator, ros_node) -> None:
-    """autostart false: nothing until `configure` (no state publisher, bus closed); state publishers from configure,
-    state and torque from activate; deactivate says torque off on the latched `torque` topic; cleanup removes them."""
+def test_lifecycle_without_autostart_publishes_state_only_while_active(
+    driver, emulator, ros_node
+) -> None:
+    """autostart false: nothing until `configure` (no state publisher, bus closed); state publishers
+    from configure, state and torque from activate; deactivate says torque off on the latched
+    `torque` topic; cleanup removes them."""
     proc = driver("autostart:=false")
     states: list[JointState] = []
     reported: list[bool] = []
@@ -202,30 +245,45 @@ def test_lifecycle_without_autostart_publishes_state_only_while_active(driver, e
     assert lifecycle.wait_for_service(timeout_sec=30.0)
 
     def transition(kind: int) -> None:
-        response = lifecycle.call(ChangeState.Request(transition=Transition(id=kind)), timeout_sec=30.0)
+        response = lifecycle.call(
+            ChangeState.Request(transition=Transition(id=kind)), timeout_sec=30.0
+        )
         assert response is not None and response.success, kind
 
     assert wait_until(lambda: ros_node.count_publishers("torque") == 1, 30.0)
-    assert not wait_until(lambda: ros_node.count_publishers("motor_states") > 0, 1.0), "state publisher unconfigured"
+    assert not wait_until(lambda: ros_node.count_publishers("motor_states") > 0, 1.0), (
+        "state publisher unconfigured"
+    )
     transition(Transition.TRANSITION_CONFIGURE)
     assert wait_until(lambda: ros_node.count_publishers("motor_states") == 1, 30.0)
     assert not wait_until(lambda: bool(states), 0.5) and torque(emulator) == {False}
     transition(Transition.TRANSITION_ACTIVATE)
-    assert wait_until(lambda: bool(states) and torque(emulator) == {True} and reported[-1:] == [True], 30.0)
+    assert wait_until(
+        lambda: bool(states) and torque(emulator) == {True} and reported[-1:] == [True], 30.0
+    )
     transition(Transition.TRANSITION_DEACTIVATE)
-    assert torque(emulator) == {False} and wait_until(lambda: reported[-1:] == [False], 30.0), reported
+    assert torque(emulator) == {False} and wait_until(lambda: reported[-1:] == [False], 30.0), (
+        reported
+    )
     transition(Transition.TRANSITION_CLEANUP)
     assert wait_until(lambda: ros_node.count_publishers("motor_states") == 0, 30.0)
     assert stop_process(proc) in (0, 1) and torque(emulator) == {False}
 
 
 def test_bad_parameters_exit_2_naming_the_parameter(driver) -> None:
-    cases = {"baudrate": ("baudrate:=1234567",), "neutral_file": ("neutral_source:=file",),  # validator; cross-check
-             "params_file": ("material:=epu", f"params_file:={CONFIG_DIR / 'fpu.yaml'}")}  # the model's material
-    procs = {name: driver(*overrides, ready=False) for name, overrides in cases.items()}  # started together: faster
+    cases = {
+        "baudrate": ("baudrate:=1234567",),
+        "neutral_file": ("neutral_source:=file",),  # validator; cross-check
+        "params_file": ("material:=epu", f"params_file:={CONFIG_DIR / 'fpu.yaml'}"),
+    }  # the model's material
+    procs = {
+        name: driver(*overrides, ready=False) for name, overrides in cases.items()
+    }  # started together: faster
     outputs = {name: proc.communicate(timeout=60.0)[0] for name, proc in procs.items()}
     for name, proc in procs.items():
         assert proc.returncode == 2, outputs[name]
         assert f"'{name}'" in outputs[name]
     refusal = [line for line in outputs["params_file"].splitlines() if "refusing to start" in line]
-    assert len(refusal) == 1 and "is a 'fpu' set but material is 'epu'" in refusal[0], outputs["params_file"]
+    assert len(refusal) == 1 and "is a 'fpu' set but material is 'epu'" in refusal[0], outputs[
+        "params_file"
+    ]

@@ -1,6 +1,6 @@
-"""Emergency stop of the real dynamixel_driver on the MX-28 emulator (issue 6): services ``estop``/``clear_estop``, the
-latched ``estop`` topic, the ``estop_request`` subscription, and the measured stop latency (request sent → the
-emulator executed torque-enable = 0 on every servo)."""
+"""Emergency stop of the real dynamixel_driver on the MX-28 emulator (issue 6): services
+``estop``/``clear_estop``, the latched ``estop`` topic, the ``estop_request`` subscription, and the
+measured stop latency (request sent → the emulator executed torque-enable = 0 on every servo)."""
 
 from __future__ import annotations
 
@@ -21,18 +21,22 @@ from tests.ros.faults import DiagnosticsLog, fault
 pytestmark = pytest.mark.ros
 __all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 
-STOP_BOUND = 0.1  # s: request → torque off on every servo (the shutdown requirement; the E-stop must be no slower)
+# s: request → torque off on every servo (the shutdown requirement; the E-stop must be no slower)
+STOP_BOUND = 0.1
 
 
-
-def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_it(emulator, drivers, ros_node) -> None:
+def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_it(
+    emulator, drivers, ros_node
+) -> None:
     drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
     assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
     services = dh.DriverServices(ros_node)
     diagnostics = DiagnosticsLog(ros_node)
     latched: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: latched.append(m.data), qos.LATCHED)
-    assert wait_until(lambda: latched == [False], timeout=10.0), f"no latched released state: {latched}"
+    assert wait_until(lambda: latched == [False], timeout=10.0), (
+        f"no latched released state: {latched}"
+    )
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     request_pub = ros_node.create_publisher(Bool, "estop_request", qos.INFO)
 
@@ -45,7 +49,8 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     drive(0.5, 0.5, 0.3)
     assert dh.goal_writes(emulator), "commands did not reach the servos before the E-stop"
 
-    # 1. Service: torque off at once, latched True, commands ignored, set_torque and estop_request False refused.
+    # 1. Service: torque off at once, latched True, commands ignored, set_torque and estop_request
+    #    False refused.
     response, sent = services.call("estop")
     assert response.success and "torque off confirmed" in response.message, response.message
     off = dh.torque_off_time(emulator, sent)
@@ -64,14 +69,21 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     late: list[bool] = []
     ros_node.create_subscription(Bool, "estop", lambda m: late.append(m.data), qos.LATCHED)
     assert wait_until(lambda: late == [True], timeout=10.0), f"a late subscriber got {late}"
-    status, values = diagnostics.wait("dynamixel_driver: estop", lambda s, v: v["engaged"] == "True")
+    status, values = diagnostics.wait(
+        "dynamixel_driver: estop", lambda s, v: v["engaged"] == "True"
+    )
     assert status.level == DiagnosticStatus.ERROR and "estop service" in values["reason"]
     assert int(values["ignored_commands"]) > 0
-    fault("E-stop service", f"torque off on all servos {service_latency * 1e3:.1f} ms after the request, latched "
-          f"/estop True, {values['ignored_commands']} phi_cmd ignored, set_torque and estop_request False refused",
-          "explicit clear_estop")
+    fault(
+        "E-stop service",
+        f"torque off on all servos {service_latency * 1e3:.1f} ms after the request, latched "
+        f"/estop True, {values['ignored_commands']} phi_cmd ignored, set_torque and estop_request "
+        "False refused",
+        "explicit clear_estop",
+    )
 
-    # 2. clear_estop: torque on holding the present positions, latched False, commands followed again.
+    # 2. clear_estop: torque on holding the present positions, latched False, commands followed
+    #    again.
     response, sent = services.call("clear_estop")
     assert response.success, response.message
     on = dh.torque_on_time(emulator, sent)
@@ -80,13 +92,20 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     resumed = time.monotonic()
     drive(1.0, 1.0, 0.3)
     assert dh.goal_writes(emulator, resumed), "commands not followed after clear_estop"
-    fault("E-stop clear", "clear_estop re-enables torque holding the present positions, /estop False, phi_cmd "
-          "followed again", on - sent)
+    fault(
+        "E-stop clear",
+        "clear_estop re-enables torque holding the present positions, /estop False, phi_cmd "
+        "followed again",
+        on - sent,
+    )
 
-    # 3. estop_request True (button / GUI): same stop; a hardware error makes clear_estop refuse and stay latched.
+    # 3. estop_request True (button / GUI): same stop; a hardware error makes clear_estop refuse and
+    #    stay latched.
     sent = time.monotonic()
     request_pub.publish(Bool(data=True))
-    assert wait_until(lambda: dh.torque_off_time(emulator, sent) is not None, 2.0), "estop_request True did not stop"
+    assert wait_until(lambda: dh.torque_off_time(emulator, sent) is not None, 2.0), (
+        "estop_request True did not stop"
+    )
     topic_latency = dh.torque_off_time(emulator, sent) - sent
     assert topic_latency < STOP_BOUND, f"E-stop by topic took {topic_latency * 1e3:.1f} ms"
     assert wait_until(lambda: latched[-1:] == [True], timeout=10.0)
@@ -101,13 +120,18 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     response, sent = services.call("clear_estop")
     assert response.success and dh.torque(emulator) == {True}, response.message
     assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
-    fault("E-stop request topic", f"estop_request True: torque off in {topic_latency * 1e3:.1f} ms; clear_estop "
-          "refused while a servo reports overload (stays latched), accepted after the error cleared",
-          dh.torque_on_time(emulator, sent) - sent)
+    fault(
+        "E-stop request topic",
+        f"estop_request True: torque off in {topic_latency * 1e3:.1f} ms; clear_estop "
+        "refused while a servo reports overload (stays latched), accepted after the error cleared",
+        dh.torque_on_time(emulator, sent) - sent,
+    )
     assert driver.proc.poll() is None
 
 
-def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(emulator, drivers, ros_node) -> None:
+def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(
+    emulator, drivers, ros_node
+) -> None:
     drivers.append(driver := dh.DriverProcess(emulator.port).wait_ready())
     assert wait_until(lambda: dh.torque(emulator) == {True}, timeout=10.0), driver.output()
     services = dh.DriverServices(ros_node)
@@ -121,8 +145,14 @@ def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(emulator
     emulator.replug()
     assert wait_until(lambda: bool(driver.log("bus reconnected")), 10.0), driver.output()
     time.sleep(0.3)
-    assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}, "torque on during E-stop"
+    assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}, (
+        "torque on during E-stop"
+    )
     response, sent = services.call("clear_estop")
     assert response.success and dh.torque(emulator) == {True}, response.message
-    fault("E-stop with the bus unplugged", "latched without bus access, clear refused while disconnected, torque "
-          "stays off through the reconnect", dh.torque_on_time(emulator, sent) - sent)
+    fault(
+        "E-stop with the bus unplugged",
+        "latched without bus access, clear refused while disconnected, torque "
+        "stays off through the reconnect",
+        dh.torque_on_time(emulator, sent) - sent,
+    )

@@ -1,5 +1,5 @@
-"""hsa_common.exit_deadline and the runner's bounded teardown: a process stuck in native code that holds the GIL still
-ends, with the exit code it was meant to have."""
+"""hsa_common.exit_deadline and the runner's bounded teardown: a process stuck in native code that
+holds the GIL still ends, with the exit code it was meant to have."""
 
 from __future__ import annotations
 
@@ -25,23 +25,32 @@ sys.exit(3)
 
 @pytest.mark.parametrize("code", [0, 7])
 def test_the_deadline_ends_a_process_stuck_with_the_gil(code: int) -> None:
-    out = subprocess.run([sys.executable, "-c", STUCK, str(code), "stuck"], capture_output=True, text=True, timeout=30)
+    out = subprocess.run(
+        [sys.executable, "-c", STUCK, str(code), "stuck"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert out.returncode == code, out.stderr
 
 
 def test_a_process_that_ends_before_the_deadline_keeps_its_own_exit() -> None:
-    out = subprocess.run([sys.executable, "-c", STUCK, "7", "free"], capture_output=True, text=True, timeout=30)
+    out = subprocess.run(
+        [sys.executable, "-c", STUCK, "7", "free"], capture_output=True, text=True, timeout=30
+    )
     assert out.returncode == 3, out.stderr
 
 
 def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None:
-    """The runner bounds rclpy's teardown (TEARDOWN_LIMIT): the node leaves with exit_code 5, not a SIGKILL, and
-    its output names where it hung."""
+    """The runner bounds rclpy's teardown (TEARDOWN_LIMIT): the node leaves with exit_code 5, not a
+    SIGKILL, and its output names where it hung."""
     proc = start_process([sys.executable, str(PEERS / "stuck_teardown.py"), "5"])
     try:
         wait_for_line(proc, "ready")
         proc.send_signal(signal.SIGINT)
-        output, _ = proc.communicate(timeout=40)  # the runner's limit is 6 s; the stuck call alone lasts 60 s
+        output, _ = proc.communicate(
+            timeout=40
+        )  # the runner's limit is 6 s; the stuck call alone lasts 60 s
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -51,8 +60,9 @@ def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -> None:
-    """A stop signal while the node is still being created ends it with exit 0, without waiting for the construction
-    (a simulator compiling its world once needed the launcher's SIGTERM escalation)."""
+    """A stop signal while the node is still being created ends it with exit 0, without waiting for
+    the construction (a simulator compiling its world once needed the launcher's SIGTERM
+    escalation)."""
     proc = start_process([sys.executable, str(PEERS / "slow_start.py")])
     try:
         wait_for_line(proc, "constructing")
@@ -62,4 +72,6 @@ def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, output
-    assert "stopped before ready" in output and "ready\n" not in output.replace("before ready", ""), output
+    assert "stopped before ready" in output and "ready\n" not in output.replace(
+        "before ready", ""
+    ), output

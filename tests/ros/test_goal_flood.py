@@ -1,9 +1,11 @@
-"""A 1 kHz phi_cmd flood on the real dynamixel_driver with its default parameters (issue 10, item 7).
+"""A 1 kHz phi_cmd flood on the real dynamixel_driver with its default parameters (issue 10, item
+7).
 
-Full-range swings 0 <-> phi_max from a reliable publisher: the goals on the emulated bus (the emulator's register-write
-log) must obey a goal rate limit that is on by default. A flood of non-finite commands must be counted in /diagnostics
-and logged, throttled, instead of silently or once per message. Expected figures come from the spec (MX-28 no-load
-speed 55 rev/min at 12 V, identification.md §2.2), not from hsa_core.
+Full-range swings 0 <-> phi_max from a reliable publisher: the goals on the emulated bus (the
+emulator's register-write log) must obey a goal rate limit that is on by default. A flood of
+non-finite commands must be counted in /diagnostics and logged, throttled, instead of silently or
+once per message. Expected figures come from the spec (MX-28 no-load speed 55 rev/min at 12 V,
+identification.md §2.2), not from hsa_core.
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ __all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 NO_LOAD_SPEED = 55.0 * 2.0 * math.pi / 60.0  # rad/s, MX-28 at 12 V
 DOCUMENTED_RATE = 2.0 * NO_LOAD_SPEED  # the documented default max_goal_rate
 FLOOD_S = 2.0
-SLACK_S = 0.05  # s: pty delivery jitter between the driver's clock and the emulator's stamps, under load
-
+SLACK_S = (
+    0.05  # s: pty delivery jitter between the driver's clock and the emulator's stamps, under load
+)
 
 
 def flood(pub, make, seconds: float) -> int:
@@ -57,16 +60,28 @@ def test_full_range_flood_is_rate_limited_by_default(emulator, drivers, ros_node
         low, high = dh.clamp_range(dxl_id)
         assert all(low <= g <= high for _, g in series)
         for i, (t_i, g_i) in enumerate(series):
-            for t_j, g_j in series[i + 1:]:
-                assert abs(g_j - g_i) <= DOCUMENTED_RATE * dh.TICKS_PER_RAD * (t_j - t_i + 2 * SLACK_S) + 1, \
-                    f"ID {dxl_id}: {g_i} -> {g_j} in {t_j - t_i:.3f} s exceeds {DOCUMENTED_RATE:.2f} rad/s"
+            for t_j, g_j in series[i + 1 :]:
+                assert (
+                    abs(g_j - g_i)
+                    <= DOCUMENTED_RATE * dh.TICKS_PER_RAD * (t_j - t_i + 2 * SLACK_S) + 1
+                ), (
+                    f"ID {dxl_id}: {g_i} -> {g_j} in {t_j - t_i:.3f} s exceeds "
+                    f"{DOCUMENTED_RATE:.2f} rad/s"
+                )
         path = sum(abs(b[1] - a[1]) for a, b in zip(series, series[1:])) / dh.TICKS_PER_RAD
-        assert path <= DOCUMENTED_RATE * (ended - began + 2 * SLACK_S), f"ID {dxl_id}: goals travelled {path:.1f} rad"
+        assert path <= DOCUMENTED_RATE * (ended - began + 2 * SLACK_S), (
+            f"ID {dxl_id}: goals travelled {path:.1f} rad"
+        )
         worst_path = max(worst_path, path)
         span = max(span, (max(g for _, g in series) - min(g for _, g in series)) / dh.TICKS_PER_RAD)
-    fault(f"1 kHz phi_cmd flood of full-range swings ({sent} in {FLOOD_S:.0f} s)", f"{len(writes) // len(dh.IDS)} goal "
-          f"writes per motor, goal speed <= {DOCUMENTED_RATE:.2f} rad/s by default (path {worst_path:.1f} rad, span "
-          f"{span:.2f} rad of the {dh.PHI_MAX:.2f} rad range)", "none needed")
+    fault(
+        f"1 kHz phi_cmd flood of full-range swings ({sent} in {FLOOD_S:.0f} s)",
+        f"{len(writes) // len(dh.IDS)} goal "
+        f"writes per motor, goal speed <= {DOCUMENTED_RATE:.2f} rad/s by default (path "
+        f"{worst_path:.1f} rad, span "
+        f"{span:.2f} rad of the {dh.PHI_MAX:.2f} rad range)",
+        "none needed",
+    )
 
 
 def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros_node) -> None:
@@ -78,11 +93,21 @@ def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros
     began = time.monotonic()
     sent = flood(pub, lambda k: dh.command(math.nan if k % 2 else math.inf, 0.5), FLOOD_S)
     after = ros_node.get_clock().now().nanoseconds
-    _, values = diagnostics.wait("dynamixel_driver: control", lambda s, v: int(v["rejected"]) >= 100,
-                                 after_ns=after, timeout=10.0)
+    _, values = diagnostics.wait(
+        "dynamixel_driver: control",
+        lambda s, v: int(v["rejected"]) >= 100,
+        after_ns=after,
+        timeout=10.0,
+    )
     lines = driver.log("non-finite phi")
-    assert 1 <= len(lines) <= 2, f"{len(lines)} log lines for {sent} rejected commands:\n{''.join(lines[:5])}"
+    assert 1 <= len(lines) <= 2, (
+        f"{len(lines)} log lines for {sent} rejected commands:\n{''.join(lines[:5])}"
+    )
     assert not dh.goal_writes(emulator, began), "a non-finite command reached the bus"
-    fault(f"1 kHz flood of non-finite phi_cmd ({sent} in {FLOOD_S:.0f} s)", f"{values['rejected']} rejected "
-          f"(counted in /diagnostics), {len(lines)} WARN lines (throttled to one per 5 s), no goal written",
-          "none needed")
+    fault(
+        f"1 kHz flood of non-finite phi_cmd ({sent} in {FLOOD_S:.0f} s)",
+        f"{values['rejected']} rejected "
+        f"(counted in /diagnostics), {len(lines)} WARN lines (throttled to one per 5 s), no goal "
+        "written",
+        "none needed",
+    )

@@ -1,11 +1,14 @@
-"""A stall in front of kinematics_node (issue 10): it must never publish a state with a valid velocity from a sample
-that was held up (stamped seconds before it went out), and fresh states must follow.
+"""A stall in front of kinematics_node (issue 10): it must never publish a state with a valid
+velocity from a sample that was held up (stamped seconds before it went out), and fresh states must
+follow.
 
-* The 200 Hz input stalls for 2 s and the first sample after the stall is the one held back, stamped 5 ms after the
-  last one before it (contiguous with the window: old code published it with a valid velocity, 2 s late).
+* The 200 Hz input stalls for 2 s and the first sample after the stall is the one held back, stamped
+  5 ms after the last one before it (contiguous with the window: old code published it with a valid
+  velocity, 2 s late).
 * The node itself is stopped (SIGSTOP) for 1 s, 3 times, while its input goes on.
-* The node, with an input queue deep enough for its whole backlog, is stopped for 2 s, 3 times (issue 22): the old gate
-  took the backlog past its history (200 samples) as the new normal and published hundreds of states up to 2 s old.
+* The node, with an input queue deep enough for its whole backlog, is stopped for 2 s, 3 times
+  (issue 22): the old gate took the backlog past its history (200 samples) as the new normal and
+  published hundreds of states up to 2 s old.
 """
 
 from __future__ import annotations
@@ -20,13 +23,24 @@ import pytest
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarPoseStamped, PlanarState
-from tests.ros.faults import BEST_EFFORT, OFFSET_CHIEE, NodeProcess, fault, sec, start_all, wait_until
+from tests.ros.faults import (
+    BEST_EFFORT,
+    OFFSET_CHIEE,
+    NodeProcess,
+    fault,
+    sec,
+    start_all,
+    wait_until,
+)
 
 pytestmark = pytest.mark.ros
 
 NS = "/kstall"
 STALL, STALLS = 1.0, 3  # [s], count of SIGSTOP stalls
-DEEP_STALL, DEEP_STALLS = 2.0, 3  # [s] SIGSTOPs of the node with a deep input queue: 400 samples of backlog each
+DEEP_STALL, DEEP_STALLS = (
+    2.0,
+    3,
+)  # [s] SIGSTOPs of the node with a deep input queue: 400 samples of backlog each
 
 
 class PoseFeeder:
@@ -36,7 +50,9 @@ class PoseFeeder:
         self.node = node
         self.pub = node.create_publisher(PlanarPoseStamped, topic, qos.SENSOR)
         self._stop = threading.Event()
-        self.held = threading.Event()  # set: hold the stream; on clear, the first sample out is the held-back one
+        self.held = (
+            threading.Event()
+        )  # set: hold the stream; on clear, the first sample out is the held-back one
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._thread.start()
 
@@ -73,18 +89,25 @@ def kinematics() -> Iterator[NodeProcess]:
 
 def test_no_old_state_with_valid_velocity_after_a_stall(kinematics, ros_node) -> None:
     received: list[tuple[float, PlanarState]] = []  # (arrival [s, node clock], state)
-    ros_node.create_subscription(PlanarState, f"{NS}/state",
-                                 lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
-                                 BEST_EFFORT)
+    ros_node.create_subscription(
+        PlanarState,
+        f"{NS}/state",
+        lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
+        BEST_EFFORT,
+    )
     feeder = PoseFeeder(ros_node, f"{NS}/ee_pose")
     resumed_at, recovery = [], []
     try:
-        assert wait_until(lambda: sum(m.velocity_valid for _, m in received) > 50, 20.0), kinematics.output()
+        assert wait_until(lambda: sum(m.velocity_valid for _, m in received) > 50, 20.0), (
+            kinematics.output()
+        )
         feeder.held.set()
         time.sleep(2.0)
         n = len(received)
         feeder.held.clear()
-        assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), "no valid state again"
+        assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), (
+            "no valid state again"
+        )
         time.sleep(0.3)
         for _ in range(STALLS):
             os.kill(kinematics.proc.pid, signal.SIGSTOP)
@@ -93,28 +116,48 @@ def test_no_old_state_with_valid_velocity_after_a_stall(kinematics, ros_node) ->
             t = ros_node.get_clock().now().nanoseconds * 1e-9
             resumed_at.append(t)
             n = len(received)
-            assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), "no valid state again"
+            assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), (
+                "no valid state again"
+            )
             recovery.append(min(a for a, m in received[n:] if m.velocity_valid) - t)
             time.sleep(0.3)
     finally:
         feeder.close()
-    old = [(a - sec(m.header.stamp), sec(m.header.stamp)) for a, m in received
-           if m.velocity_valid and a - sec(m.header.stamp) > 0.5]
-    assert not old, f"states with a valid velocity published {[round(d, 3) for d, _ in old]} s after their stamp"
+    old = [
+        (a - sec(m.header.stamp), sec(m.header.stamp))
+        for a, m in received
+        if m.velocity_valid and a - sec(m.header.stamp) > 0.5
+    ]
+    assert not old, (
+        f"states with a valid velocity published {[round(d, 3) for d, _ in old]} s after their "
+        "stamp"
+    )
     stamps = [sec(m.header.stamp) for _, m in received]
     assert all(b > a for a, b in zip(stamps, stamps[1:])), "state stamps must increase"
-    fault("ee_pose input stalled 2 s, then the held-back sample", "no state from it (counted 'delayed sample')",
-          "next fresh window")
-    fault(f"kinematics_node stalled {STALL:g} s (SIGSTOP) x{STALLS}, input at 200 Hz", "late samples published as no "
-          "state (counted 'delayed sample'), no old state with valid velocity",
-          f"valid velocity again {max(recovery):.3f} s after the resume (worst of {STALLS})")
+    fault(
+        "ee_pose input stalled 2 s, then the held-back sample",
+        "no state from it (counted 'delayed sample')",
+        "next fresh window",
+    )
+    fault(
+        f"kinematics_node stalled {STALL:g} s (SIGSTOP) x{STALLS}, input at 200 Hz",
+        "late samples published as no "
+        "state (counted 'delayed sample'), no old state with valid velocity",
+        f"valid velocity again {max(recovery):.3f} s after the resume (worst of {STALLS})",
+    )
 
 
 @pytest.fixture
 def deep_queue() -> Iterator[NodeProcess]:
     """kinematics_node in /kstall whose ee_pose queue holds 1000 samples."""
-    proc = start_all({"kinematics": ("kinematics_node", [
-        "-r", f"__ns:={NS}", "-p", f"qos_overrides.{NS}/ee_pose.subscription.depth:=1000"])})["kinematics"]
+    proc = start_all(
+        {
+            "kinematics": (
+                "kinematics_node",
+                ["-r", f"__ns:={NS}", "-p", f"qos_overrides.{NS}/ee_pose.subscription.depth:=1000"],
+            )
+        }
+    )["kinematics"]
     yield proc
     os.kill(proc.proc.pid, signal.SIGCONT)
     assert proc.stop() == 0
@@ -122,24 +165,39 @@ def deep_queue() -> Iterator[NodeProcess]:
 
 def test_a_backlog_longer_than_the_history_is_not_published(deep_queue, ros_node) -> None:
     received: list[tuple[float, PlanarState]] = []
-    ros_node.create_subscription(PlanarState, f"{NS}/state",
-                                 lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
-                                 BEST_EFFORT)
+    ros_node.create_subscription(
+        PlanarState,
+        f"{NS}/state",
+        lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
+        BEST_EFFORT,
+    )
     feeder = PoseFeeder(ros_node, f"{NS}/ee_pose")
     try:
-        assert wait_until(lambda: sum(m.velocity_valid for _, m in received) > 50, 20.0), deep_queue.output()
-        for _ in range(DEEP_STALLS):  # the middleware does not always queue the whole backlog: several stalls
+        assert wait_until(lambda: sum(m.velocity_valid for _, m in received) > 50, 20.0), (
+            deep_queue.output()
+        )
+        for _ in range(
+            DEEP_STALLS
+        ):  # the middleware does not always queue the whole backlog: several stalls
             os.kill(deep_queue.proc.pid, signal.SIGSTOP)
             time.sleep(DEEP_STALL)
             os.kill(deep_queue.proc.pid, signal.SIGCONT)
             n = len(received)
-            assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), "no valid state again"
+            assert wait_until(lambda: any(m.velocity_valid for _, m in received[n:]), 10.0), (
+                "no valid state again"
+            )
             time.sleep(0.5)
     finally:
         feeder.close()
     old = [round(a - sec(m.header.stamp), 3) for a, m in received if a - sec(m.header.stamp) > 0.5]
     # a stop inside publish() can deliver the state being written late, at most one per stall
     # (docs/nodes/hsa_kinematics_node.md); the old gate published hundreds
-    assert len(old) <= DEEP_STALLS, f"{len(old)} states published more than 0.5 s after their stamp: {old[:5]}"
-    fault(f"kinematics_node stalled {DEEP_STALL:g} s (SIGSTOP) x{DEEP_STALLS} with a 1000-sample input queue",
-          "the backlog (400 samples) published as no state", f"{len(old)} state(s) > 0.5 s old in all")
+    assert len(old) <= DEEP_STALLS, (
+        f"{len(old)} states published more than 0.5 s after their stamp: {old[:5]}"
+    )
+    fault(
+        f"kinematics_node stalled {DEEP_STALL:g} s (SIGSTOP) x{DEEP_STALLS} with a 1000-sample "
+        "input queue",
+        "the backlog (400 samples) published as no state",
+        f"{len(old)} state(s) > 0.5 s old in all",
+    )

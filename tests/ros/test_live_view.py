@@ -1,12 +1,14 @@
 """hsa_live as a real process, seen through a real WebSocket client speaking the Foxglove protocol.
 
-Real publishers of the graph's topics (state 200 Hz, controller_info 40 Hz, phi_present 100 Hz, setpoint and sequencer
-status latched, /diagnostics 1 Hz) feed the node; the client (``websockets``) connects to 127.0.0.1, reads the
-advertised channels, subscribes to all of them and decodes what arrives: the scene with the protobuf schema the
-server advertises (as the Foxglove app does), the plots as JSON. Expected values are computed here from
-hsa_core.model.kinematics and the published numbers, not from hsa_core.model.visual or hsa_core.analysis.live. What arrived is then handed
-to a real viewer's own code (tools/viewer_check: the open-source Foxglove Studio's schema parser and message-path
-code, from npm), which must parse every channel and find data at every message path of the shipped layout.
+Real publishers of the graph's topics (state 200 Hz, controller_info 40 Hz, phi_present 100 Hz,
+setpoint and sequencer status latched, /diagnostics 1 Hz) feed the node; the client (``websockets``)
+connects to 127.0.0.1, reads the advertised channels, subscribes to all of them and decodes what
+arrives: the scene with the protobuf schema the server advertises (as the Foxglove app does), the
+plots as JSON. Expected values are computed here from hsa_core.model.kinematics and the published
+numbers, not from hsa_core.model.visual or hsa_core.analysis.live. What arrived is then handed to a
+real viewer's own code (tools/viewer_check: the open-source Foxglove Studio's schema parser and
+message-path code, from npm), which must parse every channel and find data at every message path of
+the shipped layout.
 """
 
 from __future__ import annotations
@@ -42,8 +44,22 @@ from hsa_common import qos
 from hsa_common.launcher import LaunchFile, find_executable, package_share
 from hsa_core.model import kinematics as kin
 from hsa_core.model.params import load_params
-from hsa_msgs.msg import ControllerInfo, CsConfiguration, PlanarActuation, PlanarPose, PlanarState, Setpoint
-from tests.ros.conftest import GRAPH_STOP, LAUNCHER, ParameterClient, start_process, stop_process, wait_for_line
+from hsa_msgs.msg import (
+    ControllerInfo,
+    CsConfiguration,
+    PlanarActuation,
+    PlanarPose,
+    PlanarState,
+    Setpoint,
+)
+from tests.ros.conftest import (
+    GRAPH_STOP,
+    LAUNCHER,
+    ParameterClient,
+    start_process,
+    stop_process,
+    wait_for_line,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -51,10 +67,11 @@ LAUNCH = Path(__file__).parents[2] / "launch_scripts"
 VIEWER_CHECK = Path(__file__).parents[2] / "tools" / "viewer_check"
 
 SUBPROTOCOL = "foxglove.sdk.v1"
-"""The subprotocol foxglove-sdk 0.30 servers accept (they answer HTTP 400 to a client offering only the older
-'foxglove.websocket.v1'); the current Foxglove app offers it."""
+"""The subprotocol foxglove-sdk 0.30 servers accept (they answer HTTP 400 to a client offering only
+the older 'foxglove.websocket.v1'); the current Foxglove app offers it."""
 OLD_SUBPROTOCOL = "foxglove.websocket.v1"
-"""The only subprotocol older viewers offer (the open-source Foxglove Studio, Lichtblick 1.22.0 and older)."""
+"""The only subprotocol older viewers offer (the open-source Foxglove Studio, Lichtblick 1.22.0 and
+older)."""
 PARAMS = load_params("fpu")
 PERIOD_NS, T0_NS = 5_000_000, 1_760_000_000 * 10**9  # 200 Hz state grid
 Q_DES = np.array([-6.0, 0.01, 0.25])
@@ -99,7 +116,8 @@ def goal_pose() -> PlanarPose:
 
 
 STREAM = 4000
-"""States prepared before streaming (20 s at 200 Hz), so the publishing loop does no JAX work on a loaded machine."""
+"""States prepared before streaming (20 s at 200 Hz), so the publishing loop does no JAX work on a
+loaded machine."""
 STATES: list[PlanarState] = []
 
 
@@ -109,24 +127,37 @@ def prepared_state(i: int) -> PlanarState:
         qs = np.array([configuration(k) for k in range(STREAM)])
         poses = np.asarray(jax.jit(jax.vmap(lambda q: kin.end_effector_pose(PARAMS, q)))(qs))
         for q, (x, y, theta) in zip(qs, poses):
-            STATES.append(PlanarState(chiee=PlanarPose(x=float(x), y=float(y), theta=float(theta)), q=cs(q),
-                                      velocity_valid=True))
+            STATES.append(
+                PlanarState(
+                    chiee=PlanarPose(x=float(x), y=float(y), theta=float(theta)),
+                    q=cs(q),
+                    velocity_valid=True,
+                )
+            )
     return STATES[i % STREAM]
 
 
 def phi_of(i: int) -> list[float]:
-    """Commanded φ of state i (a tick every 5th state); every 10th tick sends nothing (NaN, as the controller's
-    no-command ticks)."""
+    """Commanded φ of state i (a tick every 5th state); every 10th tick sends nothing (NaN, as the
+    controller's no-command ticks)."""
     if i // 5 % 10 == 9:
         return [math.nan, math.nan]
     return [0.5 + 0.4 * math.sin(0.1 * i), 1.0 + 0.3 * math.cos(0.1 * i)]
 
 
 def info(i: int) -> ControllerInfo:
-    """controller_info of tick i (one per 5 states): measured p_ee from the state, the setpoint's reference."""
+    """controller_info of tick i (one per 5 states): measured p_ee from the state, the setpoint's
+    reference."""
     state = prepared_state(i)
-    msg = ControllerInfo(controller="psatid", state=ControllerInfo.STATE_TRACKING, chiee=state.chiee,
-                         chiee_des=goal_pose(), q=state.q, q_des=cs(Q_DES), saturated=i % 7 == 0)
+    msg = ControllerInfo(
+        controller="psatid",
+        state=ControllerInfo.STATE_TRACKING,
+        chiee=state.chiee,
+        chiee_des=goal_pose(),
+        q=state.q,
+        q_des=cs(Q_DES),
+        saturated=i % 7 == 0,
+    )
     msg.header.stamp = stamp(T0_NS + i * PERIOD_NS)
     msg.phi_des_sat = phi_of(i)
     msg.phi_des_unsat = [p * 1.1 for p in phi_of(i)]
@@ -158,13 +189,31 @@ class Graph:
 
     def start(self) -> None:
         """Latched setpoint and sequencer status first, then the streams."""
-        goal = Setpoint(chiee_des=chiee(Q_DES), q_des=cs(Q_DES), phi_ss=[0.7, 0.9], trajectory_index=2,
-                        trajectory_length=11)
+        goal = Setpoint(
+            chiee_des=chiee(Q_DES),
+            q_des=cs(Q_DES),
+            phi_ss=[0.7, 0.9],
+            trajectory_index=2,
+            trajectory_length=11,
+        )
         goal.header.stamp = stamp(T0_NS - 10**9)
         self.setpoints.publish(goal)
-        self.status.publish(String(data=json.dumps({"state": "running", "trajectory": "steps", "index": 2,
-                                                    "setpoint_index": 2, "length": 11, "finished": False,
-                                                    "failures": 0, "last_failure": None})))
+        self.status.publish(
+            String(
+                data=json.dumps(
+                    {
+                        "state": "running",
+                        "trajectory": "steps",
+                        "index": 2,
+                        "setpoint_index": 2,
+                        "length": 11,
+                        "finished": False,
+                        "failures": 0,
+                        "last_failure": None,
+                    }
+                )
+            )
+        )
         self._thread.start()
 
     def stop(self) -> None:
@@ -173,7 +222,8 @@ class Graph:
         self._thread.join(timeout=10.0)
 
     def _run(self) -> None:
-        """State every 5 ms, phi_present every 10 ms, controller_info every 25 ms, diagnostics every second."""
+        """State every 5 ms, phi_present every 10 ms, controller_info every 25 ms, diagnostics every
+        second."""
         start = time.monotonic()
         i = 0
         while not self._stop.is_set():
@@ -192,14 +242,22 @@ class Graph:
                 self.infos.publish(info(i))
                 self.published["info"].append(ns)
             if i % 200 == 0:
-                array = DiagnosticArray(status=[DiagnosticStatus(level=DiagnosticStatus.WARN, name="test_probe: check",
-                                                                 message="probe warning")])
+                array = DiagnosticArray(
+                    status=[
+                        DiagnosticStatus(
+                            level=DiagnosticStatus.WARN,
+                            name="test_probe: check",
+                            message="probe warning",
+                        )
+                    ]
+                )
                 self.diagnostics.publish(array)
             i += 1
 
 
 async def handshake(port: int, subprotocols: list[str]) -> str | int:
-    """The subprotocol the server picks for a client offering ``subprotocols``, or the HTTP status it refuses with."""
+    """The subprotocol the server picks for a client offering ``subprotocols``, or the HTTP status
+    it refuses with."""
     try:
         async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=subprotocols) as ws:
             return str(ws.subprotocol)
@@ -208,17 +266,25 @@ async def handshake(port: int, subprotocols: list[str]) -> str | int:
 
 
 class Session:
-    """A Foxglove WebSocket client session: advertised channels and the messages received per topic."""
+    """A Foxglove WebSocket client session: advertised channels and the messages received per
+    topic."""
 
     def __init__(self) -> None:
         self.server_info: dict = {}
         self.channels: dict[str, dict] = {}
-        self.received: dict[str, list[tuple[float, int, bytes]]] = defaultdict(list)  # (arrival, log time, payload)
+        self.received: dict[str, list[tuple[float, int, bytes]]] = defaultdict(
+            list
+        )  # (arrival, log time, payload)
 
 
-async def watch(port: int, session: Session, subscribed: threading.Event, done: threading.Event) -> None:
-    """Connect, read serverInfo and advertise, subscribe to every channel, collect message data until ``done``."""
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None) as ws:
+async def watch(
+    port: int, session: Session, subscribed: threading.Event, done: threading.Event
+) -> None:
+    """Connect, read serverInfo and advertise, subscribe to every channel, collect message data
+    until ``done``."""
+    async with websockets.connect(
+        f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None
+    ) as ws:
         assert ws.subprotocol == SUBPROTOCOL
         while len(session.channels) < len(EXPECTED):
             message = json.loads(await asyncio.wait_for(ws.recv(), 20.0))
@@ -229,8 +295,17 @@ async def watch(port: int, session: Session, subscribed: threading.Event, done: 
         by_subscription = {}
         for sub_id, channel in enumerate(session.channels.values(), start=1):
             by_subscription[sub_id] = channel["topic"]
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": s, "channelId": session.channels[t]["id"]} for s, t in by_subscription.items()]}))
+        await ws.send(
+            json.dumps(
+                {
+                    "op": "subscribe",
+                    "subscriptions": [
+                        {"id": s, "channelId": session.channels[t]["id"]}
+                        for s, t in by_subscription.items()
+                    ],
+                }
+            )
+        )
         subscribed.set()
         while not done.is_set():
             try:
@@ -239,13 +314,18 @@ async def watch(port: int, session: Session, subscribed: threading.Event, done: 
                 continue
             except websockets.ConnectionClosed:
                 return  # the graph ended and its server closed the connection
-            if isinstance(frame, bytes) and frame[0] == 0x01:  # message data: sub id u32, log time u64, payload
+            if (
+                isinstance(frame, bytes) and frame[0] == 0x01
+            ):  # message data: sub id u32, log time u64, payload
                 sub_id, log_time = struct.unpack_from("<IQ", frame, 1)
-                session.received[by_subscription[sub_id]].append((time.monotonic(), log_time, frame[13:]))
+                session.received[by_subscription[sub_id]].append(
+                    (time.monotonic(), log_time, frame[13:])
+                )
 
 
 def scene_class(channel: dict) -> type:
-    """The message class of foxglove.SceneUpdate built from the FileDescriptorSet the server advertised."""
+    """The message class of foxglove.SceneUpdate built from the FileDescriptorSet the server
+    advertised."""
     files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"])).file
     pool = descriptor_pool.DescriptorPool()
     pending = list(files)
@@ -269,15 +349,26 @@ def pool_has(pool: descriptor_pool.DescriptorPool, name: str) -> bool:
 
 def served_port(lines: list[str]) -> int:
     """The port from the node's 'Foxglove live view on ws://127.0.0.1:<port>' line."""
-    match = next(m for line in lines if (m := re.search(r"live view on ws://127\.0\.0\.1:(\d+)", line)))
+    match = next(
+        m for line in lines if (m := re.search(r"live view on ws://127\.0\.0\.1:(\d+)", line))
+    )
     return int(match.group(1))
 
 
 @pytest.fixture
 def live_node() -> Iterator[tuple[subprocess.Popen, int]]:
-    """live_node in /hsa on a free port (port:=0); stopped (and its exit code checked) at teardown."""
-    proc = start_process([find_executable("hsa_live", "live_node"), "--ros-args", "-r", "__ns:=/hsa",
-                          "-p", "port:=0"])
+    """live_node in /hsa on a free port (port:=0); stopped (and its exit code checked) at
+    teardown."""
+    proc = start_process(
+        [
+            find_executable("hsa_live", "live_node"),
+            "--ros-args",
+            "-r",
+            "__ns:=/hsa",
+            "-p",
+            "port:=0",
+        ]
+    )
     lines = wait_for_line(proc, "ready", timeout=120.0)
     yield proc, served_port(lines)
     assert stop_process(proc) == 0
@@ -285,33 +376,50 @@ def live_node() -> Iterator[tuple[subprocess.Popen, int]]:
 
 @pytest.fixture(scope="module")
 def viewer_check() -> list[str]:
-    """The command running a real viewer's schema and message-path code (its pinned npm packages installed once)."""
-    assert shutil.which("node") and shutil.which("npm"), "Node.js and npm are needed for the viewer check"
+    """The command running a real viewer's schema and message-path code (its pinned npm packages
+    installed once)."""
+    assert shutil.which("node") and shutil.which("npm"), (
+        "Node.js and npm are needed for the viewer check"
+    )
     subprocess.run(["bash", str(VIEWER_CHECK / "install.sh")], check=True, timeout=600)
     return ["node", str(VIEWER_CHECK / "check_live_view.js")]
 
 
 def run_viewer_check(command: list[str], session: Session, layout: dict) -> dict:
-    """The viewer check's report on the advertised channels, the last 50 messages per topic and the layout."""
-    messages = {topic: [base64.b64encode(p).decode() for _, _, p in received[-50:]]
-                for topic, received in session.received.items()}
-    stdin = json.dumps({"channels": list(session.channels.values()), "messages": messages, "layout": layout})
+    """The viewer check's report on the advertised channels, the last 50 messages per topic and the
+    layout."""
+    messages = {
+        topic: [base64.b64encode(p).decode() for _, _, p in received[-50:]]
+        for topic, received in session.received.items()
+    }
+    stdin = json.dumps(
+        {"channels": list(session.channels.values()), "messages": messages, "layout": layout}
+    )
     result = subprocess.run(command, input=stdin, capture_output=True, text=True, timeout=120)
     assert result.stdout, result.stderr
     return json.loads(result.stdout)
 
 
-def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, live_node, viewer_check) -> None:
+def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
+    ros_node: Node, live_node, viewer_check
+) -> None:
     proc, port = live_node
-    listening = [c.laddr for c in psutil.Process(proc.pid).net_connections(kind="inet")
-                 if c.status == psutil.CONN_LISTEN]
+    listening = [
+        c.laddr
+        for c in psutil.Process(proc.pid).net_connections(kind="inet")
+        if c.status == psutil.CONN_LISTEN
+    ]
     assert listening and all(a.ip == "127.0.0.1" for a in listening), listening  # loopback only
-    assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL])) == 400  # viewers offering only the old name
+    assert (
+        asyncio.run(handshake(port, [OLD_SUBPROTOCOL])) == 400
+    )  # viewers offering only the old name
     assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL, SUBPROTOCOL])) == SUBPROTOCOL
     graph = Graph(ros_node)
     graph.wait_subscribed()
     session, subscribed, done = Session(), threading.Event(), threading.Event()
-    client = threading.Thread(target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True)
+    client = threading.Thread(
+        target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True
+    )
     client.start()
     assert subscribed.wait(30.0), "no advertise from the server"
     parameters = ParameterClient(ros_node, "/hsa/live_node")
@@ -333,9 +441,14 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
 
     # scene: at most scene_rate (25 Hz) per second of the stream, at least 5 Hz on a loaded machine
     scenes = session.received["/live/scene"]
-    updates = [(t, scene_class(session.channels["/live/scene"]).FromString(p)) for _, t, p in scenes]
+    updates = [
+        (t, scene_class(session.channels["/live/scene"]).FromString(p)) for _, t, p in scenes
+    ]
     robot_updates = [(t, u) for t, u in updates if any(e.id == "robot" for e in u.entities)]
-    assert 5.0 * streamed <= len(robot_updates) <= 25.0 * streamed + 2, (len(robot_updates), streamed)
+    assert 5.0 * streamed <= len(robot_updates) <= 25.0 * streamed + 2, (
+        len(robot_updates),
+        streamed,
+    )
     assert any(e.id == "goal" for _, u in updates for e in u.entities)
     for log_time, update in robot_updates:
         entities = {e.id: e for e in update.entities}
@@ -353,29 +466,43 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
             np.testing.assert_allclose(rod[0], [roff, 0.0, 0.0], atol=1e-15)
             assert np.min(np.linalg.norm(np.asarray(rod)[:, :2] - tip, axis=1)) < 1e-12
         (cube,) = robot.cubes
-        np.testing.assert_allclose([cube.size.x, cube.size.y, cube.size.z], np.asarray(PARAMS.platform_size),
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            [cube.size.x, cube.size.y, cube.size.z], np.asarray(PARAMS.platform_size), rtol=1e-12
+        )
         (sphere,) = goal.spheres
         goal_xy = np.asarray(kin.end_effector_pose(PARAMS, Q_DES))[:2]
-        np.testing.assert_allclose([sphere.pose.position.x, sphere.pose.position.y], goal_xy, atol=1e-12)
+        np.testing.assert_allclose(
+            [sphere.pose.position.x, sphere.pose.position.y], goal_xy, atol=1e-12
+        )
         ghost_backbone = goal.lines[0].points[-1]
         np.testing.assert_allclose([ghost_backbone.x, ghost_backbone.y], goal_xy, atol=1e-12)
-        assert goal.lines[0].color.a == pytest.approx(0.5)  # translucent ghost of q^d, alpha updated at run time
+        assert goal.lines[0].color.a == pytest.approx(
+            0.5
+        )  # translucent ghost of q^d, alpha updated at run time
 
-    print(f"{len(session.received['/live/tracking'])} of {len(graph.published['info'])} ticks; "
-          f"scene {len(robot_updates) / streamed:.1f} Hz, "
-          f"tracking {len(session.received['/live/tracking']) / streamed:.1f} Hz, "
-          f"phi_present {len(session.received['/live/phi_present']) / streamed:.1f} Hz over {streamed:.1f} s of stream")
+    print(
+        f"{len(session.received['/live/tracking'])} of {len(graph.published['info'])} ticks; "
+        f"scene {len(robot_updates) / streamed:.1f} Hz, "
+        f"tracking {len(session.received['/live/tracking']) / streamed:.1f} Hz, "
+        f"phi_present {len(session.received['/live/phi_present']) / streamed:.1f} Hz over "
+        f"{streamed:.1f} s of stream"
+    )
     # plots: one message per controller tick (40 Hz), values from the published numbers
     ticks = graph.published["info"]
     tracking = {t: json.loads(p) for _, t, p in session.received["/live/tracking"]}
-    # every tick is forwarded; on a starved machine (load 16 on 2 cores) the keep-last-10 INFO writer overwrites
-    # some before the node takes them (measured: 173 of 201), as for any INFO subscriber
-    assert set(tracking) <= set(ticks) and len(tracking) >= 0.6 * len(ticks), (len(tracking), len(ticks))
+    # every tick is forwarded; on a starved machine (load 16 on 2 cores) the keep-last-10 INFO
+    # writer overwrites some before the node takes them (measured: 173 of 201), as for any INFO
+    # subscriber
+    assert set(tracking) <= set(ticks) and len(tracking) >= 0.6 * len(ticks), (
+        len(tracking),
+        len(ticks),
+    )
     for t, msg in tracking.items():
         i = (t - T0_NS) // PERIOD_NS
-        p_ee, p_des = np.asarray(kin.end_effector_pose(PARAMS, configuration(i)))[:2], \
-            np.asarray(kin.end_effector_pose(PARAMS, Q_DES))[:2]
+        p_ee, p_des = (
+            np.asarray(kin.end_effector_pose(PARAMS, configuration(i)))[:2],
+            np.asarray(kin.end_effector_pose(PARAMS, Q_DES))[:2],
+        )
         assert [msg["p_ee"]["x"], msg["p_ee"]["y"]] == pytest.approx(p_ee, abs=1e-15)
         assert [msg["p_des"]["x"], msg["p_des"]["y"]] == pytest.approx(p_des, abs=1e-15)
         assert [msg["e"]["x"], msg["e"]["y"]] == pytest.approx(p_des - p_ee, abs=1e-15)
@@ -385,23 +512,35 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     h = np.asarray(PARAMS.h, dtype=float)
     for t, msg in actuation.items():
         i = (t - T0_NS) // PERIOD_NS
-        if i // 5 % 10 == 9:  # a no-command tick has no phi_cmd (JSON has no NaN; a gap in the plot)
+        if (
+            i // 5 % 10 == 9
+        ):  # a no-command tick has no phi_cmd (JSON has no NaN; a gap in the plot)
             assert "phi_cmd" not in msg and "phi_unsat" not in msg, msg
         else:
             assert msg["phi_cmd"] == pytest.approx(phi_of(i), abs=1e-15)
         assert msg["phi_ss"] == [0.7, 0.9] and msg["saturated"] == (i % 7 == 0)
-        assert msg["phi_min"] == pytest.approx(np.minimum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15)
-        assert msg["phi_max"] == pytest.approx(np.maximum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15)
+        assert msg["phi_min"] == pytest.approx(
+            np.minimum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15
+        )
+        assert msg["phi_max"] == pytest.approx(
+            np.maximum(0.0, h * np.asarray(PARAMS.phi_max)), abs=1e-15
+        )
     configuration_msgs = {t: json.loads(p) for _, t, p in session.received["/live/configuration"]}
     assert set(configuration_msgs) == set(tracking)
     for t, msg in configuration_msgs.items():
         q = configuration((t - T0_NS) // PERIOD_NS)
-        assert [msg["q"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(q, abs=1e-15)
-        assert [msg["q_des"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(Q_DES, abs=1e-15)
+        assert [msg["q"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(
+            q, abs=1e-15
+        )
+        assert [msg["q_des"][k] for k in ("kappa_be", "sigma_sh", "sigma_ax")] == pytest.approx(
+            Q_DES, abs=1e-15
+        )
     phi_present = {t for _, t, _ in session.received["/live/phi_present"]}
     assert sum("phi_cmd" not in m for m in actuation.values()) >= 1  # a no-command tick was seen
     assert phi_present <= set(graph.published["phi_present"])
-    assert len(phi_present) >= 0.5 * len(graph.published["phi_present"])  # best effort at 100 Hz, loaded machine
+    assert len(phi_present) >= 0.5 * len(
+        graph.published["phi_present"]
+    )  # best effort at 100 Hz, loaded machine
 
     # diagnostics and progress: every progress_period (1 s), the probe's WARN and "step 3/11"
     diagnostics = [json.loads(p) for _, _, p in session.received["/live/diagnostics"]]
@@ -410,11 +549,18 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     probe = [s for s in diagnostics[-1]["statuses"] if s["name"] == "test_probe: check"]
     assert probe and probe[0]["level_name"] == "WARN" and probe[0]["message"] == "probe warning"
     assert diagnostics[-1]["worst"] >= 1
-    assert progress[-1]["step"] == 3 and progress[-1]["steps"] == 11 and progress[-1]["controller_state"] == "tracking"
+    assert (
+        progress[-1]["step"] == 3
+        and progress[-1]["steps"] == 11
+        and progress[-1]["controller_state"] == "tracking"
+    )
     assert progress[-1]["text"].startswith("step 3/11 · tracking · ‖e‖ ")
 
-    # the shipped layout: every panel reads an advertised channel, and every plot path resolves in what arrived
-    layout = json.loads((Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text())
+    # the shipped layout: every panel reads an advertised channel, and every plot path resolves in
+    # what arrived
+    layout = json.loads(
+        (Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text()
+    )
     panels = layout["configById"]
     assert {k.split("!")[0] for k in panels} >= {"3D", "Plot"}
     assert set(panels["3D!hsa_scene"]["topics"]) == {"/live/scene"}
@@ -423,21 +569,40 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(ros_node: Node, 
     checking = time.monotonic() - checking
     assert set(report["channels"]) == set(EXPECTED)
     failed = {t: c["error"] for t, c in report["channels"].items() if not c["ok"]}
-    assert not failed, failed  # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
+    assert not failed, (
+        failed
+    )  # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
     paths = {(p["panel"], p["path"]): p for p in report["paths"]}
-    plot_paths = {(k, p["value"]) for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]}
-    assert plot_paths | {(k, c["topicPath"]) for k, c in panels.items() if "topicPath" in c} <= set(paths)
+    plot_paths = {
+        (k, p["value"]) for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]
+    }
+    assert plot_paths | {(k, c["topicPath"]) for k, c in panels.items() if "topicPath" in c} <= set(
+        paths
+    )
     assert {k for k, _ in paths} == set(panels)  # every panel of the layout is checked
     assert all(p["ok"] for p in paths.values()), [p for p in paths.values() if not p["ok"]]
-    print(f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with data "
-          f"({checking:.1f} s)")
+    print(
+        f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with "
+        "data "
+        f"({checking:.1f} s)"
+    )
 
 
 def test_a_taken_port_is_refused_in_one_line(live_node) -> None:
     """A second live view on the same port exits 2 at start with one FATAL line naming the port."""
     _, port = live_node
-    second = start_process([find_executable("hsa_live", "live_node"), "--ros-args", "-r", "__ns:=/hsa",
-                            "-r", "__node:=live_node_2", "-p", f"port:={port}"])
+    second = start_process(
+        [
+            find_executable("hsa_live", "live_node"),
+            "--ros-args",
+            "-r",
+            "__ns:=/hsa",
+            "-r",
+            "__node:=live_node_2",
+            "-p",
+            f"port:={port}",
+        ]
+    )
     try:
         code = second.wait(timeout=120.0)
         output = second.stdout.read() if second.stdout else ""
@@ -445,21 +610,32 @@ def test_a_taken_port_is_refused_in_one_line(live_node) -> None:
         stop_process(second)
     assert code == 2, output
     fatal = [line for line in output.splitlines() if "FATAL" in line]
-    assert len(fatal) == 1 and f"127.0.0.1:{port}" in fatal[0] and "parameter 'port'" in fatal[0], output
+    assert len(fatal) == 1 and f"127.0.0.1:{port}" in fatal[0] and "parameter 'port'" in fatal[0], (
+        output
+    )
 
 
 @pytest.mark.parametrize("graph", ["sim.launch.yaml", "real.launch.yaml"])
 def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
-    """live:=true adds live_node to the sim and real graphs; it starts on their command line and serves on loopback."""
-    assert "live_node" not in [p.name for p in LaunchFile(LAUNCH / graph, {}).processes()]  # off by default
-    proc = next(p for p in LaunchFile(LAUNCH / graph, {"live": "true", "live_port": "0"}).processes()
-                if p.name == "live_node")
+    """live:=true adds live_node to the sim and real graphs; it starts on their command line and
+    serves on loopback."""
+    assert "live_node" not in [
+        p.name for p in LaunchFile(LAUNCH / graph, {}).processes()
+    ]  # off by default
+    proc = next(
+        p
+        for p in LaunchFile(LAUNCH / graph, {"live": "true", "live_port": "0"}).processes()
+        if p.name == "live_node"
+    )
     assert "port:=0" in proc.cmd
     started = start_process(proc.cmd)
     try:
         port = served_port(wait_for_line(started, "ready", timeout=180.0))
-        listening = [c.laddr for c in psutil.Process(started.pid).net_connections(kind="inet")
-                     if c.status == psutil.CONN_LISTEN]
+        listening = [
+            c.laddr
+            for c in psutil.Process(started.pid).net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN
+        ]
         assert [(a.ip, a.port) for a in listening] == [("127.0.0.1", port)]
     finally:
         assert stop_process(started) == 0
@@ -467,15 +643,37 @@ def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
 
 @pytest.mark.slow
 def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> None:
-    """sim.launch.yaml live:=true on a 2-step schedule: a client sees the simulated robot, the tracking of the
-    sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends with 0 with the graph; the real
-    viewer's code finds data at every path of the shipped layout."""
+    """sim.launch.yaml live:=true on a 2-step schedule: a client sees the simulated robot, the
+    tracking of the sequencer's points and the progress up to 'step 2/2 … finished'; live_node ends
+    with 0 with the graph; the real viewer's code finds data at every path of the shipped layout."""
     points = [0.0, 0.112, 0.004, 0.114]  # two reachable FPU targets [m]
     config = tmp_path / "sequencer.yaml"
-    config.write_text(json.dumps({"/**": {"ros__parameters": {
-        "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 2.0}}}))
-    graph = start_process([*LAUNCHER, str(LAUNCH / "sim.launch.yaml"), *GRAPH_STOP, "live:=true", "live_port:=0",
-                           "record:=false", "setpoint_rate:=0.2", f"sequencer_config:={config}"])
+    config.write_text(
+        json.dumps(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": points,
+                        "exit_on_finish": True,
+                        "finish_hold": 2.0,
+                    }
+                }
+            }
+        )
+    )
+    graph = start_process(
+        [
+            *LAUNCHER,
+            str(LAUNCH / "sim.launch.yaml"),
+            *GRAPH_STOP,
+            "live:=true",
+            "live_port:=0",
+            "record:=false",
+            "setpoint_rate:=0.2",
+            f"sequencer_config:={config}",
+        ]
+    )
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(graph.stdout), daemon=True)
     reader.start()
@@ -485,8 +683,10 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
         while not any("live view on ws://" in line for line in lines):
             assert time.monotonic() < deadline and graph.poll() is None, "".join(lines)[-5000:]
             time.sleep(0.1)
-        client = threading.Thread(target=lambda: asyncio.run(watch(served_port(lines), session, subscribed, done)),
-                                  daemon=True)
+        client = threading.Thread(
+            target=lambda: asyncio.run(watch(served_port(lines), session, subscribed, done)),
+            daemon=True,
+        )
         client.start()
         assert subscribed.wait(60.0), "no advertise from the live view"
         graph.wait(timeout=300.0)  # the graph ends by itself when the sequencer is done
@@ -495,42 +695,88 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
         stop_process(graph)
     reader.join(timeout=10.0)
     output = "".join(lines)
-    assert "setpoint_sequencer exited with 0" in output and "live_node exited with 0" in output, output[-5000:]
+    assert "setpoint_sequencer exited with 0" in output and "live_node exited with 0" in output, (
+        output[-5000:]
+    )
     progress = [json.loads(p)["text"] for _, _, p in session.received["/live/progress"]]
-    assert any(text.startswith("step 2/2 · tracking") and text.endswith("finished") for text in progress), progress
+    assert any(
+        text.startswith("step 2/2 · tracking") and text.endswith("finished") for text in progress
+    ), progress
     tracking = [json.loads(p) for _, _, p in session.received["/live/tracking"]]
     targets = {(m["p_des"]["x"], m["p_des"]["y"]) for m in tracking}
-    assert {(0.0, 0.112), (0.004, 0.114)} <= {(round(x, 6), round(y, 6)) for x, y in targets if x is not None}
-    last = [m.get("e_norm") for m in tracking if m["p_des"]["x"] is not None and round(m["p_des"]["x"], 6) == 0.004]
-    assert last and last[0] is not None and min(e for e in last if e is not None) < 0.5 * last[0], last
-    final = [e for e in last[-20:] if e is not None]  # the simulated robot moved towards the last target (load-proof)
+    assert {(0.0, 0.112), (0.004, 0.114)} <= {
+        (round(x, 6), round(y, 6)) for x, y in targets if x is not None
+    }
+    last = [
+        m.get("e_norm")
+        for m in tracking
+        if m["p_des"]["x"] is not None and round(m["p_des"]["x"], 6) == 0.004
+    ]
+    assert last and last[0] is not None and min(e for e in last if e is not None) < 0.5 * last[0], (
+        last
+    )
+    final = [
+        e for e in last[-20:] if e is not None
+    ]  # the simulated robot moved towards the last target (load-proof)
     scenes = session.received["/live/scene"]
     span = (scenes[-1][0] - scenes[0][0]) if len(scenes) > 1 else 0.0
-    assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (len(scenes), span)  # wall rate ≤ 25 Hz (+ setpoints)
-    layout = json.loads((Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text())
+    assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (
+        len(scenes),
+        span,
+    )  # wall rate ≤ 25 Hz (+ setpoints)
+    layout = json.loads(
+        (Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text()
+    )
     report = run_viewer_check(viewer_check, session, layout)
-    assert all(c["ok"] for c in report["channels"].values()) and all(p["ok"] for p in report["paths"]), report
-    print(f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, {len(tracking)} ticks, "
-          f"final ‖e‖ {final[-1] * 1e3:.2f} mm")
+    assert all(c["ok"] for c in report["channels"].values()) and all(
+        p["ok"] for p in report["paths"]
+    ), report
+    print(
+        f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, "
+        f"{len(tracking)} ticks, "
+        f"final ‖e‖ {final[-1] * 1e3:.2f} mm"
+    )
 
 
 def test_under_simulated_time_the_view_runs_on_the_wall_clock(ros_node: Node) -> None:
-    """use_sim_time with /clock running 4x faster than the wall, then standing still (a stalled lockstep barrier): the
-    scene stays ≤ 25 per wall second, progress and diagnostics keep coming, and the silent status turns STALE."""
-    proc = start_process([find_executable("hsa_live", "live_node"), "--ros-args", "-r", "__ns:=/hsa",
-                          "-p", "port:=0", "-p", "use_sim_time:=true", "-p", "diagnostics_stale:=1.0"])
+    """use_sim_time with /clock running 4x faster than the wall, then standing still (a stalled
+    lockstep barrier): the scene stays ≤ 25 per wall second, progress and diagnostics keep coming,
+    and the silent status turns STALE."""
+    proc = start_process(
+        [
+            find_executable("hsa_live", "live_node"),
+            "--ros-args",
+            "-r",
+            "__ns:=/hsa",
+            "-p",
+            "port:=0",
+            "-p",
+            "use_sim_time:=true",
+            "-p",
+            "diagnostics_stale:=1.0",
+        ]
+    )
     try:
         port = served_port(wait_for_line(proc, "ready", timeout=120.0))
         clock = ros_node.create_publisher(Clock, "/clock", 10)
         graph = Graph(ros_node)
         graph.wait_subscribed()
         session, subscribed, done = Session(), threading.Event(), threading.Event()
-        client = threading.Thread(target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True)
+        client = threading.Thread(
+            target=lambda: asyncio.run(watch(port, session, subscribed, done)), daemon=True
+        )
         client.start()
         assert subscribed.wait(30.0)
         time.sleep(0.5)
-        graph.diagnostics.publish(DiagnosticArray(status=[DiagnosticStatus(level=DiagnosticStatus.OK,
-                                                                           name="sim_node: world", message="ok")]))
+        graph.diagnostics.publish(
+            DiagnosticArray(
+                status=[
+                    DiagnosticStatus(
+                        level=DiagnosticStatus.OK, name="sim_node: world", message="ok"
+                    )
+                ]
+            )
+        )
         start, n = time.monotonic(), 800  # 4 s of wall time, 16 s of simulated time
         for i in range(n):
             time.sleep(max(0.0, start + i * PERIOD_NS * 1e-9 - time.monotonic()))
@@ -543,15 +789,29 @@ def test_under_simulated_time_the_view_runs_on_the_wall_clock(ros_node: Node) ->
         scenes_while_fast = len(session.received["/live/scene"])
         stood = time.monotonic()
         time.sleep(3.0)  # simulated time stands still
-        standing = [json.loads(p) for arrival, _, p in session.received["/live/diagnostics"] if arrival > stood]
+        standing = [
+            json.loads(p)
+            for arrival, _, p in session.received["/live/diagnostics"]
+            if arrival > stood
+        ]
         progress_standing = [a for a, _, _ in session.received["/live/progress"] if a > stood]
         done.set()
         client.join(timeout=10.0)
     finally:
         assert stop_process(proc) == 0
-    assert 5.0 * fast <= scenes_while_fast <= 25.0 * fast + 2, (scenes_while_fast, fast)  # not 25 per simulated s
-    assert len(progress_standing) >= 2 and len(standing) >= 2, (len(progress_standing), len(standing))
+    assert 5.0 * fast <= scenes_while_fast <= 25.0 * fast + 2, (
+        scenes_while_fast,
+        fast,
+    )  # not 25 per simulated s
+    assert len(progress_standing) >= 2 and len(standing) >= 2, (
+        len(progress_standing),
+        len(standing),
+    )
     rows = {r["name"]: r for r in standing[-1]["statuses"]}
-    assert rows["sim_node: world"]["level_name"] == "STALE" and standing[-1]["worst_name"] == "STALE"
-    print(f"sim time 4x: {scenes_while_fast / fast:.1f} scenes per wall second; while /clock stood: "
-          f"{len(progress_standing)} progress and {len(standing)} diagnostics messages in 3 s")
+    assert (
+        rows["sim_node: world"]["level_name"] == "STALE" and standing[-1]["worst_name"] == "STALE"
+    )
+    print(
+        f"sim time 4x: {scenes_while_fast / fast:.1f} scenes per wall second; while /clock stood: "
+        f"{len(progress_standing)} progress and {len(standing)} diagnostics messages in 3 s"
+    )

@@ -1,4 +1,5 @@
-"""planner_node and setpoint_sequencer as real processes: service answers, schedule, failure reporting and finish."""
+"""planner_node and setpoint_sequencer as real processes: service answers, schedule, failure
+reporting and finish."""
 
 from __future__ import annotations
 
@@ -18,7 +19,6 @@ from hsa_common.launcher import find_executable
 from hsa_core.task.trajectories import FPU_STEPS_20230925
 from hsa_msgs.msg import Setpoint
 from hsa_msgs.srv import PlanSetpoint
-
 from tests.ros.conftest import start_process, stop_process, wait_for_line
 
 pytestmark = pytest.mark.ros
@@ -60,23 +60,45 @@ def test_plan_setpoint_service(planner, ros_node) -> None:
     assert client.wait_for_service(timeout_sec=10.0)
 
     ok = client.call(PlanSetpoint.Request(x=P_DES[0], y=P_DES[1]), timeout_sec=10.0)
-    assert ok.success and ok.status == PlanSetpoint.Response.STATUS_OK and ok.planner_used == "static"
+    assert (
+        ok.success and ok.status == PlanSetpoint.Response.STATUS_OK and ok.planner_used == "static"
+    )
     np.testing.assert_allclose(ok.setpoint.phi_ss, PHI_SS, atol=2e-7)
     sp = ok.setpoint
-    np.testing.assert_allclose([sp.q_des.kappa_be, sp.q_des.sigma_sh, sp.q_des.sigma_ax], Q_DES, rtol=1e-6)
-    assert (sp.chiee_des.x, sp.chiee_des.y) == P_DES and sp.chiee_des.theta == pytest.approx(THETA, abs=1e-8)
-    assert sp.header.frame_id == "hsa_base" and sp.header.stamp.sec > 0 and sp.optimality_error <= 1e-3
+    np.testing.assert_allclose(
+        [sp.q_des.kappa_be, sp.q_des.sigma_sh, sp.q_des.sigma_ax], Q_DES, rtol=1e-6
+    )
+    assert (sp.chiee_des.x, sp.chiee_des.y) == P_DES and sp.chiee_des.theta == pytest.approx(
+        THETA, abs=1e-8
+    )
+    assert (
+        sp.header.frame_id == "hsa_base" and sp.header.stamp.sec > 0 and sp.optimality_error <= 1e-3
+    )
     assert ok.iterations > 0 and 0.0 < ok.solve_time < 5.0
 
     far = client.call(PlanSetpoint.Request(x=UNREACHABLE[0], y=UNREACHABLE[1]), timeout_sec=10.0)
-    assert not far.success and far.status == PlanSetpoint.Response.STATUS_UNREACHABLE and far.message
+    assert (
+        not far.success and far.status == PlanSetpoint.Response.STATUS_UNREACHABLE and far.message
+    )
     nan = client.call(PlanSetpoint.Request(x=math.nan, y=0.12), timeout_sec=10.0)
-    assert not nan.success and nan.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "finite" in nan.message
+    assert (
+        not nan.success
+        and nan.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST
+        and "finite" in nan.message
+    )
     code = client.call(PlanSetpoint.Request(x=0.0, y=0.12, planner=9), timeout_sec=10.0)
-    assert code.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "planner code 9" in code.message
-    rollout = client.call(PlanSetpoint.Request(x=0.0, y=0.12, planner=PlanSetpoint.Request.PLANNER_ROLLOUT),
-                          timeout_sec=10.0)
-    assert rollout.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST and "'planners'" in rollout.message
+    assert (
+        code.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST
+        and "planner code 9" in code.message
+    )
+    rollout = client.call(
+        PlanSetpoint.Request(x=0.0, y=0.12, planner=PlanSetpoint.Request.PLANNER_ROLLOUT),
+        timeout_sec=10.0,
+    )
+    assert (
+        rollout.status == PlanSetpoint.Response.STATUS_INVALID_REQUEST
+        and "'planners'" in rollout.message
+    )
 
     deadline = time.monotonic() + 5.0
     report = None
@@ -101,10 +123,16 @@ def test_sequencer_schedule_failure_and_finish(planner, ros_node) -> None:
     ros_node.create_subscription(String, "/a/sequencer_status", keep("a_st"), qos.LATCHED)
     ros_node.create_subscription(Setpoint, "/b/setpoint", keep("b_sp"), qos.LATCHED)
     points = [*P_DES, *UNREACHABLE, *FPU_STEPS_20230925[2]]
-    # start_delay 2 s: the sequencers find the planner's service about when this node discovers them; a latched
-    # subscription matched after point 1 would get only the newest setpoint
-    custom = _sequencer("/a", f"points:={points}", "rate:=2.0", "start_delay:=2.0", "exit_on_finish:=true",
-                        "finish_hold:=0.5")
+    # start_delay 2 s: the sequencers find the planner's service about when this node discovers
+    # them; a latched subscription matched after point 1 would get only the newest setpoint
+    custom = _sequencer(
+        "/a",
+        f"points:={points}",
+        "rate:=2.0",
+        "start_delay:=2.0",
+        "exit_on_finish:=true",
+        "finish_hold:=0.5",
+    )
     steps = _sequencer("/b", "rate:=2.0", "start_delay:=2.0")
     bad = _sequencer("/c", "trajectory:=contour")
     try:
@@ -113,33 +141,51 @@ def test_sequencer_schedule_failure_and_finish(planner, ros_node) -> None:
 
         assert custom.wait(timeout=60.0) == 0, "exit_on_finish did not end the sequencer"
         log = custom.stdout.read()
-        assert "point 1 (0.2, 0.05) not planned: UNREACHABLE" in log and "setpoint 0 stays active" in log
+        assert (
+            "point 1 (0.2, 0.05) not planned: UNREACHABLE" in log
+            and "setpoint 0 stays active" in log
+        )
 
         sp = received["a_sp"]
-        assert [m.trajectory_index for _, m in sp] == [0, 2], "the failed point must not be published"
+        assert [m.trajectory_index for _, m in sp] == [0, 2], (
+            "the failed point must not be published"
+        )
         assert all(m.trajectory_length == 3 for _, m in sp)
         np.testing.assert_allclose(sp[0][1].phi_ss, PHI_SS, atol=2e-7)
-        # planning stamps, not arrival times: a latched subscription that matched late gets setpoint 0 only then
+        # planning stamps, not arrival times: a latched subscription that matched late gets setpoint
+        # 0 only then
         planned = [Time.from_msg(m.header.stamp).nanoseconds * 1e-9 for _, m in sp]
-        assert planned[1] - planned[0] == pytest.approx(1.0, abs=0.3), "point 2 is due at t = 2 / rate"
+        assert planned[1] - planned[0] == pytest.approx(1.0, abs=0.3), (
+            "point 2 is due at t = 2 / rate"
+        )
 
         statuses = [(t, json.loads(m.data)) for t, m in received["a_st"]]
         failed = [s for _, s in statuses if s["index"] == 1]
         assert failed and failed[0]["failures"] == 1 and failed[0]["setpoint_index"] == 0
         assert failed[0]["last_failure"]["status"] == "UNREACHABLE" and not failed[0]["finished"]
         t_end, last = statuses[-1]
-        assert last["finished"] and last["setpoint_index"] == 2 and last["length"] == 3 and last["failures"] == 1
-        assert t_end - sp[1][0] == pytest.approx(0.5, abs=0.3), "finished after the last slot (t = 3 / rate)"
+        assert (
+            last["finished"]
+            and last["setpoint_index"] == 2
+            and last["length"] == 3
+            and last["failures"] == 1
+        )
+        assert t_end - sp[1][0] == pytest.approx(0.5, abs=0.3), (
+            "finished after the last slot (t = 3 / rate)"
+        )
 
         deadline = time.monotonic() + 20.0
         while len(received["b_sp"]) < 3 and time.monotonic() < deadline:
             time.sleep(0.05)
         b = received["b_sp"]
-        assert [m.trajectory_index for _, m in b[:3]] == [0, 1, 2] and b[0][1].trajectory_length == 11
+        assert [m.trajectory_index for _, m in b[:3]] == [0, 1, 2] and b[0][
+            1
+        ].trajectory_length == 11
         for (_, msg), expected in zip(b[:3], FPU_STEPS_20230925[:3]):
             assert (msg.chiee_des.x, msg.chiee_des.y) == pytest.approx(expected)
-        assert np.diff([Time.from_msg(m.header.stamp).nanoseconds * 1e-9 for _, m in b[:3]]) == pytest.approx(
-            [0.5, 0.5], abs=0.2)
+        assert np.diff(
+            [Time.from_msg(m.header.stamp).nanoseconds * 1e-9 for _, m in b[:3]]
+        ) == pytest.approx([0.5, 0.5], abs=0.2)
     finally:
         for proc in (custom, steps, bad):
             stop_process(proc)

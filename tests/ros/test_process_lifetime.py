@@ -1,6 +1,7 @@
-"""hsa_common.parent_death and hsa_common.fastdds_shm without ROS (issue 22, items 4 and 8): which processes are tied
-to their parent, that the parent's death delivers SIGTERM, and that the /dev/shm clean-up removes only files no live
-process uses (plain processes holding flocks and mappings as Fast DDS does, on files in a temporary directory)."""
+"""hsa_common.parent_death and hsa_common.fastdds_shm without ROS (issue 22, items 4 and 8): which
+processes are tied to their parent, that the parent's death delivers SIGTERM, and that the /dev/shm
+clean-up removes only files no live process uses (plain processes holding flocks and mappings as
+Fast DDS does, on files in a temporary directory)."""
 
 from __future__ import annotations
 
@@ -18,28 +19,44 @@ TIE = "from hsa_common import parent_death; print(parent_death.tie_to_parent().n
 
 def tie(env: dict[str, str], prelude: str = "") -> str:
     """What tie_to_parent answers in a fresh process with ``env`` (after running ``prelude``)."""
-    return subprocess.run([sys.executable, "-c", prelude + TIE], env=env, capture_output=True, text=True,
-                          check=True).stdout.strip()
+    return subprocess.run(
+        [sys.executable, "-c", prelude + TIE], env=env, capture_output=True, text=True, check=True
+    ).stdout.strip()
 
 
 def test_tie_to_parent_answers_by_launcher_and_nohup() -> None:
     env = {k: v for k, v in os.environ.items() if k != parent_death.PARENT_ENV}
     ended = subprocess.Popen(["true"])
     ended.wait()
-    assert tie({**env, parent_death.PARENT_ENV: str(ended.pid)}) == "ORPHANED"  # the launcher ended before the node
+    assert (
+        tie({**env, parent_death.PARENT_ENV: str(ended.pid)}) == "ORPHANED"
+    )  # the launcher ended before the node
     assert tie({**env, parent_death.PARENT_ENV: str(os.getpid())}) == "TIED"
     assert tie(env) == "TIED"  # ros2 launch, ros2 run, a shell
-    assert tie(env, "import signal; signal.signal(signal.SIGHUP, signal.SIG_IGN); ") == "DETACHED"  # nohup
+    assert (
+        tie(env, "import signal; signal.signal(signal.SIGHUP, signal.SIG_IGN); ") == "DETACHED"
+    )  # nohup
 
 
 def test_a_tied_process_gets_sigterm_when_its_parent_is_killed(tmp_path) -> None:
     marker = tmp_path / "got_sigterm"
-    child = (f"import signal, sys, time; from hsa_common import parent_death; "
-             f"signal.signal(signal.SIGTERM, lambda *_: (open({str(marker)!r}, 'w').close(), sys.exit(0))); "
-             f"assert parent_death.tie_to_parent() is parent_death.Tie.TIED; print('tied', flush=True); time.sleep(60)")
-    middle = subprocess.Popen([sys.executable, "-c", f"import subprocess, sys; p = subprocess.Popen([sys.executable, "
-                               f"'-c', {child!r}]); print(p.pid, flush=True); p.wait()"], stdout=subprocess.PIPE,
-                              text=True)
+    child = (
+        f"import signal, sys, time; from hsa_common import parent_death; "
+        f"signal.signal(signal.SIGTERM, lambda *_: (open({str(marker)!r}, 'w').close(), "
+        "sys.exit(0))); "
+        "assert parent_death.tie_to_parent() is parent_death.Tie.TIED; print('tied', flush=True); "
+        "time.sleep(60)"
+    )
+    middle = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import subprocess, sys; p = subprocess.Popen([sys.executable, "
+            f"'-c', {child!r}]); print(p.pid, flush=True); p.wait()",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     grandchild = int(middle.stdout.readline())
     try:
         assert middle.stdout.readline().strip() == "tied"  # the grandchild writes to the same pipe
@@ -57,8 +74,9 @@ import fcntl, mmap, os, sys
 d = sys.argv[1]
 live = os.open(f"{d}/fastrtps_fedcba9876543210_el", os.O_RDONLY)
 fcntl.flock(live, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a live participant holds its lock
+# a peer of a dead owner; a writer to a port
 maps = [mmap.mmap(os.open(f"{d}/{name}", os.O_RDWR), 4096) for name in
-        ("fastrtps_1111111111111111", "fastrtps_port99998")]  # a peer of a dead owner; a writer to a port
+        ("fastrtps_1111111111111111", "fastrtps_port99998")]
 opening = os.open(f"{d}/fastrtps_3333333333333333_el", os.O_RDONLY)  # created, not locked yet
 print("ready", flush=True)
 sys.stdin.read()
@@ -70,29 +88,49 @@ def test_remove_unused_removes_only_what_no_live_process_uses(tmp_path) -> None:
     groups = {
         "dead participant": ["fastrtps_0123456789abcdef", "fastrtps_0123456789abcdef_el"],
         "live participant": ["fastrtps_fedcba9876543210", "fastrtps_fedcba9876543210_el"],
-        "dead participant, still mapped by a peer": ["fastrtps_1111111111111111", "fastrtps_1111111111111111_el"],
+        "dead participant, still mapped by a peer": [
+            "fastrtps_1111111111111111",
+            "fastrtps_1111111111111111_el",
+        ],
         "port without reader, a writer maps it": ["fastrtps_port99998"],
         "port nobody uses": ["fastrtps_port99999", "fastrtps_port99999_el"],
-        "lock file created, not yet locked": ["fastrtps_3333333333333333", "fastrtps_3333333333333333_el"],
+        "lock file created, not yet locked": [
+            "fastrtps_3333333333333333",
+            "fastrtps_3333333333333333_el",
+        ],
         "not Fast DDS": ["other_file"],
     }
     for names in groups.values():
         for name in names:
             (directory / name).write_bytes(b"\0" * (0 if name.endswith("_el") else 4096))
-    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(directory)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(directory)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "ready"
         time.sleep(0.6)
-        young = ["fastrtps_2222222222222222", "fastrtps_2222222222222222_el"]  # unlocked but just created
+        young = [
+            "fastrtps_2222222222222222",
+            "fastrtps_2222222222222222_el",
+        ]  # unlocked but just created
         for name in young:
             (directory / name).touch()
         removed = set(fastdds_shm.remove_unused(grace=0.5, directory=directory))
-        assert fastdds_shm.owned_by(holder.pid, directory) == {"fastrtps_fedcba9876543210",
-                                                               "fastrtps_3333333333333333"}
+        assert fastdds_shm.owned_by(holder.pid, directory) == {
+            "fastrtps_fedcba9876543210",
+            "fastrtps_3333333333333333",
+        }
     finally:
         holder.communicate("")
-    gone = {*groups["dead participant"], *groups["dead participant, still mapped by a peer"],
-            *groups["port nobody uses"]}
+    gone = {
+        *groups["dead participant"],
+        *groups["dead participant, still mapped by a peer"],
+        *groups["port nobody uses"],
+    }
     assert removed == gone
-    assert {p.name for p in directory.iterdir()} == {n for names in groups.values() for n in names} - gone | {*young}
+    assert {p.name for p in directory.iterdir()} == {
+        n for names in groups.values() for n in names
+    } - gone | {*young}

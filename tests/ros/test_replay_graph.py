@@ -1,15 +1,17 @@
-"""Replay graph end to end, in lockstep: launch_scripts/replay.launch.yaml on a bag of a short sim run regenerates
-every recorded ``state`` and ``controller_info``, identical, and the launcher exits 0 when the player is done.
+"""Replay graph end to end, in lockstep: launch_scripts/replay.launch.yaml on a bag of a short sim
+run regenerates every recorded ``state`` and ``controller_info``, identical, and the launcher exits
+0 when the player is done.
 
-Run 1: the sim graph (launch_scripts/sim.launch.yaml, two short FPU steps, P-satI-D, clock:=lockstep) records a bag.
-Run 2: the replay graph (clock:=lockstep, its default) plays that bag's mocap and setpoints into fresh mocap_bridge,
-kinematics_node and controller_node processes and records the regenerated /hsa/* next to the replayed originals
-(/replay/*) with record:=true. The player owns /clock: each message goes out at the instant of its log time and the
-controller's 40 Hz timer runs at the instants it ran at in the sim run, each after the graph took everything before
-it. So nothing is lost and nothing depends on the machine's load: every state of the sim bag is replayed and
-regenerated bit-identical, within the instant its mocap sample is played at, and every controller_info tick is
-regenerated with the same stamps, setpoint, q^d and commands; only ``compute_time`` (the tick's wall-clock CPU time)
-differs.
+Run 1: the sim graph (launch_scripts/sim.launch.yaml, two short FPU steps, P-satI-D,
+clock:=lockstep) records a bag. Run 2: the replay graph (clock:=lockstep, its default) plays that
+bag's mocap and setpoints into fresh mocap_bridge, kinematics_node and controller_node processes and
+records the regenerated /hsa/* next to the replayed originals (/replay/*) with record:=true. The
+player owns /clock: each message goes out at the instant of its log time and the controller's 40 Hz
+timer runs at the instants it ran at in the sim run, each after the graph took everything before it.
+So nothing is lost and nothing depends on the machine's load: every state of the sim bag is replayed
+and regenerated bit-identical, within the instant its mocap sample is played at, and every
+controller_info tick is regenerated with the same stamps, setpoint, q^d and commands; only
+``compute_time`` (the tick's wall-clock CPU time) differs.
 """
 
 from __future__ import annotations
@@ -19,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import deserialize_message
 
 from hsa_bag.bagio import Bag
 from hsa_core.task.trajectories import step_reference
-from geometry_msgs.msg import PoseStamped
 from hsa_msgs.msg import ControllerInfo, PlanarState
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
 
@@ -34,7 +36,8 @@ STEPS, STEP_PERIOD = 2, 3.0  # setpoints, s each
 
 
 def launch(graph: str, *args: str, timeout: float = 600.0) -> str:
-    """Run a launch graph with hsa_common.launcher until it ends; return its output (asserting exit code 0)."""
+    """Run a launch graph with hsa_common.launcher until it ends; return its output (asserting exit
+    code 0)."""
     proc = start_process([*LAUNCHER, str(LAUNCH / graph), *GRAPH_STOP, *args])
     try:
         output, _ = proc.communicate(timeout=timeout)
@@ -49,27 +52,59 @@ Messages = dict[str, list[tuple[int, object]]]
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> Messages:
-    """Bag of a sim run, replayed through the replay graph: (log time, message) per topic of both bags."""
+    """Bag of a sim run, replayed through the replay graph: (log time, message) per topic of both
+    bags."""
     work = tmp_path_factory.mktemp("replay")
     config = work / "sequencer.yaml"
     points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
-        "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 0.5}}}))
-    launch("sim.launch.yaml", "material:=fpu", "controller:=psatid", f"setpoint_rate:={1.0 / STEP_PERIOD}",
-           f"bag_dir:={work / 'sim'}", f"sequencer_config:={config}")  # fmt: skip
-    output = launch("replay.launch.yaml", f"bag:={work / 'sim'}", "record:=true", f"bag_dir:={work / 'replay'}",
-                    "markers:=false")  # fmt: skip
-    assert "bag_player exited with 0" in output and "lockstep: simulated time starts" in output, output[-5000:]
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": points,
+                        "exit_on_finish": True,
+                        "finish_hold": 0.5,
+                    }
+                }
+            }
+        )
+    )
+    launch(
+        "sim.launch.yaml",
+        "material:=fpu",
+        "controller:=psatid",
+        f"setpoint_rate:={1.0 / STEP_PERIOD}",
+        f"bag_dir:={work / 'sim'}",
+        f"sequencer_config:={config}",
+    )
+    output = launch(
+        "replay.launch.yaml",
+        f"bag:={work / 'sim'}",
+        "record:=true",
+        f"bag_dir:={work / 'replay'}",
+        "markers:=false",
+    )
+    assert "bag_player exited with 0" in output and "lockstep: simulated time starts" in output, (
+        output[-5000:]
+    )
     types = {"state": PlanarState, "controller_info": ControllerInfo}
     with Bag(work / "sim") as recorded:
-        found: Messages = {"sim/mocap/platform/pose": [(t, deserialize_message(d, PoseStamped))
-                                                       for _, t, d in recorded.messages(["/mocap/platform/pose"])]}
+        found: Messages = {
+            "sim/mocap/platform/pose": [
+                (t, deserialize_message(d, PoseStamped))
+                for _, t, d in recorded.messages(["/mocap/platform/pose"])
+            ]
+        }
     for bag, prefix in ((work / "sim", "sim"), (work / "replay", "")):
         with Bag(bag) as recorded:
             for ns in ("/hsa", "/replay") if prefix == "" else ("/hsa",):
                 for name, cls in types.items():
-                    found[f"{prefix}{ns}/{name}"] = [(t, deserialize_message(d, cls))
-                                                      for _, t, d in recorded.messages([f"{ns}/{name}"])]
+                    found[f"{prefix}{ns}/{name}"] = [
+                        (t, deserialize_message(d, cls))
+                        for _, t, d in recorded.messages([f"{ns}/{name}"])
+                    ]
     return found
 
 
@@ -80,22 +115,44 @@ def stamp(msg: object) -> int:
 
 def state_vector(s: PlanarState) -> np.ndarray:
     """[χ_ee, q, χ̇_ee, q̇, valid, window] of a state."""
-    return np.array([
-        s.chiee.x, s.chiee.y, s.chiee.theta, s.q.kappa_be, s.q.sigma_sh, s.q.sigma_ax,
-        s.chiee_dot.x, s.chiee_dot.y, s.chiee_dot.theta, s.q_dot.kappa_be, s.q_dot.sigma_sh, s.q_dot.sigma_ax,
-        float(s.velocity_valid), float(s.window_samples),
-    ])  # fmt: skip
+    return np.array(
+        [
+            s.chiee.x,
+            s.chiee.y,
+            s.chiee.theta,
+            s.q.kappa_be,
+            s.q.sigma_sh,
+            s.q.sigma_ax,
+            s.chiee_dot.x,
+            s.chiee_dot.y,
+            s.chiee_dot.theta,
+            s.q_dot.kappa_be,
+            s.q_dot.sigma_sh,
+            s.q_dot.sigma_ax,
+            float(s.velocity_valid),
+            float(s.window_samples),
+        ]
+    )
 
 
 def test_every_recorded_state_is_replayed_and_regenerated_identical(runs: Messages) -> None:
     original, replayed, again = runs["sim/hsa/state"], runs["/replay/state"], runs["/hsa/state"]
-    assert len(original) >= 100 * STEPS * STEP_PERIOD, len(original)  # the sim run's states (200 Hz mocap)
-    assert [t for t, _ in replayed] == [t for t, _ in original]  # every one played, recorded at its log time
-    assert [stamp(m) for _, m in again] == [stamp(m) for _, m in original]  # every one regenerated, in order
-    for (_, recorded), (_, regenerated) in zip(original, again):  # same samples, same order: bit-identical
+    assert len(original) >= 100 * STEPS * STEP_PERIOD, len(
+        original
+    )  # the sim run's states (200 Hz mocap)
+    assert [t for t, _ in replayed] == [
+        t for t, _ in original
+    ]  # every one played, recorded at its log time
+    assert [stamp(m) for _, m in again] == [
+        stamp(m) for _, m in original
+    ]  # every one regenerated, in order
+    for (_, recorded), (_, regenerated) in zip(
+        original, again
+    ):  # same samples, same order: bit-identical
         np.testing.assert_array_equal(state_vector(regenerated), state_vector(recorded))
-    # each computed within the instant its mocap sample was played at (the sim bag may log a state some instants
-    # after its sample: the simulator synchronises the graph less often than the player)
+    # each computed within the instant its mocap sample was played at (the sim bag may log a state
+    # some instants after its sample: the simulator synchronises the graph less often than the
+    # player)
     played_at = {stamp(m): t for t, m in runs["sim/mocap/platform/pose"]}
     assert [t for t, _ in again] == [played_at[stamp(m)] for _, m in again]
 
@@ -104,15 +161,25 @@ def test_every_controller_tick_is_regenerated_identical(runs: Messages) -> None:
     original, replayed = runs["sim/hsa/controller_info"], runs["/replay/controller_info"]
     again = runs["/hsa/controller_info"]
     tracking = [m for _, m in original if m.state == ControllerInfo.STATE_TRACKING]
-    assert len(tracking) >= 35 * STEPS * STEP_PERIOD, len(tracking)  # the 40 Hz ticks of the sim run
-    assert [t for t, _ in original] == [stamp(m) for _, m in original]  # each tick logged at its own instant
+    assert len(tracking) >= 35 * STEPS * STEP_PERIOD, len(
+        tracking
+    )  # the 40 Hz ticks of the sim run
+    assert [t for t, _ in original] == [
+        stamp(m) for _, m in original
+    ]  # each tick logged at its own instant
     assert [stamp(m) for _, m in replayed] == [stamp(m) for _, m in original]
-    assert [(t, stamp(m)) for t, m in again] == [(stamp(m), stamp(m)) for _, m in original]  # every tick, at its time
+    assert [(t, stamp(m)) for t, m in again] == [
+        (stamp(m), stamp(m)) for _, m in original
+    ]  # every tick, at its time
     for (_, recorded), (_, regenerated) in zip(original, again):
         assert regenerated.state == recorded.state and regenerated.controller == recorded.controller
         assert regenerated.state_stamp == recorded.state_stamp
         assert regenerated.setpoint == recorded.setpoint
         for field in ("phi_ss", "phi_des_unsat", "phi_des_sat", "e_int"):
-            np.testing.assert_array_equal(getattr(regenerated, field), getattr(recorded, field), err_msg=field)
-        regenerated.compute_time = recorded.compute_time  # the tick's wall-clock CPU time: not simulated
+            np.testing.assert_array_equal(
+                getattr(regenerated, field), getattr(recorded, field), err_msg=field
+            )
+        regenerated.compute_time = (
+            recorded.compute_time
+        )  # the tick's wall-clock CPU time: not simulated
         assert regenerated == recorded

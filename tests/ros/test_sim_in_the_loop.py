@@ -1,13 +1,13 @@
-"""Sim-in-the-loop: the whole graph of launch_scripts/sim.launch.yaml (simulator, real driver on the emulated bus, mocap
-bridge, kinematics, planner, controller, sequencer, recorder) in lockstep simulated time, on a shortened FPU step
-schedule with P-satI-D and the default disturbance.
+"""Sim-in-the-loop: the whole graph of launch_scripts/sim.launch.yaml (simulator, real driver on the
+emulated bus, mocap bridge, kinematics, planner, controller, sequencer, recorder) in lockstep
+simulated time, on a shortened FPU step schedule with P-satI-D and the default disturbance.
 
 Lockstep makes the graph a deterministic function of its configuration, whatever the machine load:
-* it equals the ROS-free offline experiment (same world, estimator, planner and controller code, same timeline):
-  the commanded φ agrees tick by tick to 1e-9 rad and the metrics table is the same;
-* the bag holds every message: every mocap sample (one per 5 ms of simulated time) and the ee_pose and state
-  derived from it, every controller tick and every driver read (25 ms), stamped and logged in simulated time, a
-  tick's and a read's messages at their own instant;
+* it equals the ROS-free offline experiment (same world, estimator, planner and controller code,
+  same timeline): the commanded φ agrees tick by tick to 1e-9 rad and the metrics table is the same;
+* the bag holds every message: every mocap sample (one per 5 ms of simulated time) and the ee_pose
+  and state derived from it, every controller tick and every driver read (25 ms), stamped and logged
+  in simulated time, a tick's and a read's messages at their own instant;
 * a healthy run reads OK: no node reports WARN or worse on /diagnostics.
 """
 
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
 from hsa_core.analysis import metrics
@@ -32,7 +33,14 @@ STEPS = 3
 STEP_PERIOD = 2.0  # s per setpoint (the paper: 10 s)
 MS = 1_000_000
 STAMPED = ("/mocap/platform/pose", "/hsa/phi_present", "/hsa/controller_info")
-TOPICS = (*STAMPED, "/mocap/base/pose", "/hsa/ee_pose", "/hsa/state", "/hsa/motor_states", "/hsa/phi_cmd")
+TOPICS = (
+    *STAMPED,
+    "/mocap/base/pose",
+    "/hsa/ee_pose",
+    "/hsa/state",
+    "/hsa/motor_states",
+    "/hsa/phi_cmd",
+)
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +50,33 @@ def sim_run(tmp_path_factory) -> Path:
     bag = work / "bag"
     config = work / "sequencer.yaml"
     points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
-        "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 0.5}}}))
-    proc = start_process([
-        *LAUNCHER, str(GRAPH), *GRAPH_STOP, "material:=fpu",
-        "controller:=psatid", f"setpoint_rate:={1.0 / STEP_PERIOD}", f"bag_dir:={bag}", f"sequencer_config:={config}",
-        "clock:=lockstep",
-    ])
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": points,
+                        "exit_on_finish": True,
+                        "finish_hold": 0.5,
+                    }
+                }
+            }
+        )
+    )
+    proc = start_process(
+        [
+            *LAUNCHER,
+            str(GRAPH),
+            *GRAPH_STOP,
+            "material:=fpu",
+            "controller:=psatid",
+            f"setpoint_rate:={1.0 / STEP_PERIOD}",
+            f"bag_dir:={bag}",
+            f"sequencer_config:={config}",
+            "clock:=lockstep",
+        ]
+    )
     try:
         output, _ = proc.communicate(timeout=900)
     finally:
@@ -71,8 +99,14 @@ def test_the_graph_equals_the_offline_experiment(sim_run, offline) -> None:
     np.testing.assert_allclose(log.t, offline.log.t, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(log.phi_sat, offline.log.phi_sat, rtol=0.0, atol=1e-9)
     np.testing.assert_allclose(log.chiee, offline.log.chiee, rtol=0.0, atol=1e-12)
-    ros = metrics.evaluate_run(log.t, log.chiee_des[:, :2], log.chiee[:, :2], log.saturated,
-                               duration=STEPS * STEP_PERIOD, name=offline.metrics.name)
+    ros = metrics.evaluate_run(
+        log.t,
+        log.chiee_des[:, :2],
+        log.chiee[:, :2],
+        log.saturated,
+        duration=STEPS * STEP_PERIOD,
+        name=offline.metrics.name,
+    )
     assert metrics.format_summary([ros]) == metrics.format_summary([offline.metrics])
     assert metrics.format_steps(ros) == metrics.format_steps(offline.metrics)
 
@@ -96,22 +130,34 @@ def test_the_bag_holds_every_message_in_simulated_time(sim_run) -> None:
             stamps[topic] = np.array(found)
             log_times[topic] = np.array(logged)
     poses = stamps["/mocap/platform/pose"]
-    np.testing.assert_array_equal(poses, np.arange(len(poses)) * 5 * MS)  # every sample from t = 0, none twice
-    assert counts["/mocap/base/pose"] == counts["/hsa/ee_pose"] == counts["/hsa/state"] == len(poses)
+    np.testing.assert_array_equal(
+        poses, np.arange(len(poses)) * 5 * MS
+    )  # every sample from t = 0, none twice
+    assert (
+        counts["/mocap/base/pose"] == counts["/hsa/ee_pose"] == counts["/hsa/state"] == len(poses)
+    )
     reads = stamps["/hsa/phi_present"]
-    np.testing.assert_array_equal(np.diff(reads), 25 * MS)  # the driver's cycle (40 Hz in lockstep), none missed
+    np.testing.assert_array_equal(
+        np.diff(reads), 25 * MS
+    )  # the driver's cycle (40 Hz in lockstep), none missed
     assert counts["/hsa/motor_states"] == len(reads)
     ticks = stamps["/hsa/controller_info"]
     np.testing.assert_array_equal(np.diff(ticks), 25 * MS)  # 40 Hz, none missed
     assert counts["/hsa/phi_cmd"] == len(ticks)
-    assert latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS  # logged in simulated time
-    for timed in ("/hsa/phi_present", "/hsa/controller_info"):  # a timer's messages are logged at its instant
+    assert (
+        latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS
+    )  # logged in simulated time
+    for timed in (
+        "/hsa/phi_present",
+        "/hsa/controller_info",
+    ):  # a timer's messages are logged at its instant
         np.testing.assert_array_equal(log_times[timed], stamps[timed], err_msg=timed)
 
 
 def test_a_healthy_run_reports_no_warning(sim_run) -> None:
-    """Issue 24: every /diagnostics report of the run is OK (the bridge read WARN 'no valid platform pose for 0.025 s'
-    at every report: it measured silence on the lockstep clock, which stands still between timer instants)."""
+    """Issue 24: every /diagnostics report of the run is OK (the bridge read WARN 'no valid platform
+    pose for 0.025 s' at every report: it measured silence on the lockstep clock, which stands still
+    between timer instants)."""
     problems, reports = [], 0
     with Bag(sim_run) as bag:
         store = bag.typestore("/diagnostics")

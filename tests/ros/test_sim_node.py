@@ -1,4 +1,5 @@
-"""sim_node as a real process: mocap poses of the resting plant at 200 Hz, and motion when the driver commands φ."""
+"""sim_node as a real process: mocap poses of the resting plant at 200 Hz, and motion when the
+driver commands φ."""
 
 from __future__ import annotations
 
@@ -14,7 +15,6 @@ from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core.sensing.mocap import world_to_planar
 from hsa_msgs.msg import PlanarActuation
-
 from tests.ros.conftest import start_process, stop_process, wait_for_line
 from tests.ros.faults import DiagnosticsLog
 
@@ -28,13 +28,24 @@ REST_FPU = (0.0, 0.11014, 0.0)  # χ_ee of the FPU model at rest (model.md §3)
 def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """One sim_node for the module (JAX compilation is the slow part); yields its emulated port."""
     port = tmp_path_factory.mktemp("sim") / "ttyDXL"
-    proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", f"port:={port}",
-                          "-p", f"base_position:={list(BASE)}"])  # hsa_core's persistent JAX cache speeds reruns
+    proc = start_process(
+        [
+            find_executable("hsa_sim_node", "sim_node"),
+            "--ros-args",
+            "-p",
+            f"port:={port}",
+            "-p",
+            f"base_position:={list(BASE)}",
+        ]
+    )  # hsa_core's persistent JAX cache speeds reruns
     wait_for_line(proc, "ready", timeout=180.0)
     yield port
     stop_process(proc)
     assert not port.exists(), "the emulated bus outlived the simulator"
-    assert "emulated bus removed with torque off on every servo (off since monotonic" in proc.stdout.read()
+    assert (
+        "emulated bus removed with torque off on every servo (off since monotonic"
+        in proc.stdout.read()
+    )
 
 
 def planar(msg: PoseStamped) -> np.ndarray:
@@ -65,10 +76,16 @@ def test_resting_plant_is_published_at_the_mocap_rate(sim, ros_node) -> None:
 
 
 def test_driver_commands_move_the_simulated_robot(sim, ros_node) -> None:
-    """Equal twists elongate (y grows); φ₁ > φ₂ bends towards x > 0 with θ < 0 (model.md §3 sign convention); the
-    emulator's diagnostics show the driver's traffic."""
-    driver = start_process([find_executable("hsa_dynamixel_driver", "dynamixel_driver"), "--ros-args",
-                            "-p", f"port:={sim}"])
+    """Equal twists elongate (y grows); φ₁ > φ₂ bends towards x > 0 with θ < 0 (model.md §3 sign
+    convention); the emulator's diagnostics show the driver's traffic."""
+    driver = start_process(
+        [
+            find_executable("hsa_dynamixel_driver", "dynamixel_driver"),
+            "--ros-args",
+            "-p",
+            f"port:={sim}",
+        ]
+    )
     try:
         wait_for_line(driver, "torque on", timeout=60.0)
         pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
@@ -85,16 +102,24 @@ def test_driver_commands_move_the_simulated_robot(sim, ros_node) -> None:
 
         chiee = drive((1.0, 1.0), lambda c: c[1] > REST_FPU[1] + 0.006)
         assert chiee[1] > REST_FPU[1] + 0.006, f"no elongation: χ_ee = {chiee}"
-        assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, f"equal twists bent the robot: χ_ee = {chiee}"
+        assert abs(chiee[0]) < 1e-3 and abs(chiee[2]) < 1e-2, (
+            f"equal twists bent the robot: χ_ee = {chiee}"
+        )
         chiee = drive((2.0, 0.5), lambda c: c[0] > 0.01)
-        assert chiee[0] > 0.01 and chiee[2] < -0.1, f"φ₁ > φ₂ did not bend towards +x: χ_ee = {chiee}"
-        _, values = diagnostics.wait("sim_node: emulator", lambda s, v: float(v["sync_reads_per_s"]) > 20.0)
+        assert chiee[0] > 0.01 and chiee[2] < -0.1, (
+            f"φ₁ > φ₂ did not bend towards +x: χ_ee = {chiee}"
+        )
+        _, values = diagnostics.wait(
+            "sim_node: emulator", lambda s, v: float(v["sync_reads_per_s"]) > 20.0
+        )
         assert values["unresponsive_ids"] == "[]" and values["torque_21"] == "True"
     finally:
         assert stop_process(driver) in (0, 1)
 
 
 def test_bad_parameter_exits_2_naming_it() -> None:
-    proc = start_process([find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", "disturbance:=strong"])
+    proc = start_process(
+        [find_executable("hsa_sim_node", "sim_node"), "--ros-args", "-p", "disturbance:=strong"]
+    )
     output, _ = proc.communicate(timeout=60.0)
     assert proc.returncode == 2 and "'disturbance'" in output, output

@@ -1,7 +1,8 @@
-"""The lockstep graph under a run profile: launch_scripts/sim.launch.yaml with the September 2023 conditions
-(36 ms control period, integrators at the nominal 25 ms, the 16-tick stand-in velocity estimator at the controller,
-hsa_core.sim.run_conditions.graph_arguments) equals the offline experiment under the same profile tick by tick, on a
-short FPU P-satI-D step schedule, as tests/ros/test_sim_in_the_loop.py checks for the lab default."""
+"""The lockstep graph under a run profile: launch_scripts/sim.launch.yaml with the September 2023
+conditions (36 ms control period, integrators at the nominal 25 ms, the 16-tick stand-in velocity
+estimator at the controller, hsa_core.sim.run_conditions.graph_arguments) equals the offline
+experiment under the same profile tick by tick, on a short FPU P-satI-D step schedule, as
+tests/ros/test_sim_in_the_loop.py checks for the lab default."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from hsa_bag.analysis import runlog_from_bag
 from hsa_core.sim.experiment import profile_config, run_experiment
 from hsa_core.sim.profiles import load_profile
@@ -25,17 +27,41 @@ STEP_PERIOD = 2.0  # s per setpoint
 PROFILE = load_profile("sep2023")
 
 
-def test_the_graph_under_the_september_profile_equals_the_offline_experiment(tmp_path: Path) -> None:
+def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
+    tmp_path: Path,
+) -> None:
     bag = tmp_path / "bag"
     config = tmp_path / "sequencer.yaml"
     points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
-        "trajectory": "steps", "points": points, "exit_on_finish": True, "finish_hold": 0.5}}}))
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": points,
+                        "exit_on_finish": True,
+                        "finish_hold": 0.5,
+                    }
+                }
+            }
+        )
+    )
     conditions = [f"{k}:={v}" for k, v in graph_arguments(PROFILE).items()]
-    proc = start_process([
-        *LAUNCHER, str(GRAPH), *GRAPH_STOP, "material:=fpu", "controller:=psatid", *conditions,
-        f"setpoint_rate:={1.0 / STEP_PERIOD}", f"bag_dir:={bag}", f"sequencer_config:={config}", "clock:=lockstep",
-    ])
+    proc = start_process(
+        [
+            *LAUNCHER,
+            str(GRAPH),
+            *GRAPH_STOP,
+            "material:=fpu",
+            "controller:=psatid",
+            *conditions,
+            f"setpoint_rate:={1.0 / STEP_PERIOD}",
+            f"bag_dir:={bag}",
+            f"sequencer_config:={config}",
+            "clock:=lockstep",
+        ]
+    )
     try:
         output, _ = proc.communicate(timeout=900)
     finally:
@@ -44,7 +70,9 @@ def test_the_graph_under_the_september_profile_equals_the_offline_experiment(tmp
     reference = step_reference(np.asarray(step_reference("fpu").p_des[:STEPS]), period=STEP_PERIOD)
     offline = run_experiment(profile_config(PROFILE, "fpu", "psatid", reference=reference))
     log = runlog_from_bag(bag).trimmed(STEPS * STEP_PERIOD)
-    assert len(log) == len(offline.log) == 112  # ticks every 36 ms in 4 s, the first one after 16 tick samples
+    assert (
+        len(log) == len(offline.log) == 112
+    )  # ticks every 36 ms in 4 s, the first one after 16 tick samples
     np.testing.assert_allclose(log.t, offline.log.t, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(log.phi_sat, offline.log.phi_sat, rtol=0.0, atol=1e-9)
     np.testing.assert_allclose(log.chiee, offline.log.chiee, rtol=0.0, atol=1e-12)

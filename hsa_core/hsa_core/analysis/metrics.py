@@ -1,31 +1,36 @@
 """Tracking metrics of experiments.md §4, computed from per-controller-tick logs.
 
-Inputs are one row per controller tick k: the tick time t_k, the active setpoint p^d(t_k) and the measured (mocap) EE
-position p_ee(t_k) used in that tick, both [x, y] in m, and optionally a per-tick saturation flag.
-Definitions (e_k = ‖p^d(t_k) − p_ee(t_k)‖₂):
+Inputs are one row per controller tick k: the tick time t_k, the active setpoint p^d(t_k) and the
+measured (mocap) EE position p_ee(t_k) used in that tick, both [x, y] in m, and optionally a
+per-tick saturation flag. Definitions (e_k = ‖p^d(t_k) − p_ee(t_k)‖₂):
 
-* **Time base and trimming.** t = 0 at the first tick (the first controller output). With ``duration`` (110 s for the
-  step runs) only ticks with 0 ≤ t < duration are used. Nothing is resampled.
+* **Time base and trimming.** t = 0 at the first tick (the first controller output). With
+  ``duration`` (110 s for the step runs) only ticks with 0 ≤ t < duration are used. Nothing is
+  resampled.
 * **RMSE** = sqrt(mean_k e_k²) over the used ticks [m; the tables print mm].
-* **Steps.** A step starts at tick 0 and at every tick whose setpoint differs from the previous tick's; it ends where
-  the next step starts, the last one at ``duration`` (or, untrimmed, one median tick period after the last tick).
-  e₀ = e at the step's first tick (the value at the change).
-* **Response time** t_r = t of the first tick of the step with e < 0.1·e₀, minus the step's start time; NaN if it
-  never happens within the step (counted as "not reached"); 0 if e₀ = 0.
-* **Settling time** t_s = time from the step start until e stays ≤ max(0.1·e₀, 1 mm) for the rest of the step: the
-  time of the tick after the last tick outside that band; 0 if no tick is outside; NaN if the last tick is outside.
-* **Overshoot.** With the step direction d = (p^d − p_prev)/‖p^d − p_prev‖ (p_prev = the previous setpoint, or the
-  measured p_ee at t = 0 for the first step), overshoot = max(0, max_k (p_ee,k − p^d)·d) over the step's ticks: how
-  far the EE went past the target along the direction of the step [m], and as a percentage of the step size
-  ‖p^d − p_prev‖. Errors across the step direction do not count. NaN for a zero-size step.
-* **Steady-state error** = mean e over the step's ticks in its last 2 s [t_end − 2 s, t_end) (the whole step if it is
-  shorter).
-* **Saturated fraction** = fraction of used ticks flagged saturated; ``saturation_mask`` flags a tick when any
-  commanded φ_i is at or beyond 0 or φ_max (within 1e-9 rad), which works for clipped and unclipped commands.
+* **Steps.** A step starts at tick 0 and at every tick whose setpoint differs from the previous
+  tick's; it ends where the next step starts, the last one at ``duration`` (or, untrimmed, one
+  median tick period after the last tick). e₀ = e at the step's first tick (the value at the
+  change).
+* **Response time** t_r = t of the first tick of the step with e < 0.1·e₀, minus the step's start
+  time; NaN if it never happens within the step (counted as "not reached"); 0 if e₀ = 0.
+* **Settling time** t_s = time from the step start until e stays ≤ max(0.1·e₀, 1 mm) for the rest of
+  the step: the time of the tick after the last tick outside that band; 0 if no tick is outside; NaN
+  if the last tick is outside.
+* **Overshoot.** With the step direction d = (p^d − p_prev)/‖p^d − p_prev‖ (p_prev = the previous
+  setpoint, or the measured p_ee at t = 0 for the first step), overshoot = max(0, max_k (p_ee,k −
+  p^d)·d) over the step's ticks: how far the EE went past the target along the direction of the step
+  [m], and as a percentage of the step size ‖p^d − p_prev‖. Errors across the step direction do not
+  count. NaN for a zero-size step.
+* **Steady-state error** = mean e over the step's ticks in its last 2 s [t_end − 2 s, t_end) (the
+  whole step if it is shorter).
+* **Saturated fraction** = fraction of used ticks flagged saturated; ``saturation_mask`` flags a
+  tick when any commanded φ_i is at or beyond 0 or φ_max (within 1e-9 rad), which works for clipped
+  and unclipped commands.
 * **Effective control rate** = (number of used ticks − 1) / (t_last − t_first) [Hz].
-* **Run summary.** Response time, settling time, overshoot and steady-state error are averaged over the steps after
-  the first (the 10 steps after the first for the 11-step lists), ignoring NaN; the number of steps whose t_r was not
-  reached is reported next to the mean.
+* **Run summary.** Response time, settling time, overshoot and steady-state error are averaged over
+  the steps after the first (the 10 steps after the first for the 11-step lists), ignoring NaN; the
+  number of steps whose t_r was not reached is reported next to the mean.
 """
 
 from __future__ import annotations
@@ -61,7 +66,8 @@ class StepMetrics:
 
 @dataclass(frozen=True)
 class RunMetrics:
-    """Metrics of one run: RMSE, tick count and time span [s], rate, saturation, per-step metrics and their means."""
+    """Metrics of one run: RMSE, tick count and time span [s], rate, saturation, per-step metrics
+    and their means."""
 
     name: str
     rmse: float
@@ -85,7 +91,8 @@ def tracking_rmse(p_des: ArrayLike, p_ee: ArrayLike) -> float:
 
 
 def saturation_mask(phi: ArrayLike, phi_max: float | ArrayLike, atol: float = 1e-9) -> np.ndarray:
-    """Per-tick flag: any commanded φ_i ≤ atol or ≥ φ_max − atol (at or beyond a saturation bound)."""
+    """Per-tick flag: any commanded φ_i ≤ atol or ≥ φ_max − atol (at or beyond a saturation
+    bound)."""
     phi = np.asarray(phi, dtype=np.float64)
     return np.any((phi <= atol) | (phi >= np.asarray(phi_max) - atol), axis=1)
 
@@ -97,7 +104,8 @@ def control_rate(t: ArrayLike) -> float:
 
 
 def step_bounds(p_des: ArrayLike) -> list[tuple[int, int]]:
-    """Half-open tick index ranges [start, stop) of the steps: a step starts wherever the setpoint changes."""
+    """Half-open tick index ranges [start, stop) of the steps: a step starts wherever the setpoint
+    changes."""
     p_des = np.asarray(p_des, dtype=np.float64)
     changes = np.flatnonzero(np.any(p_des[1:] != p_des[:-1], axis=1)) + 1
     edges = [0, *changes.tolist(), p_des.shape[0]]
@@ -107,7 +115,8 @@ def step_bounds(p_des: ArrayLike) -> list[tuple[int, int]]:
 def step_metrics(
     index: int, t: np.ndarray, p_des: np.ndarray, p_ee: np.ndarray, p_prev: np.ndarray, t_end: float
 ) -> StepMetrics:
-    """Metrics of one step from its ticks (t relative to the run start), the previous target and the step end time."""
+    """Metrics of one step from its ticks (t relative to the run start), the previous target and the
+    step end time."""
     target = p_des[0]
     err = np.linalg.norm(p_des - p_ee, axis=1)
     e0 = float(err[0])
@@ -134,9 +143,18 @@ def step_metrics(
     late = t >= t_end - STEADY_STATE_WINDOW
     steady_state_error = float(np.mean(err[late] if late.any() else err))
     return StepMetrics(
-        index, t0, t_end, (float(target[0]), float(target[1])), step_size, e0,
-        response_time, settling_time, overshoot, overshoot_percent, steady_state_error,
-    )  # fmt: skip
+        index,
+        t0,
+        t_end,
+        (float(target[0]), float(target[1])),
+        step_size,
+        e0,
+        response_time,
+        settling_time,
+        overshoot,
+        overshoot_percent,
+        steady_state_error,
+    )
 
 
 def _nanmean(values: Sequence[float]) -> float:
@@ -153,7 +171,8 @@ def evaluate_run(
     duration: float | None = None,
     name: str = "",
 ) -> RunMetrics:
-    """All metrics of one run from per-tick logs (definitions: module docstring); ``duration`` trims, e.g. 110 s."""
+    """All metrics of one run from per-tick logs (definitions: module docstring); ``duration``
+    trims, e.g. 110 s."""
     t = np.asarray(t, dtype=np.float64)
     p_des = np.asarray(p_des, dtype=np.float64)
     p_ee = np.asarray(p_ee, dtype=np.float64)
@@ -177,10 +196,13 @@ def evaluate_run(
     bounds = step_bounds(p_des)
     steps = tuple(
         step_metrics(
-            i, t[a:b], p_des[a:b], p_ee[a:b],
+            i,
+            t[a:b],
+            p_des[a:b],
+            p_ee[a:b],
             p_des[a - 1] if a > 0 else p_ee[0],
             float(t[b]) if b < t.size else run_end,
-        )  # fmt: skip
+        )
         for i, (a, b) in enumerate(bounds)
     )
     later = steps[1:]
@@ -203,8 +225,13 @@ def evaluate_run(
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """Plain-text table with right-aligned columns."""
-    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
-    lines = ["  ".join(h.rjust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
+    widths = [
+        max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)
+    ]
+    lines = [
+        "  ".join(h.rjust(w) for h, w in zip(header, widths)),
+        "  ".join("-" * w for w in widths),
+    ]
     lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in rows]
     return "\n".join(lines)
 
@@ -215,9 +242,20 @@ def _fmt(value: float, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def format_summary(runs: Sequence[RunMetrics]) -> str:
-    """Summary table, one row per run: RMSE, mean t_r (not reached), t_s, overshoot, e_ss [mm], saturation, rate."""
-    header = ["run", "RMSE [mm]", "t_r [s]", "t_s [s]", "overshoot [mm]", "overshoot [%]", "e_ss [mm]",
-              "saturated [%]", "rate [Hz]", "ticks"]  # fmt: skip
+    """Summary table, one row per run: RMSE, mean t_r (not reached), t_s, overshoot, e_ss [mm],
+    saturation, rate."""
+    header = [
+        "run",
+        "RMSE [mm]",
+        "t_r [s]",
+        "t_s [s]",
+        "overshoot [mm]",
+        "overshoot [%]",
+        "e_ss [mm]",
+        "saturated [%]",
+        "rate [Hz]",
+        "ticks",
+    ]
     rows = [
         [
             r.name,
@@ -238,8 +276,19 @@ def format_summary(runs: Sequence[RunMetrics]) -> str:
 
 def format_steps(run: RunMetrics) -> str:
     """Per-step table of one run (positions and errors in mm, times in s)."""
-    header = ["step", "t [s]", "x^d [mm]", "y^d [mm]", "size [mm]", "e0 [mm]", "t_r [s]", "t_s [s]",
-              "overshoot [mm]", "overshoot [%]", "e_ss [mm]"]  # fmt: skip
+    header = [
+        "step",
+        "t [s]",
+        "x^d [mm]",
+        "y^d [mm]",
+        "size [mm]",
+        "e0 [mm]",
+        "t_r [s]",
+        "t_s [s]",
+        "overshoot [mm]",
+        "overshoot [%]",
+        "e_ss [mm]",
+    ]
     rows = [
         [
             str(s.index + 1),

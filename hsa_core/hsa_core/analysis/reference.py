@@ -1,15 +1,16 @@
-"""The paper's real-robot step runs as reference data: conditions and time series of each run (no ROS).
+"""The paper's real-robot step runs as reference data: conditions and time series of each run (no
+ROS).
 
-The runs ship as package data (``config/realdata/``, provenance in its README.md): four closed-loop step runs of the
-ISER 2023 paper recovered from the authors' published figures, with each run's conditions from their logbook
-(``runs.yaml``). :func:`load_run` returns one run; :func:`run_names` lists them. The raw series (:class:`Trace`) keep
-the files' units (time [s], positions [mm], angles [rad]); :attr:`ReferenceRun.p`, :attr:`ReferenceRun.p_des` and
-:meth:`ReferenceRun.rmse` are in metres. What the data can and cannot say (resolution, repeatability) is in the
-README.
+The runs ship as package data (``config/realdata/``, provenance in its README.md): four closed-loop
+step runs of the ISER 2023 paper recovered from the authors' published figures, with each run's
+conditions from their logbook (``runs.yaml``). :func:`load_run` returns one run; :func:`run_names`
+lists them. The raw series (:class:`Trace`) keep the files' units (time [s], positions [mm], angles
+[rad]); :attr:`ReferenceRun.p`, :attr:`ReferenceRun.p_des` and :meth:`ReferenceRun.rmse` are in
+metres. What the data can and cannot say (resolution, repeatability) is in the README.
 
-Step instants are read from the 100 Hz reference columns: the first grid instant at which the reference has moved by
-more than :data:`STEP_THRESHOLD` (the plotted reference of the EPU run also drifts by 0.01 mm every ~2.4 s, a drawing
-artefact, which is not a step).
+Step instants are read from the 100 Hz reference columns: the first grid instant at which the
+reference has moved by more than :data:`STEP_THRESHOLD` (the plotted reference of the EPU run also
+drifts by 0.01 mm every ~2.4 s, a drawing artefact, which is not a step).
 """
 
 from __future__ import annotations
@@ -33,8 +34,9 @@ STEP_THRESHOLD = 0.5e-3
 
 @dataclass(frozen=True)
 class RunConditions:
-    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg], date and the
-    run profile of its period (hsa_core.sim.profiles: control period, integrator step, velocity estimator, bus)."""
+    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg],
+    date and the run profile of its period (hsa_core.sim.profiles: control period, integrator step,
+    velocity estimator, bus)."""
 
     bag: str
     material: str
@@ -67,9 +69,10 @@ class Trace:
 class ReferenceRun:
     """One real run: its conditions and time series (as in the files: positions [mm]).
 
-    ``pee`` as plotted (irregular samples), ``pee_100hz`` on a 10 ms grid with the reference as an exact step
-    function; ``phi`` the commanded twists (and φ^ss for model-based laws); ``varphi`` (model-based laws only, else
-    None); ``q``; ``step_metrics`` the per-step table of the files (column name → values, step k = row k)."""
+    ``pee`` as plotted (irregular samples), ``pee_100hz`` on a 10 ms grid with the reference as an
+    exact step function; ``phi`` the commanded twists (and φ^ss for model-based laws); ``varphi``
+    (model-based laws only, else None); ``q``; ``step_metrics`` the per-step table of the files
+    (column name → values, step k = row k)."""
 
     conditions: RunConditions
     pee: Trace
@@ -96,27 +99,39 @@ class ReferenceRun:
 
     @property
     def step_instants(self) -> np.ndarray:
-        """[s] the instants the reference changes (steps 1, 2, ...), read from the 100 Hz reference."""
+        """[s] the instants the reference changes (steps 1, 2, ...), read from the 100 Hz
+        reference."""
         return step_instants(self.t, self.p_des)
 
     def timed_reference(self) -> TimedReference:
-        """The run's setpoints (the material's step list, experiments.md §2) at the real instants: point 0 at t = 0,
-        point k at step instant k; it ends where the trace ends (one 10 ms sample after its last)."""
+        """The run's setpoints (the material's step list, experiments.md §2) at the real instants:
+        point 0 at t = 0, point k at step instant k; it ends where the trace ends (one 10 ms sample
+        after its last)."""
         instants = self.step_instants
         points = np.asarray(STEP_LISTS[self.conditions.material], dtype=np.float64)
         if len(instants) != len(points) - 1:
-            raise ValueError(f"{self.conditions.bag}: {len(instants)} steps in the trace, {len(points) - 1} in the "
-                             f"{self.conditions.material} step list")
-        return TimedReference(np.concatenate([[0.0], instants]), points, f"{self.conditions.bag}_steps",
-                              float(self.t[-1]) + 0.01)
+            raise ValueError(
+                f"{self.conditions.bag}: {len(instants)} steps in the trace, {len(points) - 1} in "
+                "the "
+                f"{self.conditions.material} step list"
+            )
+        return TimedReference(
+            np.concatenate([[0.0], instants]),
+            points,
+            f"{self.conditions.bag}_steps",
+            float(self.t[-1]) + 0.01,
+        )
 
     def rmse(self) -> float:
         """[m] tracking RMSE over the 100 Hz grid (experiments.md §4 on these traces)."""
         return float(np.sqrt(np.mean(np.sum((self.p_des - self.p) ** 2, axis=1))))
 
 
-def step_instants(t: np.ndarray, p_des: np.ndarray, threshold: float = STEP_THRESHOLD) -> np.ndarray:
-    """The samples of ``t`` at which ``p_des`` (n, 2) has moved by more than ``threshold`` since the previous one."""
+def step_instants(
+    t: np.ndarray, p_des: np.ndarray, threshold: float = STEP_THRESHOLD
+) -> np.ndarray:
+    """The samples of ``t`` at which ``p_des`` (n, 2) has moved by more than ``threshold`` since the
+    previous one."""
     jumps = np.linalg.norm(np.diff(p_des, axis=0), axis=1) > threshold
     return np.asarray(t)[1:][jumps]
 
@@ -127,15 +142,22 @@ def run_names() -> tuple[str, ...]:
 
 
 def load_run(bag: str) -> ReferenceRun:
-    """The packaged run ``bag`` (e.g. "20230925_093236"); ValueError (one line) for an unknown name."""
+    """The packaged run ``bag`` (e.g. "20230925_093236"); ValueError (one line) for an unknown
+    name."""
     table = _conditions_table()
     if bag not in table:
         raise ValueError(f"unknown reference run {bag!r}; known: {', '.join(sorted(table))}")
     conditions = _conditions(bag, table[bag])
     varphi = DATA_DIR / f"{bag}_varphi.csv"
-    return ReferenceRun(conditions, _trace(f"{bag}_pee.csv"), _trace(f"{bag}_pee_100Hz.csv"), _trace(f"{bag}_phi.csv"),
-                        _trace(varphi.name) if varphi.is_file() else None, _trace(f"{bag}_q.csv"),
-                        _table(DATA_DIR / f"{bag}_step_metrics.csv"))
+    return ReferenceRun(
+        conditions,
+        _trace(f"{bag}_pee.csv"),
+        _trace(f"{bag}_pee_100Hz.csv"),
+        _trace(f"{bag}_phi.csv"),
+        _trace(varphi.name) if varphi.is_file() else None,
+        _trace(f"{bag}_q.csv"),
+        _table(DATA_DIR / f"{bag}_step_metrics.csv"),
+    )
 
 
 def _conditions_table() -> dict[str, dict]:
@@ -146,11 +168,27 @@ def _conditions_table() -> dict[str, dict]:
 def _conditions(bag: str, entry: dict) -> RunConditions:
     """Typed conditions of one runs.yaml entry (its ``profile`` names a packaged run profile)."""
     law = ControllerKind(entry["law"])
-    gains = PidGains(**entry["gains"]) if law is ControllerKind.PID else CollocatedGains(**entry["gains"])
-    date = entry["date"] if isinstance(entry["date"], datetime.date) else datetime.date.fromisoformat(entry["date"])
+    gains = (
+        PidGains(**entry["gains"])
+        if law is ControllerKind.PID
+        else CollocatedGains(**entry["gains"])
+    )
+    date = (
+        entry["date"]
+        if isinstance(entry["date"], datetime.date)
+        else datetime.date.fromisoformat(entry["date"])
+    )
     sigma = tuple(float(v) for v in entry["sigma_a_eq"])
-    return RunConditions(bag, str(entry["material"]), law, gains, (sigma[0], sigma[1]), float(entry["payload"]), date,
-                         load_profile(str(entry["profile"])))
+    return RunConditions(
+        bag,
+        str(entry["material"]),
+        law,
+        gains,
+        (sigma[0], sigma[1]),
+        float(entry["payload"]),
+        date,
+        load_profile(str(entry["profile"])),
+    )
 
 
 def _trace(name: str) -> Trace:

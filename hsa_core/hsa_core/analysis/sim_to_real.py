@@ -1,27 +1,34 @@
-"""How far a run (simulated or real) is from a reference run of the real robot, step by step (no ROS).
+"""How far a run (simulated or real) is from a reference run of the real robot, step by step (no
+ROS).
 
 A run is its measured end-effector position and the setpoint in force, sampled at increasing times
-(:class:`StepRun`; a simulation's controller ticks, or a reference run's 100 Hz grid). Its steps start where the
-setpoint moves (:func:`hsa_core.analysis.reference.step_instants`); step k ends where step k + 1 starts, the last one at the
-run's ``end``. The measures (positions in m, times in s):
+(:class:`StepRun`; a simulation's controller ticks, or a reference run's 100 Hz grid). Its steps
+start where the setpoint moves (:func:`hsa_core.analysis.reference.step_instants`); step k ends
+where step k + 1 starts, the last one at the run's ``end``. The measures (positions in m, times in
+s):
 
-* **D** (:func:`deviation`) = RMS over steps 1–10 and over the first 9.3 s after each step's own instant (each run
-  aligned at its own step instant), on a 10 ms grid (positions interpolated linearly), of ‖p_run − p_ref‖;
-* **end peak-to-peak** (:func:`end_peak_to_peak`): per step and axis, max − min of the samples in the step's last 2 s;
+* **D** (:func:`deviation`) = RMS over steps 1–10 and over the first 9.3 s after each step's own
+  instant (each run aligned at its own step instant), on a 10 ms grid (positions interpolated
+  linearly), of ‖p_run − p_ref‖;
+* **end peak-to-peak** (:func:`end_peak_to_peak`): per step and axis, max − min of the samples in
+  the step's last 2 s;
 * **end error** (:func:`end_error`): per step, mean ‖p^d − p‖ over the samples in its last 2 s;
-* **response time** (:func:`response_times`): per step, on the aligned 10 ms grid, the first time ‖p^d − p‖ falls
-  below 10 % of its value at the step instant (experiments.md §4), NaN if it never does within the window;
-* **rise time** (:func:`rise_times`): per step, on the aligned grid, the time the progress along the step,
-  s = (p − p₀)·(p^d − p₀)/‖p^d − p₀‖² (p₀ = p at the step instant), takes from first reaching 10 % to first reaching
-  90 %, NaN if it never does;
-* **overshoot** (:func:`overshoots`): per step, on the aligned grid, how far p went past the setpoint along the
-  step's direction d = (p^d_k − p^d_{k−1})/‖p^d_k − p^d_{k−1}‖, max(0, max_j (p_j − p^d_k)·d) (as
-  hsa_core.analysis.metrics), NaN for a zero-size step;
+* **response time** (:func:`response_times`): per step, on the aligned 10 ms grid, the first time
+  ‖p^d − p‖ falls below 10 % of its value at the step instant (experiments.md §4), NaN if it never
+  does within the window;
+* **rise time** (:func:`rise_times`): per step, on the aligned grid, the time the progress along the
+  step, s = (p − p₀)·(p^d − p₀)/‖p^d − p₀‖² (p₀ = p at the step instant), takes from first reaching
+  10 % to first reaching 90 %, NaN if it never does;
+* **overshoot** (:func:`overshoots`): per step, on the aligned grid, how far p went past the
+  setpoint along the step's direction d = (p^d_k − p^d_{k−1})/‖p^d_k − p^d_{k−1}‖, max(0, max_j (p_j
+  − p^d_k)·d) (as hsa_core.analysis.metrics), NaN for a zero-size step;
 * **D per step** (:func:`step_deviations`): D of each step alone;
-* :func:`step_table` puts every per-step measure of a run and a reference side by side (``hsa_analyze --against``);
+* :func:`step_table` puts every per-step measure of a run and a reference side by side
+  (``hsa_analyze --against``);
 * **onset time** (:func:`onset_times`): per step, the aligned time the progress first reaches 10 %;
-* :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max over steps), end
-  error (median over steps), the median relative rise- and response-time differences and each run's RMSE.
+* :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max
+  over steps), end error (median over steps), the median relative rise- and response-time
+  differences and each run's RMSE.
 """
 
 from __future__ import annotations
@@ -44,7 +51,8 @@ GRID = 0.01
 
 @dataclass(frozen=True)
 class StepRun:
-    """A run: sample times t (n,) [s], measured position p (n, 2) [m], setpoint in force p_des (n, 2) [m], end [s]."""
+    """A run: sample times t (n,) [s], measured position p (n, 2) [m], setpoint in force p_des (n,
+    2) [m], end [s]."""
 
     t: np.ndarray
     p: np.ndarray
@@ -55,7 +63,9 @@ class StepRun:
         """Reject shapes that do not match and times that do not increase."""
         n = len(self.t)
         if np.shape(self.p) != (n, 2) or np.shape(self.p_des) != (n, 2):
-            raise ValueError(f"p and p_des must be ({n}, 2), got {np.shape(self.p)} and {np.shape(self.p_des)}")
+            raise ValueError(
+                f"p and p_des must be ({n}, 2), got {np.shape(self.p)} and {np.shape(self.p_des)}"
+            )
         if n < 2 or np.any(np.diff(self.t) <= 0.0):
             raise ValueError("t must hold at least two increasing sample times")
 
@@ -65,7 +75,8 @@ class StepRun:
         return step_instants(self.t, self.p_des)
 
     def step_bounds(self, steps: tuple[int, ...] = STEPS) -> list[tuple[float, float]]:
-        """[(start, end)] [s] of each of ``steps``; ValueError (one line) if the run does not have them."""
+        """[(start, end)] [s] of each of ``steps``; ValueError (one line) if the run does not have
+        them."""
         starts = self.step_starts
         if len(starts) < max(steps):
             raise ValueError(f"the run has {len(starts) + 1} steps, {max(steps) + 1} are compared")
@@ -77,23 +88,35 @@ class StepRun:
         return self.p_des[max(int(np.searchsorted(self.t, t, side="right")) - 1, 0)]
 
 
-def aligned_responses(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-                      grid: float = GRID) -> np.ndarray:
-    """(steps, round(horizon/grid), 2) [m]: p at start_k + j·grid for each step, interpolated linearly."""
+def aligned_responses(
+    run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON, grid: float = GRID
+) -> np.ndarray:
+    """(steps, round(horizon/grid), 2) [m]: p at start_k + j·grid for each step, interpolated
+    linearly."""
     offsets = np.arange(round(horizon / grid)) * grid
     out = []
     for start, end in run.step_bounds(steps):
         if start + offsets[-1] > run.t[-1]:
-            raise ValueError(f"the run ends at {run.t[-1]:.2f} s, before {horizon} s after the step at {start:.2f} s")
+            raise ValueError(
+                f"the run ends at {run.t[-1]:.2f} s, before {horizon} s after the step at "
+                f"{start:.2f} s"
+            )
         at = start + offsets
         out.append(np.stack([np.interp(at, run.t, run.p[:, i]) for i in range(2)], axis=1))
     return np.asarray(out)
 
 
-def deviation(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-              grid: float = GRID) -> float:
+def deviation(
+    run: StepRun,
+    ref: StepRun,
+    steps: tuple[int, ...] = STEPS,
+    horizon: float = HORIZON,
+    grid: float = GRID,
+) -> float:
     """D [m]: RMS of ‖p_run − p_ref‖ over the aligned responses of ``steps`` (module docstring)."""
-    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(ref, steps, horizon, grid)
+    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(
+        ref, steps, horizon, grid
+    )
     return float(np.sqrt(np.mean(np.sum(diff**2, axis=-1))))
 
 
@@ -102,20 +125,30 @@ def _last(run: StepRun, steps: tuple[int, ...], window: float) -> list[np.ndarra
     return [(run.t >= end - window) & (run.t < end) for _, end in run.step_bounds(steps)]
 
 
-def end_peak_to_peak(run: StepRun, steps: tuple[int, ...] = STEPS,
-                     window: float = STEADY_STATE_WINDOW) -> np.ndarray:
+def end_peak_to_peak(
+    run: StepRun, steps: tuple[int, ...] = STEPS, window: float = STEADY_STATE_WINDOW
+) -> np.ndarray:
     """(steps, 2) [m]: per step and axis, max − min of p over the step's last ``window`` seconds."""
     return np.array([np.ptp(run.p[m], axis=0) for m in _last(run, steps, window)])
 
 
-def end_error(run: StepRun, steps: tuple[int, ...] = STEPS, window: float = STEADY_STATE_WINDOW) -> np.ndarray:
+def end_error(
+    run: StepRun, steps: tuple[int, ...] = STEPS, window: float = STEADY_STATE_WINDOW
+) -> np.ndarray:
     """(steps,) [m]: per step, the mean ‖p^d − p‖ over its last ``window`` seconds."""
-    return np.array([np.mean(np.linalg.norm(run.p_des[m] - run.p[m], axis=1)) for m in _last(run, steps, window)])
+    return np.array(
+        [
+            np.mean(np.linalg.norm(run.p_des[m] - run.p[m], axis=1))
+            for m in _last(run, steps, window)
+        ]
+    )
 
 
-def response_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-                   grid: float = GRID) -> np.ndarray:
-    """(steps,) [s]: per step, the first aligned time with ‖p^d − p‖ < 10 % of its value at the step (NaN: never)."""
+def response_times(
+    run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON, grid: float = GRID
+) -> np.ndarray:
+    """(steps,) [s]: per step, the first aligned time with ‖p^d − p‖ < 10 % of its value at the step
+    (NaN: never)."""
     responses = aligned_responses(run, steps, horizon, grid)
     out = []
     for (start, _), p in zip(run.step_bounds(steps), responses):
@@ -125,9 +158,11 @@ def response_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float 
     return np.array(out)
 
 
-def rise_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-               grid: float = GRID) -> np.ndarray:
-    """(steps,) [s]: per step, the 10–90 % rise time of the progress along the step (module docstring; NaN: never)."""
+def rise_times(
+    run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON, grid: float = GRID
+) -> np.ndarray:
+    """(steps,) [s]: per step, the 10–90 % rise time of the progress along the step (module
+    docstring; NaN: never)."""
     responses = aligned_responses(run, steps, horizon, grid)
     out = []
     for (start, _), p in zip(run.step_bounds(steps), responses):
@@ -138,10 +173,11 @@ def rise_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HO
     return np.array(out)
 
 
-def onset_times(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-                grid: float = GRID) -> np.ndarray:
-    """(steps,) [s]: per step, the aligned time the progress along the step (:func:`rise_times`) first
-    reaches 10 % (NaN: never): how long after its step instant the run starts to move."""
+def onset_times(
+    run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON, grid: float = GRID
+) -> np.ndarray:
+    """(steps,) [s]: per step, the aligned time the progress along the step (:func:`rise_times`)
+    first reaches 10 % (NaN: never): how long after its step instant the run starts to move."""
     responses = aligned_responses(run, steps, horizon, grid)
     out = []
     for (start, _), p in zip(run.step_bounds(steps), responses):
@@ -159,9 +195,9 @@ def rmse(run: StepRun) -> float:
 
 @dataclass(frozen=True)
 class Comparison:
-    """The sim-versus-real table of one run [m, s]: D, x peak-to-peak at the end of a step (max over steps), end
-    error (median over steps), median over steps of |t_run − t_ref| / t_ref of the rise and of the response time,
-    and each run's RMSE."""
+    """The sim-versus-real table of one run [m, s]: D, x peak-to-peak at the end of a step (max over
+    steps), end error (median over steps), median over steps of |t_run − t_ref| / t_ref of the rise
+    and of the response time, and each run's RMSE."""
 
     deviation: float
     x_peak_to_peak: tuple[float, float]  # (run, reference)
@@ -173,13 +209,17 @@ class Comparison:
 
 def compare(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> Comparison:
     """All measures of the module docstring for ``run`` against ``ref``."""
+
     def relative(times) -> float:  # noqa: ANN001 - rise_times or response_times
         t_run, t_ref = times(run, steps), times(ref, steps)
         return float(np.nanmedian(np.abs(t_run - t_ref) / t_ref))
 
     return Comparison(
         deviation(run, ref, steps),
-        (float(end_peak_to_peak(run, steps)[:, 0].max()), float(end_peak_to_peak(ref, steps)[:, 0].max())),
+        (
+            float(end_peak_to_peak(run, steps)[:, 0].max()),
+            float(end_peak_to_peak(ref, steps)[:, 0].max()),
+        ),
         (float(np.median(end_error(run, steps))), float(np.median(end_error(ref, steps)))),
         relative(rise_times),
         relative(response_times),
@@ -187,31 +227,45 @@ def compare(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> Compa
     )
 
 
-def overshoots(run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-               grid: float = GRID) -> np.ndarray:
-    """(steps,) [m]: per step, the overshoot past the setpoint along the step's direction (module docstring)."""
+def overshoots(
+    run: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON, grid: float = GRID
+) -> np.ndarray:
+    """(steps,) [m]: per step, the overshoot past the setpoint along the step's direction (module
+    docstring)."""
     responses = aligned_responses(run, steps, horizon, grid)
     out = []
     for (start, _), p in zip(run.step_bounds(steps), responses):
         before = run.p_des[max(int(np.searchsorted(run.t, start, side="left")) - 1, 0)]
         target = run.setpoint_at(start)
         size = float(np.linalg.norm(target - before))
-        out.append(max(0.0, float(np.max((p - target) @ ((target - before) / size)))) if size > 0.0 else np.nan)
+        out.append(
+            max(0.0, float(np.max((p - target) @ ((target - before) / size))))
+            if size > 0.0
+            else np.nan
+        )
     return np.array(out)
 
 
-def step_deviations(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS, horizon: float = HORIZON,
-                    grid: float = GRID) -> np.ndarray:
-    """(steps,) [m]: per step, RMS of ‖p_run − p_ref‖ over its aligned response (D of that step alone)."""
-    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(ref, steps, horizon, grid)
+def step_deviations(
+    run: StepRun,
+    ref: StepRun,
+    steps: tuple[int, ...] = STEPS,
+    horizon: float = HORIZON,
+    grid: float = GRID,
+) -> np.ndarray:
+    """(steps,) [m]: per step, RMS of ‖p_run − p_ref‖ over its aligned response (D of that step
+    alone)."""
+    diff = aligned_responses(run, steps, horizon, grid) - aligned_responses(
+        ref, steps, horizon, grid
+    )
     return np.sqrt(np.mean(np.sum(diff**2, axis=-1), axis=1))
 
 
 @dataclass(frozen=True)
 class StepTable:
-    """Per-step measures of a run and a reference side by side [m, s]: the steps compared, each one's start in
-    either run, D per step, and (run, reference) pairs of rise time, overshoot, end error and end peak-to-peak per
-    axis ((steps, 2) each)."""
+    """Per-step measures of a run and a reference side by side [m, s]: the steps compared, each
+    one's start in either run, D per step, and (run, reference) pairs of rise time, overshoot, end
+    error and end peak-to-peak per axis ((steps, 2) each)."""
 
     steps: tuple[int, ...]
     start: tuple[np.ndarray, np.ndarray]
@@ -223,6 +277,7 @@ class StepTable:
 
     def rows(self) -> list[dict[str, Any]]:
         """One dict per step (SI units; NaN as None), for JSON."""
+
         def num(value: float) -> float | None:
             return None if np.isnan(value) else float(value)
 
@@ -232,19 +287,26 @@ class StepTable:
             for name in ("start", "rise_time", "overshoot", "end_error"):
                 pair = getattr(self, name)
                 row[name] = {"run": num(pair[0][i]), "reference": num(pair[1][i])}
-            row["peak_to_peak"] = {side: [num(v) for v in pair[i]]
-                                   for side, pair in zip(("run", "reference"), self.peak_to_peak)}
+            row["peak_to_peak"] = {
+                side: [num(v) for v in pair[i]]
+                for side, pair in zip(("run", "reference"), self.peak_to_peak)
+            }
             out.append(row)
         return out
 
 
 def step_table(run: StepRun, ref: StepRun, steps: tuple[int, ...] = STEPS) -> StepTable:
     """Every per-step measure of ``run`` and ``ref`` (module docstring)."""
+
     def starts(r: StepRun) -> np.ndarray:
         return np.array([start for start, _ in r.step_bounds(steps)])
 
     return StepTable(
-        tuple(steps), (starts(run), starts(ref)), step_deviations(run, ref, steps),
-        (rise_times(run, steps), rise_times(ref, steps)), (overshoots(run, steps), overshoots(ref, steps)),
-        (end_error(run, steps), end_error(ref, steps)), (end_peak_to_peak(run, steps), end_peak_to_peak(ref, steps)),
+        tuple(steps),
+        (starts(run), starts(ref)),
+        step_deviations(run, ref, steps),
+        (rise_times(run, steps), rise_times(ref, steps)),
+        (overshoots(run, steps), overshoots(ref, steps)),
+        (end_error(run, steps), end_error(ref, steps)),
+        (end_peak_to_peak(run, steps), end_peak_to_peak(ref, steps)),
     )

@@ -1,1 +1,2 @@
-"""Whole applications on the batched loop and their shared argument parsing: tune, robustness, calibrate."""
+"""Whole applications on the batched loop and their shared argument parsing: tune, robustness,
+calibrate."""

@@ -1,22 +1,23 @@
 """Closed-loop calibration of the world against the real robot's step runs (no ROS).
 
-The world's parameters that no identification fixed (:class:`~hsa_core.sim.disturbance.DisturbanceModel`
-fields: the actuation latency, the servos' speed cap and time constant, the plant's damping and
-shear-stiffness factors) are fitted to the paper's reference runs (:mod:`hsa_core.analysis.reference`), each
-replayed with its own conditions (:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains,
-σ_a,eq, real step instants). The measure is D of :mod:`hsa_core.analysis.sim_to_real` (each step aligned at
-its own instant, steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one
-set of world parameters for every run.
+The world's parameters that no identification fixed
+(:class:`~hsa_core.sim.disturbance.DisturbanceModel` fields: the actuation latency, the servos'
+speed cap and time constant, the plant's damping and shear-stiffness factors) are fitted to the
+paper's reference runs (:mod:`hsa_core.analysis.reference`), each replayed with its own conditions
+(:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants).
+The measure is D of :mod:`hsa_core.analysis.sim_to_real` (each step aligned at its own instant,
+steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one set of world
+parameters for every run.
 
 * **Simulation**: the batched JAX loop (:mod:`hsa_core.sim.closed_loop`); a whole population of
   candidate worlds is one ``batch_rollout`` call per run (one compilation per run, whatever the
   candidates), so the same code runs on a GPU or on every CPU core. D is taken on the host from the
   population's logs (milliseconds).
-* **Search**: derivative-free, a cross-entropy search (as :mod:`hsa_core.apps.tune`) on the parameters
-  mapped to [0, 1] (a log scale for the damping factor), the latency rounded to the 1 ms grid,
-  seeded and deterministic. Gradients are not used: the latency is integer, the speed cap a clip, D
-  a max-free but kinked function of both; and a population is as cheap per run as one candidate on a
-  vector machine.
+* **Search**: derivative-free, a cross-entropy search (as :mod:`hsa_core.apps.tune`) on the
+  parameters mapped to [0, 1] (a log scale for the damping factor), the latency rounded to the 1 ms
+  grid, seeded and deterministic. Gradients are not used: the latency is integer, the speed cap a
+  clip, D a max-free but kinked function of both; and a population is as cheap per run as one
+  candidate on a vector machine.
 * **Identifiability and uncertainty**: after the search each parameter is scanned alone over its
   whole range around the best world (one batched call per run): the interval where the pooled D
   stays within ``tolerance`` of the best is reported as its uncertainty, and a parameter whose scan
@@ -26,8 +27,8 @@ set of world parameters for every run.
 * **Leave-one-run-out**: the search repeated on all runs but one, and D of the left-out run with
   those parameters.
 
-``python -m hsa_core.apps.calibrate`` / ``hsa_calibrate`` (:func:`main`) writes the world YAML, the fit
-report (JSON) and one figure per run.
+``python -m hsa_core.apps.calibrate`` / ``hsa_calibrate`` (:func:`main`) writes the world YAML, the
+fit report (JSON) and one figure per run.
 """
 
 from __future__ import annotations
@@ -47,13 +48,13 @@ import yaml
 
 from hsa_core.analysis import reference, sim_to_real
 from hsa_core.apps import cli
+from hsa_core.jaxsetup import configure_jax
 from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, replay_config
-from hsa_core.jaxsetup import configure_jax
-from hsa_core.task.planning import Planner
 from hsa_core.sim.run_conditions import run_disturbance
 from hsa_core.sim.world import GRID_NS, servo_speed
+from hsa_core.task.planning import Planner
 
 TOLERANCE = 5e-5
 """[m] the pooled D a parameter must move to count as identified (module docstring)."""
@@ -156,10 +157,9 @@ def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed
     plant_model = model.replace(m_pl=run.config.payload) if run.config.payload else model
     worlds = [run_disturbance(w, run.config.command_latency) for w in worlds]
     lat = [round(w.actuation_latency * 1e3) for w in worlds]
-    if (
-        any(abs(w.actuation_latency * 1e3 - v) > 1e-9 for w, v in zip(worlds, lat))
-        or max(lat) > _max_latency_ms(run)
-    ):
+    if any(abs(w.actuation_latency * 1e3 - v) > 1e-9 for w, v in zip(worlds, lat)) or max(
+        lat
+    ) > _max_latency_ms(run):
         raise ValueError(
             f"actuation latencies must be whole ms up to {_max_latency_ms(run)} ms, got {lat}"
         )
@@ -279,9 +279,9 @@ def search(
 def scan(
     runs: list[PreparedRun], name: str, world: DisturbanceModel, points: int = 9
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which one
-    is the world's own (the nearest grid point moved onto it): (values, pooled D [m]), one call per
-    run."""
+    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which
+    one is the world's own (the nearest grid point moved onto it): (values, pooled D [m]), one call
+    per run."""
     p = PARAMETERS[name]
     values = p.value(np.linspace(0.0, 1.0, points))
     values[np.argmin(np.abs(values - getattr(world, name)))] = getattr(world, name)
@@ -306,8 +306,8 @@ def identification(
 
 
 def world_document(report: dict) -> dict:
-    """The world YAML of a fit report: each parameter's value, identifiability, interval and scan (the
-    evidence), and D per run in the default and the calibrated world."""
+    """The world YAML of a fit report: each parameter's value, identifiability, interval and scan
+    (the evidence), and D per run in the default and the calibrated world."""
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
@@ -433,8 +433,14 @@ def main(argv: list[str] | None = None) -> int:
 
     def fit_on(subset: list[PreparedRun]) -> SearchResult:
         """The search over ``subset`` with the command line's fit, budget and seed."""
-        return search(subset, args.fit, base, population=args.population, generations=args.generations,
-                      seed=args.seed)
+        return search(
+            subset,
+            args.fit,
+            base,
+            population=args.population,
+            generations=args.generations,
+            seed=args.seed,
+        )
 
     fit = fit_on(runs)
     world = dataclasses.replace(base, **fit.best)

@@ -1,4 +1,5 @@
-"""Command-line parsing shared by the hsa-ros CLIs: a bad argument is refused up front, in one line, with exit 2."""
+"""Command-line parsing shared by the hsa-ros CLIs: a bad argument is refused up front, in one line,
+with exit 2."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ import math
 from typing import TYPE_CHECKING, NoReturn
 
 if TYPE_CHECKING:
-    from hsa_core.sim.profiles import RunProfile
     from hsa_core.analysis.reference import ReferenceRun
+    from hsa_core.sim.profiles import RunProfile
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse.ArgumentParser whose errors are one line (``prog: error: ... (see --help)``) and exit status 2."""
+    """argparse.ArgumentParser whose errors are one line (``prog: error: ... (see --help)``) and
+    exit status 2."""
 
     def error(self, message: str) -> NoReturn:
         """Print the one-line refusal and exit 2 (argparse would print the whole usage first)."""
@@ -50,8 +52,11 @@ def sigma_a_eq(text: str) -> tuple[float, float]:
         values = [float(v) for v in parts]
     except ValueError:
         values = []
-    if (len(parts) not in (1, 2) or len(values) != len(parts)
-            or not all(0.0 < v < math.inf for v in values)):
+    if (
+        len(parts) not in (1, 2)
+        or len(values) != len(parts)
+        or not all(0.0 < v < math.inf for v in values)
+    ):
         raise argparse.ArgumentTypeError(f"must be A or A,B with finite numbers > 0, got {text}")
     return values[0], values[-1]
 
@@ -67,8 +72,8 @@ def run_profile(text: str) -> RunProfile:
 
 
 def reference_run(text: str) -> ReferenceRun:
-    """argparse type of --run: a packaged real run of the paper (hsa_core.analysis.reference, imported on
-    use: it loads JAX)."""
+    """argparse type of --run: a packaged real run of the paper (hsa_core.analysis.reference,
+    imported on use: it loads JAX)."""
     from hsa_core.analysis.reference import load_run
 
     try:

@@ -1,31 +1,36 @@
-"""One supervised controller tick as pure code (planning_and_control.md §5), shared by controller_node (node clock)
-and the offline experiment (world clock), so that both take the same decision on every tick.
+"""One supervised controller tick as pure code (planning_and_control.md §5), shared by
+controller_node (node clock) and the offline experiment (world clock), so that both take the same
+decision on every tick.
 
 Events come in with the time passed in as int nanoseconds on the clock of the state stamps:
 
-* `receive_setpoint(stamp, setpoint, tag)` queues a setpoint; the first tick *after* its stamp activates it (a tick at
-  the very instant it was stamped still uses the previous one, whichever arrived first: deterministic under simulated
-  time). The newest wins, at a bounded cost per tick whatever the setpoint rate: the intake keeps the newest
-  SETPOINT_INTAKE setpoints, and a tick checks its due setpoints from the newest back, at most SETPOINT_CHECKS of
-  them, and activates the first that passes the optional physical check and `Controller.set_setpoint`; the newer
-  ones it refused are counted as rejected, the older ones (and those the intake dropped) as superseded, unchecked.
-  A refused setpoint leaves the previous one active;
-* `state(stamp, now, ...)` checks plausibility (hsa_core.controller.validation.state_problem) and order (the Supervisor); an
-  accepted state with valid velocities becomes the newest measurement;
-* `heartbeat(now)` (driver alive), `driver_torque(on)` (whether the driver's servos take commands) and
-  `set_estop(active)`: entering the E-stop resets the integrators and drops the held command, so it can never be
-  re-sent after the stop.
+* `receive_setpoint(stamp, setpoint, tag)` queues a setpoint; the first tick *after* its stamp
+  activates it (a tick at the very instant it was stamped still uses the previous one, whichever
+  arrived first: deterministic under simulated time). The newest wins, at a bounded cost per tick
+  whatever the setpoint rate: the intake keeps the newest SETPOINT_INTAKE setpoints, and a tick
+  checks its due setpoints from the newest back, at most SETPOINT_CHECKS of them, and activates the
+  first that passes the optional physical check and `Controller.set_setpoint`; the newer ones it
+  refused are counted as rejected, the older ones (and those the intake dropped) as superseded,
+  unchecked. A refused setpoint leaves the previous one active;
+* `state(stamp, now, ...)` checks plausibility (hsa_core.controller.validation.state_problem) and
+  order (the Supervisor); an accepted state with valid velocities becomes the newest measurement;
+* `heartbeat(now)` (driver alive), `driver_torque(on)` (whether the driver's servos take commands)
+  and `set_estop(active)`: entering the E-stop resets the integrators and drops the held command, so
+  it can never be re-sent after the stop.
 
-`tick(now)` activates the due setpoints, asks the Supervisor (hsa_core.controller.supervision) and then:
+`tick(now)` activates the due setpoints, asks the Supervisor (hsa_core.controller.supervision) and
+then:
 
-* STEP: `Controller.step` on the newest measurement; its command is sent and held from now on. A step the core
-  refuses (ValueError) sends nothing and keeps the mode;
-* HOLD with a held command: that command is re-sent unchanged (same φ, same source stamp); the law is not stepped, so
-  the integrators are frozen;
-* otherwise nothing is sent and the integrators are frozen (HOLD with nothing to hold is reported as STALE).
+* STEP: `Controller.step` on the newest measurement; its command is sent and held from now on. A
+  step the core refuses (ValueError) sends nothing and keeps the mode;
+* HOLD with a held command: that command is re-sent unchanged (same φ, same source stamp); the law
+  is not stepped, so the integrators are frozen;
+* otherwise nothing is sent and the integrators are frozen (HOLD with nothing to hold is reported as
+  STALE).
 
-A mode change is returned once (`Transition`, with the time without tracking on a return to tracking) and counted
-(entries into HOLD, STALE, DRIVER_LOST and TORQUE_OFF); `counters` and `rejections` are cumulative.
+A mode change is returned once (`Transition`, with the time without tracking on a return to
+tracking) and counted (entries into HOLD, STALE, DRIVER_LOST and TORQUE_OFF); `counters` and
+`rejections` are cumulative.
 """
 
 from __future__ import annotations
@@ -41,11 +46,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hsa_core.controller.control import Controller, ControllerInfo, Measurement
-from hsa_core.rate_meter import RateMeter
-from hsa_core.task.planning import Setpoint
-from hsa_core.refusal import Refusal, StateRejection
 from hsa_core.controller.supervision import Action, Decision, Mode, Supervisor
 from hsa_core.controller.validation import SetpointRejection, q_bounds, state_problem
+from hsa_core.rate_meter import RateMeter
+from hsa_core.refusal import Refusal, StateRejection
+from hsa_core.task.planning import Setpoint
 
 DEADLINE_FACTOR = 1.5
 """A tick that starts more than 1.5 periods after the previous one counts as a deadline miss."""
@@ -57,7 +62,8 @@ SETPOINT_CHECKS = 4
 
 @dataclasses.dataclass(frozen=True)
 class Command:
-    """A command sent: φ [rad] and the stamp [ns] of the state it was computed from (a hold re-sends both)."""
+    """A command sent: φ [rad] and the stamp [ns] of the state it was computed from (a hold re-sends
+    both)."""
 
     phi: np.ndarray
     source_stamp_ns: int
@@ -65,7 +71,8 @@ class Command:
 
 @dataclasses.dataclass(frozen=True)
 class Activation:
-    """A queued setpoint a tick tried to activate: its tag (e.g. the message) and why it was refused (None: active)."""
+    """A queued setpoint a tick tried to activate: its tag (e.g. the message) and why it was refused
+    (None: active)."""
 
     tag: Any
     problem: Refusal | None
@@ -73,7 +80,8 @@ class Activation:
 
 @dataclasses.dataclass(frozen=True)
 class Transition:
-    """A mode change; outage_s [s] from the last tracking tick to this return to tracking (NaN otherwise)."""
+    """A mode change; outage_s [s] from the last tracking tick to this return to tracking (NaN
+    otherwise)."""
 
     old: Mode
     new: Mode
@@ -82,7 +90,8 @@ class Transition:
 
 @dataclasses.dataclass(frozen=True)
 class Tick:
-    """What one tick did; sent is STEP (a new command), HOLD (the held command re-sent) or NONE (nothing sent)."""
+    """What one tick did; sent is STEP (a new command), HOLD (the held command re-sent) or NONE
+    (nothing sent)."""
 
     decision: Decision
     mode: Mode  # the mode after the tick (unchanged when the core refused the step)
@@ -135,28 +144,43 @@ class Period:
 
 
 class ControlLoop:
-    """The controller's supervised tick; every method takes the time as int nanoseconds (see the module docstring)."""
+    """The controller's supervised tick; every method takes the time as int nanoseconds (see the
+    module docstring)."""
 
-    def __init__(self, controller: Controller, supervisor: Supervisor, start_ns: int = 0,
-                 check: Callable[[Setpoint], Refusal | None] | None = None) -> None:
-        """Wrap a compiled controller and a supervisor; `check` is the physical setpoint check before activation."""
+    def __init__(
+        self,
+        controller: Controller,
+        supervisor: Supervisor,
+        start_ns: int = 0,
+        check: Callable[[Setpoint], Refusal | None] | None = None,
+    ) -> None:
+        """Wrap a compiled controller and a supervisor; `check` is the physical setpoint check
+        before activation."""
         self.controller, self.supervisor, self._check = controller, supervisor, check
         self._q_bounds = q_bounds(controller.params)
         self.counters, self.rejections = Counters(), Rejections()
         self.mode = Mode.WAITING_FOR_SETPOINT
-        self.last_outage_s = math.nan  # time without tracking before the latest return to tracking [s]
+        self.last_outage_s = (
+            math.nan
+        )  # time without tracking before the latest return to tracking [s]
         self.active_tag: Any = None  # tag of the active setpoint
-        self._intake: deque[tuple[int, Setpoint, Any]] = deque()  # received setpoints not yet checked, arrival order
-        self._newest: tuple[int, Measurement] | None = None  # stamp and values of the newest usable state
+        self._intake: deque[tuple[int, Setpoint, Any]] = (
+            deque()
+        )  # received setpoints not yet checked, arrival order
+        self._newest: tuple[int, Measurement] | None = (
+            None  # stamp and values of the newest usable state
+        )
         self._held: Command | None = None
         self._last_tick: int | None = None
         self._tracked_at: int | None = None  # newest tracking tick
-        self._lost_at: int | None = None  # last tracking tick before the current outage (None while tracking)
+        self._lost_at: int | None = (
+            None  # last tracking tick before the current outage (None while tracking)
+        )
         self._rate, self._window_compute = RateMeter(start_ns), []
 
     def receive_setpoint(self, stamp_ns: int, setpoint: Setpoint, tag: Any = None) -> None:
-        """Queue a setpoint stamped stamp_ns, O(1); the first tick after the stamp activates it unless a newer one
-        supersedes it. A full intake drops its oldest setpoint (superseded)."""
+        """Queue a setpoint stamped stamp_ns, O(1); the first tick after the stamp activates it
+        unless a newer one supersedes it. A full intake drops its oldest setpoint (superseded)."""
         self.counters.received_setpoints += 1
         if len(self._intake) == SETPOINT_INTAKE:
             self._intake.popleft()
@@ -164,8 +188,9 @@ class ControlLoop:
         self._intake.append((stamp_ns, setpoint, tag))
 
     def drop_setpoints(self, count: int) -> None:
-        """count setpoints were received and replaced by newer ones before they were handed in (a caller that keeps
-        only the newest SETPOINT_INTAKE undecoded messages between ticks): counted as received and superseded."""
+        """count setpoints were received and replaced by newer ones before they were handed in (a
+        caller that keeps only the newest SETPOINT_INTAKE undecoded messages between ticks): counted
+        as received and superseded."""
         self.counters.received_setpoints += count
         self.counters.superseded_setpoints += count
 
@@ -180,9 +205,18 @@ class ControlLoop:
         """Setpoints received and not yet checked (at most SETPOINT_INTAKE)."""
         return len(self._intake)
 
-    def state(self, stamp_ns: int, now_ns: int, q: ArrayLike, q_dot: ArrayLike, chiee: ArrayLike,
-              chiee_dot: ArrayLike, velocity_valid: bool = True) -> Refusal | None:
-        """A measured state: why it is refused (counted), or None; only accepted ones with valid velocities are used."""
+    def state(
+        self,
+        stamp_ns: int,
+        now_ns: int,
+        q: ArrayLike,
+        q_dot: ArrayLike,
+        chiee: ArrayLike,
+        chiee_dot: ArrayLike,
+        velocity_valid: bool = True,
+    ) -> Refusal | None:
+        """A measured state: why it is refused (counted), or None; only accepted ones with valid
+        velocities are used."""
         problem = state_problem(self._q_bounds, q, q_dot, chiee, chiee_dot, velocity_valid)
         if problem is None and velocity_valid:
             problem = self.supervisor.state(stamp_ns, now_ns)
@@ -202,7 +236,8 @@ class ControlLoop:
         return self.supervisor.driver_torque(on)
 
     def set_estop(self, active: bool) -> bool:
-        """E-stop state from the driver; True when it changed. Entering it resets the integrators, drops the hold."""
+        """E-stop state from the driver; True when it changed. Entering it resets the integrators,
+        drops the hold."""
         if active == self.supervisor.estop:
             return False
         if self.supervisor.set_estop(active):
@@ -212,7 +247,8 @@ class ControlLoop:
         return True
 
     def tick(self, now_ns: int) -> Tick:
-        """One control period at now_ns: activate due setpoints, then step, re-send the held command or send nothing."""
+        """One control period at now_ns: activate due setpoints, then step, re-send the held command
+        or send nothing."""
         self._count(now_ns)
         activated = self._activate(now_ns)
         decision = self.supervisor.tick(now_ns)
@@ -220,27 +256,43 @@ class ControlLoop:
             return self._step(now_ns, decision, activated)
         if decision.action is Action.HOLD and self._held is not None:
             self.counters.held_ticks += 1
-            return Tick(decision, Mode.HOLD, Action.HOLD, self._held, transition=self._enter(Mode.HOLD, now_ns),
-                        activated=activated)
+            return Tick(
+                decision,
+                Mode.HOLD,
+                Action.HOLD,
+                self._held,
+                transition=self._enter(Mode.HOLD, now_ns),
+                activated=activated,
+            )
         mode = Mode.STALE if decision.action is Action.HOLD else decision.mode  # nothing to hold
-        return Tick(decision, mode, Action.NONE, transition=self._enter(mode, now_ns), activated=activated)
+        return Tick(
+            decision, mode, Action.NONE, transition=self._enter(mode, now_ns), activated=activated
+        )
 
     def period(self, now_ns: int) -> Period:
-        """The reporting period ending at now_ns (tick rate, compute times); the next one starts now."""
-        period = Period(self._rate.rates(now_ns, {"ticks": self.counters.ticks})["ticks"], tuple(self._window_compute))
+        """The reporting period ending at now_ns (tick rate, compute times); the next one starts
+        now."""
+        period = Period(
+            self._rate.rates(now_ns, {"ticks": self.counters.ticks})["ticks"],
+            tuple(self._window_compute),
+        )
         self._window_compute = []
         return period
 
     def _count(self, now_ns: int) -> None:
         """Tick counters and deadline misses (tick interval > DEADLINE_FACTOR periods)."""
-        if self._last_tick is not None and (now_ns - self._last_tick) * 1e-9 > DEADLINE_FACTOR * self.controller.dt:
+        if (
+            self._last_tick is not None
+            and (now_ns - self._last_tick) * 1e-9 > DEADLINE_FACTOR * self.controller.dt
+        ):
             self.counters.deadline_misses += 1
         self._last_tick = now_ns
         self.counters.ticks += 1
 
     def _activate(self, now_ns: int) -> tuple[Activation, ...]:
-        """Activate the newest setpoint stamped before now_ns that passes the checks (at most SETPOINT_CHECKS tried,
-        newest first); returns the tried ones in arrival order. Refusals are counted, the untried due ones superseded.
+        """Activate the newest setpoint stamped before now_ns that passes the checks (at most
+        SETPOINT_CHECKS tried, newest first); returns the tried ones in arrival order. Refusals are
+        counted, the untried due ones superseded.
         """
         due = [entry for entry in self._intake if entry[0] < now_ns]
         if not due:
@@ -269,7 +321,8 @@ class ControlLoop:
         self.rejections.last_setpoint = problem
 
     def _problem(self, setpoint: Setpoint) -> Refusal | None:
-        """Why a setpoint is refused (physical check, then the law's own checks), or None: it is active now."""
+        """Why a setpoint is refused (physical check, then the law's own checks), or None: it is
+        active now."""
         problem = self._check(setpoint) if self._check is not None else None
         if problem is None:
             try:
@@ -279,7 +332,8 @@ class ControlLoop:
         return problem
 
     def _step(self, now_ns: int, decision: Decision, activated: tuple[Activation, ...]) -> Tick:
-        """Step the law on the newest state; its command is held from now on. A refusal sends nothing."""
+        """Step the law on the newest state; its command is held from now on. A refusal sends
+        nothing."""
         stamp_ns, measurement = self._newest  # the supervisor steps only with a state
         t0 = time.perf_counter()
         try:
@@ -292,11 +346,21 @@ class ControlLoop:
         self.counters.saturated += int(info.saturated)
         self._held = Command(np.asarray(phi, dtype=np.float64), stamp_ns)
         self._tracked_at = now_ns
-        return Tick(decision, Mode.TRACKING, Action.STEP, self._held, info, measurement, compute_s,
-                    transition=self._enter(Mode.TRACKING, now_ns), activated=activated)
+        return Tick(
+            decision,
+            Mode.TRACKING,
+            Action.STEP,
+            self._held,
+            info,
+            measurement,
+            compute_s,
+            transition=self._enter(Mode.TRACKING, now_ns),
+            activated=activated,
+        )
 
     def _enter(self, mode: Mode, now_ns: int) -> Transition | None:
-        """Record the tick's mode; on a change count it and return it (with the outage on a return to tracking)."""
+        """Record the tick's mode; on a change count it and return it (with the outage on a return
+        to tracking)."""
         if mode is self.mode:
             return None
         old, self.mode = self.mode, mode

@@ -158,7 +158,7 @@ class TorqueRetry:
     def schedule(self, now: float) -> float:
         """One more failure at ``now`` [s]: the delay [s] until the next try."""
         doublings = min(self.failures, 64)  # beyond any longest/period ratio; no float overflow
-        delay = min(self.period * 2.0 ** doublings, max(self.longest, self.period))
+        delay = min(self.period * 2.0**doublings, max(self.longest, self.period))
         self.failures += 1
         self.at = now + delay
         return delay
@@ -279,9 +279,11 @@ class PositionCheck:
         (servos held at start, a commanded pose rather than the rest pose: torque then stays off),
         or None."""
         if self.held:
-            self.uncalibrated = (f"no neutral file {path} and the servos were held at start "
-                                 "(not necessarily at rest): switch their torque off or "
-                                 "power-cycle them at rest, then restart")
+            self.uncalibrated = (
+                f"no neutral file {path} and the servos were held at start "
+                "(not necessarily at rest): switch their torque off or "
+                "power-cycle them at rest, then restart"
+            )
         return self.uncalibrated
 
     def problem(self, ticks: np.ndarray) -> str | None:
@@ -298,8 +300,10 @@ class PositionCheck:
         inside = self.sane.contains(ticks)
         if not np.all(inside):
             outside = [i for i, ok in zip(self.ids, inside) if not ok]
-            return (f"present positions of IDs {outside} are outside the goal limits (servo "
-                    "power-cycled or turned?)")
+            return (
+                f"present positions of IDs {outside} are outside the goal limits (servo "
+                "power-cycled or turned?)"
+            )
         return None
 
 
@@ -308,9 +312,15 @@ class ServoSupervisor:
     hardware-error and position parts; it answers the decisions that span them. Times are node-clock
     seconds."""
 
-    def __init__(self, ids: tuple[int, ...], error_limit: int, tolerance: float,
-                 describe_error: Callable[[int], str], retry_period: float = 0.25,
-                 retry_max: float = 5.0) -> None:
+    def __init__(
+        self,
+        ids: tuple[int, ...],
+        error_limit: int,
+        tolerance: float,
+        describe_error: Callable[[int], str],
+        retry_period: float = 0.25,
+        retry_max: float = 5.0,
+    ) -> None:
         """``error_limit`` failed cycles in a row lose the bus; ``tolerance`` [rad] is
         neutral_tolerance."""
         self.link = BusLink(error_limit)
@@ -351,8 +361,13 @@ class ServoSupervisor:
     def torque_due(self) -> bool:
         """Torque should be on and may be tried: active, connected, wanted, not relaxed, no
         E-stop."""
-        return (self.active and self.link.up and self.torque_wanted and not self.relaxed
-                and self.estop.reason is None)
+        return (
+            self.active
+            and self.link.up
+            and self.torque_wanted
+            and not self.relaxed
+            and self.estop.reason is None
+        )
 
     def link_lost(self, problem: str, now: float) -> None:
         """The bus was lost (torque already switched off where possible): reconnect until it
@@ -401,8 +416,13 @@ class ServoSupervisor:
     def takes_commands(self) -> bool:
         """Whether a phi_cmd moves the servos: torque on, or off only by the watchdog's relax (a
         command switches it on again)."""
-        return self.torque_on or (self.relaxed and self.torque_wanted and self.active
-                                  and self.link.up and self.estop.reason is None)
+        return self.torque_on or (
+            self.relaxed
+            and self.torque_wanted
+            and self.active
+            and self.link.up
+            and self.estop.reason is None
+        )
 
     def torque_unwanted(self) -> None:
         """Torque off on request (set_torque(false)): it stays off, also across reconnects, until
@@ -428,8 +448,9 @@ class ServoSupervisor:
         self.torque_wanted, self.relaxed = problem is None, False
         return Answer(problem is None, problem or "torque on")
 
-    def torque_on_problem(self, ticks: ArrayLike, alerts: frozenset[int],
-                          errors: dict[int, int] | None) -> str | None:
+    def torque_on_problem(
+        self, ticks: ArrayLike, alerts: frozenset[int], errors: dict[int, int] | None
+    ) -> str | None:
         """Why torque must not come on at these present ticks (in ``ids`` order), or None;
         ``errors`` are the Hardware Error Status bits read with the positions (None: not read,
         nothing was alerting)."""
@@ -514,8 +535,9 @@ class ServoSupervisor:
         set_torque(true)."""
         self.torque_wanted = self.relaxed = False
 
-    def rebooted(self, ticks: ArrayLike, alerts: frozenset[int],
-                 errors: dict[int, int]) -> str | None:
+    def rebooted(
+        self, ticks: ArrayLike, alerts: frozenset[int], errors: dict[int, int]
+    ) -> str | None:
         """The servos answered after a reboot with these positions and nonzero errors: why torque
         must stay off (a position problem without hardware errors names the lost multi-turn count),
         or None."""
@@ -538,6 +560,8 @@ def reboot_refusal(active: bool, link_up: bool, torque_on: bool, tracking: bool)
     if not link_up:
         return "bus not connected"
     if torque_on and tracking:
-        return ("torque is on and the robot is tracking fresh phi_cmd: stop the commands (or call "
-                "set_torque(false)) before a reboot")
+        return (
+            "torque is on and the robot is tracking fresh phi_cmd: stop the commands (or call "
+            "set_torque(false)) before a reboot"
+        )
     return None

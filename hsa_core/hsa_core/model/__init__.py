@@ -1,1 +1,2 @@
-"""The model of the planar HSA robot: parameters, kinematics, dynamics, actuation, wiring, integration."""
+"""The model of the planar HSA robot: parameters, kinematics, dynamics, actuation, wiring,
+integration."""

@@ -1,8 +1,9 @@
-"""Entire functions that remove the 1/kappa singularities of the constant-strain model (model.md §8.2).
+"""Entire functions that remove the 1/kappa singularities of the constant-strain model (model.md
+§8.2).
 
-Every function switches between a 5-term Taylor series for |x| < X_T and the closed form above it. The closed form is
-always evaluated at a safe argument (X_T where the series is selected), so forward- and reverse-mode derivatives stay
-finite at x = 0 ("gradient-safe branching").
+Every function switches between a 5-term Taylor series for |x| < X_T and the closed form above it.
+The closed form is always evaluated at a safe argument (X_T where the series is selected), so
+forward- and reverse-mode derivatives stay finite at x = 0 ("gradient-safe branching").
 """
 
 import math
@@ -13,11 +14,13 @@ from jax import Array
 from jax.typing import ArrayLike
 
 X_T = 0.1
-"""Switch-over between series and closed form; series truncation error < 3e-18 below it (model.md §8.2)."""
+"""Switch-over between series and closed form; series truncation error < 3e-18 below it (model.md
+§8.2)."""
 
 
 def _split(x: ArrayLike) -> tuple[Array, Array, Array]:
-    """Return (x, small-mask, safe argument) where the safe argument never lets a closed form see |x| < X_T."""
+    """Return (x, small-mask, safe argument) where the safe argument never lets a closed form see
+    |x| < X_T."""
     x = jnp.asarray(x, dtype=jnp.float64)
     small = jnp.abs(x) < X_T
     return x, small, jnp.where(small, X_T, x)
@@ -32,7 +35,8 @@ def S(x: ArrayLike) -> Array:
 
 
 def C(x: ArrayLike) -> Array:
-    """(1 - cos x)/x^2 in the cancellation-free form 2 sin^2(x/2)/x^2; (1 - cos kappa s)/kappa = s (kappa s) C."""
+    """(1 - cos x)/x^2 in the cancellation-free form 2 sin^2(x/2)/x^2; (1 - cos kappa s)/kappa = s
+    (kappa s) C."""
     x, small, xs = _split(x)
     x2 = x * x
     series = 0.5 * (1.0 - x2 / 12.0 * (1.0 - x2 / 30.0 * (1.0 - x2 / 56.0 * (1.0 - x2 / 90.0))))
@@ -41,7 +45,8 @@ def C(x: ArrayLike) -> Array:
 
 
 def T(x: ArrayLike) -> Array:
-    """(x - sin x)/x^3, entire; closed-form arc-length integrals, e.g. int_0^l (1 - cos kappa s)/kappa ds = l^2 (kappa l) T."""
+    """(x - sin x)/x^3, entire; closed-form arc-length integrals, e.g. int_0^l (1 - cos kappa
+    s)/kappa ds = l^2 (kappa l) T."""
     x, small, xs = _split(x)
     x2 = x * x
     series = (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0 * (1.0 - x2 / 72.0 * (1.0 - x2 / 110.0)))) / 6.0
@@ -49,18 +54,24 @@ def T(x: ArrayLike) -> Array:
 
 
 def c(theta: ArrayLike) -> Array:
-    """(theta/2) cot(theta/2), entire for |theta| < 2 pi; the closed-form IK (model.md §6.3) needs it at theta = 0."""
+    """(theta/2) cot(theta/2), entire for |theta| < 2 pi; the closed-form IK (model.md §6.3) needs
+    it at theta = 0."""
     theta, small, ts = _split(theta)
     t2 = theta * theta
     series = 1.0 - t2 * (1.0 / 12.0 + t2 * (1.0 / 720.0 + t2 * (1.0 / 30240.0 + t2 / 1209600.0)))
     return jnp.where(small, series, 0.5 * ts / jnp.tan(0.5 * ts))
 
 
-def _series_coefficients(first_power: int, factorial_offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Taylor coefficients (in powers of x^2) of sum_n (-1)^n x^(2n+p) / (2n+p+o)! and of its first two derivatives."""
+def _series_coefficients(
+    first_power: int, factorial_offset: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Taylor coefficients (in powers of x^2) of sum_n (-1)^n x^(2n+p) / (2n+p+o)! and of its first
+    two derivatives."""
     n = np.arange(_SERIES_TERMS)
     power = 2 * n + first_power
-    base = (-1.0) ** n / np.array([math.factorial(int(k)) for k in power + factorial_offset], dtype=float)
+    base = (-1.0) ** n / np.array(
+        [math.factorial(int(k)) for k in power + factorial_offset], dtype=float
+    )
     return base, base * power, base * power * (power - 1)
 
 
@@ -78,14 +89,16 @@ def _even_poly(coefficients: np.ndarray, x2: Array) -> Array:
 
 
 def arc_terms(x: ArrayLike) -> tuple[Array, ...]:
-    """[S, S', S'', B, B', B'', cos x, sin x] at x as eight arrays, with B(x) = x C(x) = (1 - cos x)/x.
+    """[S, S', S'', B, B', B'', cos x, sin x] at x as eight arrays, with B(x) = x C(x) = (1 - cos
+    x)/x.
 
-    E(x) = S(x) + i B(x) = (e^{ix} - 1)/(ix) is the position kernel of the constant-strain backbone (model.md §6.1);
-    the dynamics needs it with its first two derivatives at every quadrature node. One sin/cos pair (of x/2, so that
-    1 - cos x = 2 sin^2(x/2) has no cancellation) and one reciprocal serve all eight values; below X_T the series of
-    S and B and their termwise derivatives are used, with the same gradient-safe branching as S, C, T and c. Eight
-    arrays, not one stacked: on the CPU, XLA makes a stack one concatenate kernel that evaluates the shared sin and
-    cos (scalar library calls) again for every row, which made the forward dynamics ~5x slower.
+    E(x) = S(x) + i B(x) = (e^{ix} - 1)/(ix) is the position kernel of the constant-strain backbone
+    (model.md §6.1); the dynamics needs it with its first two derivatives at every quadrature node.
+    One sin/cos pair (of x/2, so that 1 - cos x = 2 sin^2(x/2) has no cancellation) and one
+    reciprocal serve all eight values; below X_T the series of S and B and their termwise
+    derivatives are used, with the same gradient-safe branching as S, C, T and c. Eight arrays, not
+    one stacked: on the CPU, XLA makes a stack one concatenate kernel that evaluates the shared sin
+    and cos (scalar library calls) again for every row, which made the forward dynamics ~5x slower.
     """
     x, small, xs = _split(x)
     half_sin, half_cos = jnp.sin(0.5 * x), jnp.cos(0.5 * x)
@@ -99,7 +112,8 @@ def arc_terms(x: ArrayLike) -> tuple[Array, ...]:
     B1 = S0 - B0 * inv
     B2 = S1 - (B1 - B0 * inv) * inv
     x2 = x * x
-    # odd functions (S', B, B'') carry one factor x; the zero constant terms of S'' and B'' series are dropped
+    # odd functions (S', B, B'') carry one factor x; the zero constant terms of S'' and B'' series
+    # are dropped
     series = (
         _even_poly(_S_SERIES[0], x2),
         x * _even_poly(_S_SERIES[1][1:], x2),

@@ -1,36 +1,43 @@
-"""Causal Savitzky–Golay differentiation of mocap-rate signals and the pose → configuration helper (spec §6.3–6.4).
+"""Causal Savitzky–Golay differentiation of mocap-rate signals and the pose → configuration helper
+(spec §6.3–6.4).
 
-The estimator buffers the last N samples of a vector signal (for example q and χ_ee stacked, dim 6), fits a polynomial
-of degree ``order`` by least squares and reports its first derivative **at the newest sample** (causal end-point fit).
+The estimator buffers the last N samples of a vector signal (for example q and χ_ee stacked, dim 6),
+fits a polynomial of degree ``order`` by least squares and reports its first derivative **at the
+newest sample** (causal end-point fit).
 
 Rules, applied in this order on every ``update(t, x)``:
 
-* **Rejection.** A sample whose stamp or values are not finite, whose stamp equals the newest accepted stamp
-  ("duplicate stamp") or is older ("out-of-order stamp") is rejected: the buffer is unchanged and the returned
-  ``Estimate`` has ``mode="rejected"``, ``value=None``, ``derivative=None`` and a ``reason``.
-* **Gap.** If the stamp is more than ``gap_factor`` (default 1.5) nominal periods after the newest accepted stamp, the
-  window is restarted: the buffer is emptied and the new sample becomes its first entry (``reason`` says so). So a
-  single dropped 200 Hz frame (a 2T interval) restarts the window; a ``gap_factor`` of e.g. 2.5 bridges single drops
-  with the irregular fit instead.
-* **Start-up** (fewer than N samples since the last (re)start). Nothing is fitted and ``derivative`` is ``None``
-  (``mode="not_ready"``); a zero velocity is never reported. Optionally (``startup_order`` set, e.g. 1), once at least
-  ``order + 1`` samples exist, a least-squares polynomial of degree ``startup_order`` is fitted to all of them and its
-  end-point derivative is reported with ``mode="startup"`` and ``ready=False``. It is noisier or more lagged than the
-  full window and must not be used where a full window is required (controllers wait for ``ready``).
-* **Full window, regular stamps** (``mode="regular"``). The stamps count as regular when every one of the N − 1 stamp
-  intervals in the window is within ``regular_tol`` (default 1e-3) × T of the nominal period T. Then
-  v = (Σ_k c_k x_k) / Δt with Δt = mean stamp interval of the window and the precomputed c of spec §6.4
-  (c = row 1 of (VᵀV)⁻¹Vᵀ, V_kj = τ_k^j, τ_k = k − (N − 1)). The rule bounds the deviation of every stamp from the
-  uniform grid of spacing Δt by (N − 1)/2 × regular_tol × T, i.e. ≤ 1 % of T for N = 20 at the default tolerance. A
-  signal sampled at a rate other than 1/T is handled correctly, but always by the slower irregular path.
-* **Full window, irregular stamps** (``mode="irregular"``). The polynomial is fitted by ordinary (equal-weight) least
-  squares on the true stamps, normalised as τ_k = (t_k − t_newest)/Δt and scaled to [−1, 0] for conditioning; this
-  costs one (order+1)×(order+1) normal-equation solve per sample (tens of µs instead of ≈ 4 µs). For uniform stamps it
-  gives the same result as the regular path.
+* **Rejection.** A sample whose stamp or values are not finite, whose stamp equals the newest
+  accepted stamp ("duplicate stamp") or is older ("out-of-order stamp") is rejected: the buffer is
+  unchanged and the returned ``Estimate`` has ``mode="rejected"``, ``value=None``,
+  ``derivative=None`` and a ``reason``.
+* **Gap.** If the stamp is more than ``gap_factor`` (default 1.5) nominal periods after the newest
+  accepted stamp, the window is restarted: the buffer is emptied and the new sample becomes its
+  first entry (``reason`` says so). So a single dropped 200 Hz frame (a 2T interval) restarts the
+  window; a ``gap_factor`` of e.g. 2.5 bridges single drops with the irregular fit instead.
+* **Start-up** (fewer than N samples since the last (re)start). Nothing is fitted and ``derivative``
+  is ``None`` (``mode="not_ready"``); a zero velocity is never reported. Optionally
+  (``startup_order`` set, e.g. 1), once at least ``order + 1`` samples exist, a least-squares
+  polynomial of degree ``startup_order`` is fitted to all of them and its end-point derivative is
+  reported with ``mode="startup"`` and ``ready=False``. It is noisier or more lagged than the full
+  window and must not be used where a full window is required (controllers wait for ``ready``).
+* **Full window, regular stamps** (``mode="regular"``). The stamps count as regular when every one
+  of the N − 1 stamp intervals in the window is within ``regular_tol`` (default 1e-3) × T of the
+  nominal period T. Then v = (Σ_k c_k x_k) / Δt with Δt = mean stamp interval of the window and the
+  precomputed c of spec §6.4 (c = row 1 of (VᵀV)⁻¹Vᵀ, V_kj = τ_k^j, τ_k = k − (N − 1)). The rule
+  bounds the deviation of every stamp from the uniform grid of spacing Δt by (N − 1)/2 × regular_tol
+  × T, i.e. ≤ 1 % of T for N = 20 at the default tolerance. A signal sampled at a rate other than
+  1/T is handled correctly, but always by the slower irregular path.
+* **Full window, irregular stamps** (``mode="irregular"``). The polynomial is fitted by ordinary
+  (equal-weight) least squares on the true stamps, normalised as τ_k = (t_k − t_newest)/Δt and
+  scaled to [−1, 0] for conditioning; this costs one (order+1)×(order+1) normal-equation solve per
+  sample (tens of µs instead of ≈ 4 µs). For uniform stamps it gives the same result as the regular
+  path.
 
-``value`` is always the newest accepted sample as received (not smoothed). ``ready`` is True only for the two
-full-window modes. Pass stamps in seconds from a recent origin (e.g. node start): a float64 Unix-epoch stamp resolves
-only ≈ 0.24 µs, which limits the relative accuracy of Δt at 200 Hz to ≈ 5e-5.
+``value`` is always the newest accepted sample as received (not smoothed). ``ready`` is True only
+for the two full-window modes. Pass stamps in seconds from a recent origin (e.g. node start): a
+float64 Unix-epoch stamp resolves only ≈ 0.24 µs, which limits the relative accuracy of Δt at 200 Hz
+to ≈ 5e-5.
 """
 
 from __future__ import annotations
@@ -43,7 +50,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-
 
 
 class EstimateMode(enum.StrEnum):
@@ -62,7 +68,6 @@ class SampleRejection(enum.StrEnum):
     NON_FINITE = "non-finite stamp or sample"
     DUPLICATE = "duplicate stamp"
     OUT_OF_ORDER = "out-of-order stamp"
-
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,8 +89,9 @@ def _rejected(rejection: SampleRejection, detail: str) -> Estimate:
 
 
 def derivative_coefficients(tau: ArrayLike, order: int, xp: Any = np) -> Any:
-    """Weights c with Σ c_k x_k = d/dτ at τ = 0 of the degree-``order`` least-squares polynomial through (τ_k, x_k);
-    ``xp`` is numpy or jax.numpy (traceable: the batched loop's September estimator)."""
+    """Weights c with Σ c_k x_k = d/dτ at τ = 0 of the degree-``order`` least-squares polynomial
+    through (τ_k, x_k); ``xp`` is numpy or jax.numpy (traceable: the batched loop's September
+    estimator)."""
     tau = xp.asarray(tau, dtype=xp.float64)
     scale = xp.maximum(xp.max(xp.abs(tau)), 1.0)  # fit on u = τ/scale ∈ [−1, 0] for conditioning
     vander = (tau / scale)[:, None] ** xp.arange(order + 1)
@@ -93,7 +99,8 @@ def derivative_coefficients(tau: ArrayLike, order: int, xp: Any = np) -> Any:
 
 
 class SavitzkyGolayDifferentiator:
-    """Causal end-point Savitzky–Golay differentiator for a vector signal, one update per sample (rules: module doc)."""
+    """Causal end-point Savitzky–Golay differentiator for a vector signal, one update per sample
+    (rules: module doc)."""
 
     def __init__(
         self,
@@ -105,15 +112,24 @@ class SavitzkyGolayDifferentiator:
         gap_factor: float = 1.5,
         startup_order: int | None = None,
     ) -> None:
-        """Precompute the regular-grid (and optional start-up) coefficients; periods in s, tolerances relative to T."""
+        """Precompute the regular-grid (and optional start-up) coefficients; periods in s,
+        tolerances relative to T."""
         if order < 1 or window < order + 2:
-            raise ValueError(f"need order >= 1 and window >= order + 2, got window={window}, order={order}")
+            raise ValueError(
+                f"need order >= 1 and window >= order + 2, got window={window}, order={order}"
+            )
         if dim < 1 or not nominal_period > 0.0 or not regular_tol >= 0.0 or not gap_factor > 1.0:
-            raise ValueError("need dim >= 1, nominal_period > 0, regular_tol >= 0 and gap_factor > 1")
+            raise ValueError(
+                "need dim >= 1, nominal_period > 0, regular_tol >= 0 and gap_factor > 1"
+            )
         if startup_order is not None and not 1 <= startup_order < order:
             raise ValueError(f"startup_order must be in [1, order), got {startup_order}")
         self.window, self.order, self.dim = window, order, dim
-        self.nominal_period, self.gap_factor, self.startup_order = nominal_period, gap_factor, startup_order
+        self.nominal_period, self.gap_factor, self.startup_order = (
+            nominal_period,
+            gap_factor,
+            startup_order,
+        )
         self._jitter_tol = regular_tol * nominal_period
         self._max_gap = gap_factor * nominal_period
         self.coefficients = derivative_coefficients(np.arange(window) - (window - 1.0), order)
@@ -123,10 +139,13 @@ class SavitzkyGolayDifferentiator:
             for n in range(order + 1, window)
             if startup_order is not None
         }
-        # Double-length ring buffers: sample j is stored at j and j + N so the window is always one contiguous view.
+        # Double-length ring buffers: sample j is stored at j and j + N so the window is always one
+        # contiguous view.
         self._x = np.zeros((2 * window, dim))
         self._t = np.zeros(2 * window)
-        self._off_grid = [False] * (window - 1)  # per stamp interval in the window: deviates from the nominal period
+        self._off_grid = [False] * (
+            window - 1
+        )  # per stamp interval in the window: deviates from the nominal period
         self._ones = np.ones(dim)
         self.reset()
 
@@ -156,8 +175,9 @@ class SavitzkyGolayDifferentiator:
         if step == 0.0:
             return _rejected(SampleRejection.DUPLICATE, "")
         if step < 0.0:
-            return _rejected(SampleRejection.OUT_OF_ORDER,
-                             f" ({-step:.6g} s older than the newest)")
+            return _rejected(
+                SampleRejection.OUT_OF_ORDER, f" ({-step:.6g} s older than the newest)"
+            )
         reason = ""
         if self._count and step > self._max_gap:
             reason = f"gap of {step:.6g} s > {self.gap_factor} nominal periods: window restarted"
@@ -179,7 +199,9 @@ class SavitzkyGolayDifferentiator:
             return self._startup(x, self._count, reason)
         lo = head + 1
         if not self._n_off_grid:
-            derivative = self.coefficients.dot(self._x[lo : lo + n_win]) / ((t - self._t[lo]) / (n_win - 1))
+            derivative = self.coefficients.dot(self._x[lo : lo + n_win]) / (
+                (t - self._t[lo]) / (n_win - 1)
+            )
             return Estimate(x, derivative, True, EstimateMode.REGULAR, reason)
         derivative = self._fit_true_stamps(lo, n_win, self.order)
         return Estimate(x, derivative, True, EstimateMode.IRREGULAR, reason)
@@ -197,7 +219,8 @@ class SavitzkyGolayDifferentiator:
         return Estimate(x, derivative, False, EstimateMode.STARTUP, reason)
 
     def _fit_true_stamps(self, lo: int, n: int, order: int) -> np.ndarray:
-        """End-point derivative of a least-squares fit on the true stamps of buffer rows lo … lo+n−1."""
+        """End-point derivative of a least-squares fit on the true stamps of buffer rows lo …
+        lo+n−1."""
         stamps = self._t[lo : lo + n]
         mean_dt = (stamps[-1] - stamps[0]) / (n - 1)
         c = derivative_coefficients((stamps - stamps[-1]) / mean_dt, order)
@@ -215,9 +238,11 @@ def _configuration_fn() -> Any:
 
 
 def configuration_from_pose(params: Any, chiee: ArrayLike) -> np.ndarray:
-    """Configuration q = ξ(χ_ee) − ξ_eq (spec §6.3) of an EE pose [x, y, θ] in {0} with the run's rest strains.
+    """Configuration q = ξ(χ_ee) − ξ_eq (spec §6.3) of an EE pose [x, y, θ] in {0} with the run's
+    rest strains.
 
-    ``hsa_core.model.kinematics.inverse_kinematics`` already returns strains minus ``params.xi_eq`` (docs/core_api.md), so
-    this is that function compiled once (per parameter structure), fed and returning NumPy arrays.
+    ``hsa_core.model.kinematics.inverse_kinematics`` already returns strains minus ``params.xi_eq``
+    (docs/core_api.md), so this is that function compiled once (per parameter structure), fed and
+    returning NumPy arrays.
     """
     return np.asarray(_configuration_fn()(params, np.asarray(chiee, dtype=np.float64)))

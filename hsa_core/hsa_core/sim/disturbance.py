@@ -1,5 +1,5 @@
-"""The declared disturbance model between the simulated plant and the controller's model (offline and
-sim node).
+"""The declared disturbance model between the simulated plant and the controller's model (offline
+and sim node).
 
 It was fixed before any closed-loop result was looked at, from published sensor and hardware facts,
 and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
@@ -19,8 +19,8 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
   planning_and_control.md §6.5) and of a modest identification error.
 * **Servo speed** — each motor moves towards its goal at no more than the MX-28's no-load speed, 55
   rev/min at 12 V = 5.76 rad/s (ROBOTIS e-Manual, MX-28(2.0) specifications); its position loop is
-  otherwise taken as ideal (:mod:`hsa_core.sim.world` gives the evidence). This is a physical limit of
-  the hardware, not a tuning knob: without it the simulated plant follows a 25 ms command jump at
+  otherwise taken as ideal (:mod:`hsa_core.sim.world` gives the evidence). This is a physical limit
+  of the hardware, not a tuning knob: without it the simulated plant follows a 25 ms command jump at
   once, which no servo does.
 
 * **Servo position loop and plant damping** — ``servo_time_constant`` (default 0: the shaft slews at
@@ -31,11 +31,11 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous
 sensing, ideal servos; goals are still whole ticks, as on the bus).
 
-The declaration lives here; :class:`hsa_core.sim.world.World` executes it, for the offline experiment
-and the simulator. ``DisturbanceModel.shear_mismatch()`` is the default plus a plant whose shear
-stiffness Ŝ_sh is half the model's: the paper reports that the constant-strain model captures the
-shear poorly (experiments.md §6); this is the scenario in which the collocated integral cannot
-remove the end-effector error and the §3.8 extension is meant to.
+The declaration lives here; :class:`hsa_core.sim.world.World` executes it, for the offline
+experiment and the simulator. ``DisturbanceModel.shear_mismatch()`` is the default plus a plant
+whose shear stiffness Ŝ_sh is half the model's: the paper reports that the constant-strain model
+captures the shear poorly (experiments.md §6); this is the scenario in which the collocated integral
+cannot remove the end-effector error and the §3.8 extension is meant to.
 """
 
 from __future__ import annotations
@@ -85,7 +85,8 @@ class DisturbanceModel:
 
     @classmethod
     def none(cls) -> DisturbanceModel:
-        """No disturbance: the plant is the model, sensing is exact and instantaneous, the servos are ideal."""
+        """No disturbance: the plant is the model, sensing is exact and instantaneous, the servos
+        are ideal."""
         return cls((0.0, 0.0, 0.0), 0.0, 0.0, 1.0, 1.0, 0.0, math.inf)
 
     @classmethod
@@ -114,4 +115,6 @@ class DisturbanceModel:
 
     def measure(self, rng: np.random.Generator, chiee: ArrayLike) -> np.ndarray:
         """A noisy mocap sample of the true planar pose."""
-        return np.asarray(chiee, dtype=np.float64) + rng.normal(0.0, 1.0, 3) * np.asarray(self.pose_noise_std)
+        return np.asarray(chiee, dtype=np.float64) + rng.normal(0.0, 1.0, 3) * np.asarray(
+            self.pose_noise_std
+        )

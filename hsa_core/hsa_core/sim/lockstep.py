@@ -1,32 +1,38 @@
-"""The lockstep barrier's decisions (no ROS): when simulated time may start, and when an instant is finished.
+"""The lockstep barrier's decisions (no ROS): when simulated time may start, and when an instant is
+finished.
 
-Participants are the nodes of a simulated graph. Each reports (``Report``) whenever it has run every ready callback:
-its ROS time, whether it is ready (publishers matched, service clients connected), its earliest timer, the service
-requests it awaits, and per topic how many messages it has published and taken since start. The simulator's own
-publications are counted in the same way. From the latest report of every participant the barrier decides:
+Participants are the nodes of a simulated graph. Each reports (``Report``) whenever it has run every
+ready callback: its ROS time, whether it is ready (publishers matched, service clients connected),
+its earliest timer, the service requests it awaits, and per topic how many messages it has published
+and taken since start. The simulator's own publications are counted in the same way. From the latest
+report of every participant the barrier decides:
 
-* ``start_problem()`` — simulated time may start (None) once every expected participant has reported, is ready,
-  and discovery is complete on both sides of every topic: each publisher (a participant's or the simulator's own,
-  ``own_matched``, /clock included) has matched at least as many subscriptions as participants subscribe to its
-  topic, and each participant's subscriptions have matched at least as many publishers as participants and the
-  simulator have on it (``heard``). DDS matches the two ends separately: a writer that knows a reader sends to it,
-  but a reader that does not know the writer yet drops what arrives, so one side alone loses the first messages;
-* ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes it has taken
-  every message published on it, and no service request is unanswered;
-* ``lead_problem(t)`` — every participant with ``clock_acks`` (a recorder, whose log times are its clock) has
-  reported a clock at t (None). /clock and an instant's messages travel on different topics, so a loaded machine can
-  deliver a message before the clock of its instant: the coordinator first sends t to these participants alone (the
-  lead clock) and moves /clock only once they are there (``needs_lead``: some have joined);
-* ``finish_problem(t)`` — instant t is finished (None): settled, no participant has a timer due at or before t
-  left to run (a participant reports a new earliest timer once it ran the due ones; one that only saw the clock
-  move need not report), and the ``clock_acks`` participants are at t (``lead_problem``).
+* ``start_problem()`` — simulated time may start (None) once every expected participant has
+  reported, is ready, and discovery is complete on both sides of every topic: each publisher (a
+  participant's or the simulator's own, ``own_matched``, /clock included) has matched at least as
+  many subscriptions as participants subscribe to its topic, and each participant's subscriptions
+  have matched at least as many publishers as participants and the simulator have on it (``heard``).
+  DDS matches the two ends separately: a writer that knows a reader sends to it, but a reader that
+  does not know the writer yet drops what arrives, so one side alone loses the first messages;
+* ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes
+  it has taken every message published on it, and no service request is unanswered;
+* ``lead_problem(t)`` — every participant with ``clock_acks`` (a recorder, whose log times are its
+  clock) has reported a clock at t (None). /clock and an instant's messages travel on different
+  topics, so a loaded machine can deliver a message before the clock of its instant: the coordinator
+  first sends t to these participants alone (the lead clock) and moves /clock only once they are
+  there (``needs_lead``: some have joined);
+* ``finish_problem(t)`` — instant t is finished (None): settled, no participant has a timer due at
+  or before t left to run (a participant reports a new earliest timer once it ran the due ones; one
+  that only saw the clock move need not report), and the ``clock_acks`` participants are at t
+  (``lead_problem``).
 
-Message counting detects messages in flight between processes without any assumption on delivery order: a
-participant reports only after its callbacks ran, so every message it published is counted before the report that
-would hide it arrives. A participant that joins after the start is taken as settled at its first report (its
-subscriptions cannot have received what was published before they existed); one that leaves is dropped, and once
-an expected participant has left (``left``) the graph is ending.
-Every ``*_problem`` method returns a one-line reason naming the participants and topics that hold the barrier.
+Message counting detects messages in flight between processes without any assumption on delivery
+order: a participant reports only after its callbacks ran, so every message it published is counted
+before the report that would hide it arrives. A participant that joins after the start is taken as
+settled at its first report (its subscriptions cannot have received what was published before they
+existed); one that leaves is dropped, and once an expected participant has left (``left``) the graph
+is ending. Every ``*_problem`` method returns a one-line reason naming the participants and topics
+that hold the barrier.
 """
 
 from __future__ import annotations
@@ -48,8 +54,11 @@ class Report:
     published: Mapping[str, int] = field(default_factory=dict)
     matched: Mapping[str, int] = field(default_factory=dict)
     taken: Mapping[str, int] = field(default_factory=dict)
-    heard: Mapping[str, int] = field(default_factory=dict)  # per subscribed topic (/clock too): publishers matched
-    clock_acks: bool = False  # it reports every clock move; an instant waits for its clock (a recorder's log times)
+    heard: Mapping[str, int] = field(
+        default_factory=dict
+    )  # per subscribed topic (/clock too): publishers matched
+    # it reports every clock move; an instant waits for its clock (a recorder's log times)
+    clock_acks: bool = False
 
 
 class Barrier:
@@ -59,10 +68,14 @@ class Barrier:
         self.expected = tuple(expected)
         self.reports: dict[str, Report] = {}
         self.own: dict[str, int] = {}  # the simulator's publications per topic
-        self.own_matched: dict[str, int] = {}  # the simulator's publishers (/clock too): subscriptions matched
+        self.own_matched: dict[
+            str, int
+        ] = {}  # the simulator's publishers (/clock too): subscriptions matched
         self.started = False
         self.left: list[str] = []  # expected participants that have left: the graph is ending
-        self._baseline: dict[str, dict[str, int]] = {}  # late joiner: taken offset per topic at its first report
+        self._baseline: dict[
+            str, dict[str, int]
+        ] = {}  # late joiner: taken offset per topic at its first report
 
     def report(self, report: Report) -> None:
         """Take a participant's newest report (a leaving participant is dropped)."""
@@ -93,21 +106,31 @@ class Barrier:
         if unready:
             return f"participants not ready (publishers unmatched or services missing): {unready}"
         takers: dict[str, int] = {}  # participants subscribed per topic
-        writers: dict[str, int] = {t: 1 for t in self.own_matched}  # publishers per topic: the simulator's ...
+        writers: dict[str, int] = {
+            t: 1 for t in self.own_matched
+        }  # publishers per topic: the simulator's ...
         for r in self.reports.values():
             for topic in r.heard.keys() | r.taken.keys():
                 takers[topic] = takers.get(topic, 0) + 1
             for topic in r.matched:  # ... and the participants'
                 writers[topic] = writers.get(topic, 0) + 1
-        pubs = [(r.node, r.matched) for r in self.reports.values()] + [("simulator", self.own_matched)]
+        pubs = [(r.node, r.matched) for r in self.reports.values()] + [
+            ("simulator", self.own_matched)
+        ]
         for node, matched in pubs:
             for topic, n in sorted(matched.items()):
                 if n < takers.get(topic, 0):
-                    return f"{node}: '{topic}' matched {n} of {takers[topic]} participant subscriptions"
+                    return (
+                        f"{node}: '{topic}' matched {n} of {takers[topic]} participant "
+                        "subscriptions"
+                    )
         for r in self.reports.values():
             for topic, n in sorted(r.heard.items()):
                 if n < writers.get(topic, 0):
-                    return f"{r.node}: subscription to '{topic}' matched {n} of {writers[topic]} publishers"
+                    return (
+                        f"{r.node}: subscription to '{topic}' matched {n} of {writers[topic]} "
+                        "publishers"
+                    )
         return None
 
     def start(self) -> None:
@@ -124,18 +147,26 @@ class Barrier:
             for topic, taken in r.taken.items():
                 published = totals.get(topic, 0)
                 if topic in totals and taken + base.get(topic, 0) < published:
-                    return f"{r.node} has taken {taken + base.get(topic, 0)} of {published} messages on '{topic}'"
+                    return (
+                        f"{r.node} has taken {taken + base.get(topic, 0)} of {published} messages "
+                        f"on '{topic}'"
+                    )
         return None
 
     def finish_problem(self, t_ns: int) -> str | None:
         """What keeps instant ``t_ns`` from being finished, or None."""
-        due = sorted(n for n, r in self.reports.items() if r.next_due_ns is not None and r.next_due_ns <= t_ns)
+        due = sorted(
+            n
+            for n, r in self.reports.items()
+            if r.next_due_ns is not None and r.next_due_ns <= t_ns
+        )
         if due:
             return f"timers due at {t_ns} ns not yet run by {due}"
         return self.lead_problem(t_ns) or self.settle_problem()
 
     def needs_lead(self) -> bool:
-        """Whether some participant reports its clock (``clock_acks``): /clock then waits for the lead clock."""
+        """Whether some participant reports its clock (``clock_acks``): /clock then waits for the
+        lead clock."""
         return any(r.clock_acks for r in self.reports.values())
 
     def lead_problem(self, t_ns: int) -> str | None:

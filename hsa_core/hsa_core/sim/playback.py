@@ -1,23 +1,26 @@
-"""Lockstep playback decisions (no ROS): when a bag player may publish its next message and move /clock.
+"""Lockstep playback decisions (no ROS): when a bag player may publish its next message and move
+/clock.
 
-A player in lockstep owns /clock and plays a bag's messages in log-time order. :class:`LockstepPlayback` is its
-state machine; the player feeds it the playback time of the next message and the wall time, and acts on each
-:class:`Step`:
+A player in lockstep owns /clock and plays a bag's messages in log-time order.
+:class:`LockstepPlayback` is its state machine; the player feeds it the playback time of the next
+message and the wall time, and acts on each :class:`Step`:
 
-* ``start``: simulated time does not start before :meth:`hsa_core.sim.lockstep.Barrier.start_problem` is None, the
-  player's own publishers (/clock included) being the simulator's (nothing the player publishes may go to a
-  subscription that does not know it yet);
-* an **instant** is the log time of the next message, or an earlier timer due of a participant (so timers run at the
-  instants they were due at, as in the recorded run); the first instant is the first message's log time. Before the
-  clock moves to a new instant, everything published must be taken (``settle_problem``); where a timer is due, the
-  participants that log in simulated time (a recorder) get the instant first (``lead``) and must report it
-  (``lead_problem``), so that what the timer publishes cannot reach them before their clock; then /clock is
-  published (``clock``) and the instant must be finished (``finish_problem``: settled, and every timer due there has
-  run); /clock is sent again every ``resend`` s while that waits (it is best effort);
-* a message whose log time is the current instant is published (``publish``); after the last one the graph must
-  settle once more (``done``);
-* waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is a failure
-  (``fail``, naming what holds the barrier).
+* ``start``: simulated time does not start before
+  :meth:`hsa_core.sim.lockstep.Barrier.start_problem` is None, the player's own publishers (/clock
+  included) being the simulator's (nothing the player publishes may go to a subscription that does
+  not know it yet);
+* an **instant** is the log time of the next message, or an earlier timer due of a participant (so
+  timers run at the instants they were due at, as in the recorded run); the first instant is the
+  first message's log time. Before the clock moves to a new instant, everything published must be
+  taken (``settle_problem``); where a timer is due, the participants that log in simulated time (a
+  recorder) get the instant first (``lead``) and must report it (``lead_problem``), so that what the
+  timer publishes cannot reach them before their clock; then /clock is published (``clock``) and the
+  instant must be finished (``finish_problem``: settled, and every timer due there has run); /clock
+  is sent again every ``resend`` s while that waits (it is best effort);
+* a message whose log time is the current instant is published (``publish``); after the last one the
+  graph must settle once more (``done``);
+* waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is
+  a failure (``fail``, naming what holds the barrier).
 """
 
 from __future__ import annotations
@@ -59,7 +62,8 @@ class Step:
 
 
 class LockstepPlayback:
-    """The player's side of the lockstep barrier; see the module docstring. Times: ns of playback time, s of wall."""
+    """The player's side of the lockstep barrier; see the module docstring. Times: ns of playback
+    time, s of wall."""
 
     def __init__(self, barrier: Barrier, timeout: float, resend: float = 0.05) -> None:
         self.barrier = barrier
@@ -71,8 +75,9 @@ class LockstepPlayback:
         self._clock_sent = 0.0
 
     def step(self, next_ns: int | None, matched: Mapping[str, int], now: float) -> Step:
-        """The next action, given the next message's playback time (None: none left), the player's matched
-        subscription counts per published topic (/clock included), and the wall time ``now``."""
+        """The next action, given the next message's playback time (None: none left), the player's
+        matched subscription counts per published topic (/clock included), and the wall time
+        ``now``."""
         if self._since is None:
             self._since = now
         if self.phase == START:
@@ -130,12 +135,19 @@ class LockstepPlayback:
         self._since = now
 
     def _wait(self, problem: str, now: float, limit: float) -> Step:
-        """Wait for ``problem`` to clear, or fail once the current wait is longer than ``limit`` s."""
+        """Wait for ``problem`` to clear, or fail once the current wait is longer than ``limit``
+        s."""
         assert self._since is not None
         waited = now - self._since
         if waited <= limit:
             return Step(Action.WAIT, self.instant, problem)
-        where = "before simulated time started" if self.phase == START else \
-            f"at t = {(self.instant or 0) * 1e-9:.3f} s"
-        return Step(Action.FAIL, self.instant,
-                    f"lockstep barrier {where} not finished after {waited:.1f} s of wall time: {problem}")
+        where = (
+            "before simulated time started"
+            if self.phase == START
+            else f"at t = {(self.instant or 0) * 1e-9:.3f} s"
+        )
+        return Step(
+            Action.FAIL,
+            self.instant,
+            f"lockstep barrier {where} not finished after {waited:.1f} s of wall time: {problem}",
+        )

@@ -1,25 +1,32 @@
-"""The simulator's lockstep decisions (no ROS): when the world moves on, when /clock moves, when an instant is over.
+"""The simulator's lockstep decisions (no ROS): when the world moves on, when /clock moves, when an
+instant is over.
 
-sim_node owns /clock in a lockstep graph (docs/simulation.md) and runs the world (:class:`hsa_core.sim.world.World`) from
-event to event. :class:`SimLockstep` is its state machine; the node feeds it the world's time, when the next mocap
-sample becomes available and whether the emulated bus is idle, and acts on each :class:`~hsa_core.sim.playback.Step`:
+sim_node owns /clock in a lockstep graph (docs/simulation.md) and runs the world
+(:class:`hsa_core.sim.world.World`) from event to event. :class:`SimLockstep` is its state machine;
+the node feeds it the world's time, when the next mocap sample becomes available and whether the
+emulated bus is idle, and acts on each :class:`~hsa_core.sim.playback.Step`:
 
-* ``start``: simulated time starts (:meth:`hsa_core.sim.lockstep.Barrier.start_problem` is None, the simulator's own
-  publishers, /clock included, counted as ``matched``); until then /clock at 0 is sent again every ``resend`` s;
-* ``run`` to t: the next event is a sample becoming available; run the world to t and publish the samples at once,
-  without /clock (data callbacks keep the clock of the last timer instant);
-* ``instant`` t: the next event is a participant's timer due, or ``sync_ns`` of simulated time have passed since the
-  last instant; run the world to t. The graph must then settle (take everything published); at a timer due the
-  participants that log in simulated time get t first (``lead`` t, when :meth:`~hsa_core.sim.lockstep.Barrier.needs_lead`)
-  and report it (``lead_problem``), so nothing a timer publishes at t can reach them before their clock; then the
-  clock moves (``clock`` t) and the instant must finish (``finish_problem``, and the bus has executed every packet it
-  received), /clock being sent again every ``resend`` s while that waits (it is best effort); then ``finish`` t:
-  the bus writes reach the world at t and the samples available at t are published;
-* ``stop``: an expected participant has left, the graph is ending: simulated time stops (``done`` thereafter);
-* ``fail``: one wait took longer than ``timeout`` s of wall time (``start_timeout``, if longer, before the start).
+* ``start``: simulated time starts (:meth:`hsa_core.sim.lockstep.Barrier.start_problem` is None, the
+  simulator's own publishers, /clock included, counted as ``matched``); until then /clock at 0 is
+  sent again every ``resend`` s;
+* ``run`` to t: the next event is a sample becoming available; run the world to t and publish the
+  samples at once, without /clock (data callbacks keep the clock of the last timer instant);
+* ``instant`` t: the next event is a participant's timer due, or ``sync_ns`` of simulated time have
+  passed since the last instant; run the world to t. The graph must then settle (take everything
+  published); at a timer due the participants that log in simulated time get t first (``lead`` t,
+  when :meth:`~hsa_core.sim.lockstep.Barrier.needs_lead`) and report it (``lead_problem``), so
+  nothing a timer publishes at t can reach them before their clock; then the clock moves (``clock``
+  t) and the instant must finish (``finish_problem``, and the bus has executed every packet it
+  received), /clock being sent again every ``resend`` s while that waits (it is best effort); then
+  ``finish`` t: the bus writes reach the world at t and the samples available at t are published;
+* ``stop``: an expected participant has left, the graph is ending: simulated time stops (``done``
+  thereafter);
+* ``fail``: one wait took longer than ``timeout`` s of wall time (``start_timeout``, if longer,
+  before the start).
 
-This is not :class:`hsa_core.sim.playback.LockstepPlayback`: a player moves /clock to every message's log time, while
-the simulator publishes samples between clock instants and moves /clock only where a timer is due.
+This is not :class:`hsa_core.sim.playback.LockstepPlayback`: a player moves /clock to every
+message's log time, while the simulator publishes samples between clock instants and moves /clock
+only where a timer is due.
 """
 
 from __future__ import annotations
@@ -38,10 +45,17 @@ BUS_BUSY = "the emulated bus has not executed every packet it received"
 
 
 class SimLockstep:
-    """The simulator's side of the lockstep barrier; see the module docstring. Times: ns simulated, s of wall."""
+    """The simulator's side of the lockstep barrier; see the module docstring. Times: ns simulated,
+    s of wall."""
 
-    def __init__(self, barrier: Barrier, timeout: float, resend: float = 0.05, sync_ns: int = SYNC_NS,
-                 start_timeout: float = START_TIMEOUT) -> None:
+    def __init__(
+        self,
+        barrier: Barrier,
+        timeout: float,
+        resend: float = 0.05,
+        sync_ns: int = SYNC_NS,
+        start_timeout: float = START_TIMEOUT,
+    ) -> None:
         self.barrier = barrier
         self.timeout = timeout
         self.resend = resend
@@ -54,11 +68,18 @@ class SimLockstep:
         self._synced = 0
         self._halted = False
 
-    def step(self, now: float, world_ns: int, next_sample_ns: int, bus_idle: Callable[[], bool],
-             matched: Callable[[], Mapping[str, int]]) -> Step:
-        """The next action, given the wall time ``now``, the world's time, when its next sample becomes available,
-        whether the bus is idle and the simulator's matched subscription counts per published topic (the last two
-        asked only when needed: they cost a system call and a graph query)."""
+    def step(
+        self,
+        now: float,
+        world_ns: int,
+        next_sample_ns: int,
+        bus_idle: Callable[[], bool],
+        matched: Callable[[], Mapping[str, int]],
+    ) -> Step:
+        """The next action, given the wall time ``now``, the world's time, when its next sample
+        becomes available, whether the bus is idle and the simulator's matched subscription counts
+        per published topic (the last two asked only when needed: they cost a system call and a
+        graph query)."""
         if self._since is None:
             self._since = now
         if self.barrier.left:
@@ -108,7 +129,8 @@ class SimLockstep:
         return Step(Action.CLOCK, self.instant)
 
     def _advance(self, now: float, next_sample_ns: int) -> Step:
-        """The next event: a sample becoming available (``run``), or an instant the graph must settle at."""
+        """The next event: a sample becoming available (``run``), or an instant the graph must
+        settle at."""
         due = self.barrier.next_due_ns()
         event = next_sample_ns if due is None else min(due, next_sample_ns)
         if event - self._synced >= self.sync_ns or (due is not None and event == due):
@@ -120,8 +142,8 @@ class SimLockstep:
         return Step(Action.RUN, event)
 
     def _wait(self, problem: str, now: float, send_clock: bool = False) -> Step:
-        """Resend /clock if it may have been lost (a ``clock`` step with a reason); else wait, or fail once the
-        current wait is longer than the limit."""
+        """Resend /clock if it may have been lost (a ``clock`` step with a reason); else wait, or
+        fail once the current wait is longer than the limit."""
         assert self._since is not None
         if send_clock and now - self._clock_sent > self.resend:
             self._clock_sent = now
@@ -129,7 +151,10 @@ class SimLockstep:
         waited = now - self._since
         limit = self.timeout if self.phase != START else max(self.start_timeout, self.timeout)
         if waited > limit:
-            return Step(Action.FAIL, self.instant,
-                        f"lockstep barrier at t = {self.instant * 1e-9:.3f} s not finished "
-                        f"after {waited:.1f} s of wall time: {problem}")
+            return Step(
+                Action.FAIL,
+                self.instant,
+                f"lockstep barrier at t = {self.instant * 1e-9:.3f} s not finished "
+                f"after {waited:.1f} s of wall time: {problem}",
+            )
         return Step(Action.WAIT, self.instant, problem)

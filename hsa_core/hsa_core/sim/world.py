@@ -1,32 +1,37 @@
-"""The simulated world, defined once: plant with its declared mismatch, MX-28 servos, motion capture (no ROS).
+"""The simulated world, defined once: plant with its declared mismatch, MX-28 servos, motion capture
+(no ROS).
 
-Both simulations take the hardware from here: the offline experiment (:mod:`hsa_core.sim.experiment`) and the ROS
-simulator (``hsa_sim_node``, behind the emulated MX-28 bus). What it models, on a 1 ms grid (integer nanoseconds, so
-both paths hit the same instants exactly):
+Both simulations take the hardware from here: the offline experiment
+(:mod:`hsa_core.sim.experiment`) and the ROS simulator (``hsa_sim_node``, behind the emulated MX-28
+bus). What it models, on a 1 ms grid (integer nanoseconds, so both paths hit the same instants
+exactly):
 
-* **Plant** — the JAX model with the plant/model mismatch of :class:`~hsa_core.sim.disturbance.DisturbanceModel`,
-  integrated with RK4 (two 0.5 ms steps per grid interval), the rod twists held over each interval. It starts hanging
-  at rest with φ = 0.
-* **Servos** — one per motor, in ticks: a goal written at t takes effect at t + ``actuation_latency`` (bus transfer
-  and the servo's own cycle); the shaft then moves towards it at no more than the MX-28's no-load speed (55 rev/min
-  at 12 V, ROBOTIS e-Manual MX-28(2.0) specifications), and stops on it. Evidence for a pure speed cap, without an
-  extra first-order lag: the executed twists of the paper's GBN records are ramp-like at that speed
-  (spec identification.md §2.2); the MX-28's position loop (Position P gain 850, D and I 0 by default) is not
-  otherwise characterised in the records. The plant sees the continuous shaft angle; Present Position reports it
-  rounded to whole ticks. Torque off freezes the shaft where it is.
-* **Motion capture** — a sample every 5 ms (200 Hz), stamped with the instant the plant was at that pose, carrying
-  the declared white noise, available ``measurement_latency`` after its stamp. Noise comes from one seeded generator,
-  drawn sample by sample, so a seed fixes the whole run.
-* **Payload** — the point mass m_pl at the parameters' CoG_pl (model.md), as in the identification campaign's
-  staircases (docs/identification.md): :meth:`World.set_payload` changes it at an exact grid instant, the motors
-  holding whatever they hold. It is the plant's m_pl until the first change (the parameter sets' 0 kg).
+* **Plant** — the JAX model with the plant/model mismatch of
+  :class:`~hsa_core.sim.disturbance.DisturbanceModel`, integrated with RK4 (two 0.5 ms steps per
+  grid interval), the rod twists held over each interval. It starts hanging at rest with φ = 0.
+* **Servos** — one per motor, in ticks: a goal written at t takes effect at t +
+  ``actuation_latency`` (bus transfer and the servo's own cycle); the shaft then moves towards it at
+  no more than the MX-28's no-load speed (55 rev/min at 12 V, ROBOTIS e-Manual MX-28(2.0)
+  specifications), and stops on it. Evidence for a pure speed cap, without an extra first-order lag:
+  the executed twists of the paper's GBN records are ramp-like at that speed (spec identification.md
+  §2.2); the MX-28's position loop (Position P gain 850, D and I 0 by default) is not otherwise
+  characterised in the records. The plant sees the continuous shaft angle; Present Position reports
+  it rounded to whole ticks. Torque off freezes the shaft where it is.
+* **Motion capture** — a sample every 5 ms (200 Hz), stamped with the instant the plant was at that
+  pose, carrying the declared white noise, available ``measurement_latency`` after its stamp. Noise
+  comes from one seeded generator, drawn sample by sample, so a seed fixes the whole run.
+* **Payload** — the point mass m_pl at the parameters' CoG_pl (model.md), as in the identification
+  campaign's staircases (docs/identification.md): :meth:`World.set_payload` changes it at an exact
+  grid instant, the motors holding whatever they hold. It is the plant's m_pl until the first change
+  (the parameter sets' 0 kg).
 
 Events are integer nanoseconds; a time that is not on the grid is rounded up to the next grid point.
 
-**One world interval.** What happens in one grid interval is one pure, JAX-traceable function of the world's
-parameters (:class:`WorldParams`: plant, servo speed cap, wiring) and state: :func:`interval_fn`; the plant's start
-(:func:`hanging_at_rest`) and a mocap sample (:func:`mocap_sample`) are functions too. :class:`World` runs them on
-its event grid, and the batched closed loop (:mod:`hsa_core.sim.closed_loop`) inside its ``lax.scan``: a parameter that
+**One world interval.** What happens in one grid interval is one pure, JAX-traceable function of the
+world's parameters (:class:`WorldParams`: plant, servo speed cap, wiring) and state:
+:func:`interval_fn`; the plant's start (:func:`hanging_at_rest`) and a mocap sample
+(:func:`mocap_sample`) are functions too. :class:`World` runs them on its event grid, and the
+batched closed loop (:mod:`hsa_core.sim.closed_loop`) inside its ``lax.scan``: a parameter that
 reaches one path reaches the other.
 """
 
@@ -50,8 +55,8 @@ from numpy.typing import ArrayLike
 from hsa_core import resultcache
 from hsa_core.model import kinematics, simulation
 from hsa_core.model.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap
-from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.model.params import HsaParams
+from hsa_core.sim.disturbance import DisturbanceModel
 
 GRID_NS = 1_000_000
 """[ns] the world's event grid: 1 ms."""
@@ -72,10 +77,11 @@ def seconds_to_ns(t: float) -> int:
 
 
 def payload_schedule(flat: Sequence[float]) -> tuple[tuple[int, float], ...]:
-    """Flat pairs [t0, m0, t1, m1, ...] (from t_k [s] the payload is m_k [kg]) → ((t_k [ns], m_k), ...).
+    """Flat pairs [t0, m0, t1, m1, ...] (from t_k [s] the payload is m_k [kg]) → ((t_k [ns], m_k),
+    ...).
 
-    Raises ValueError with a one-line reason unless the length is even, the times finite, >= 0 and increasing and
-    the masses finite and >= 0."""
+    Raises ValueError with a one-line reason unless the length is even, the times finite, >= 0 and
+    increasing and the masses finite and >= 0."""
     values = [float(v) for v in flat]
     if len(values) % 2:
         raise ValueError(f"needs pairs [t0, m0, t1, m1, ...], got {len(values)} values")
@@ -99,14 +105,19 @@ class WorldParams(NamedTuple):
     servo_lag: ArrayLike = 0.0  # [s] the servos' position loop's time constant (0: none)
 
 
-def world_params(plant: HsaParams, motor_map: MotorMap, speed: ArrayLike,
-                 lag: ArrayLike = 0.0) -> WorldParams:
-    """The world's parameters from the plant, the robot's wiring, the servos' speed cap [ticks per grid
-    interval, :func:`servo_speed`] and their position loop's time constant [s] (0: the shaft slews
-    at the cap to the goal)."""
-    return WorldParams(plant, speed, jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64),
-                       jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK,
-                       lag)
+def world_params(
+    plant: HsaParams, motor_map: MotorMap, speed: ArrayLike, lag: ArrayLike = 0.0
+) -> WorldParams:
+    """The world's parameters from the plant, the robot's wiring, the servos' speed cap [ticks per
+    grid interval, :func:`servo_speed`] and their position loop's time constant [s] (0: the shaft
+    slews at the cap to the goal)."""
+    return WorldParams(
+        plant,
+        speed,
+        jnp.asarray(motor_map.neutral_ticks, dtype=jnp.float64),
+        jnp.asarray(motor_map.rod_twists(np.eye(len(motor_map.ids)))) * RAD_PER_TICK,
+        lag,
+    )
 
 
 def servo_speed(max_speed: ArrayLike) -> ArrayLike:
@@ -114,7 +125,9 @@ def servo_speed(max_speed: ArrayLike) -> ArrayLike:
     return max_speed * TICKS_PER_RAD * GRID_NS * 1e-9
 
 
-def interval_fn(params: WorldParams) -> Callable[[Array, Array, Array, ArrayLike], tuple[Array, Array]]:
+def interval_fn(
+    params: WorldParams,
+) -> Callable[[Array, Array, Array, ArrayLike], tuple[Array, Array]]:
     """One grid interval of the world, pure and traceable (the plant's parameter terms are computed
     here, once).
 
@@ -133,26 +146,30 @@ def interval_fn(params: WorldParams) -> Callable[[Array, Array, Array, ArrayLike
         step = jnp.clip((goal - position) * gain, -speed, speed)
         moved = jnp.where(torque, position + step, position)
         phi = params.to_rods @ (moved - params.neutral)
-        x = jax.lax.fori_loop(0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4(q_ddot, xk, phi, dt), x,
-                              unroll=True)  # no loop per interval: ~5 % of the batched loop's instant
+        x = jax.lax.fori_loop(
+            0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4(q_ddot, xk, phi, dt), x, unroll=True
+        )  # no loop per interval: ~5 % of the batched loop's instant
         return x, moved
 
     return interval
 
 
 def hanging_at_rest(plant: HsaParams) -> Array:
-    """The plant's state at the world's start: hanging at rest with φ = 0 (5 s settled, velocities exactly 0)."""
+    """The plant's state at the world's start: hanging at rest with φ = 0 (5 s settled, velocities
+    exactly 0)."""
     return simulation.steady_state_rollout(plant, jnp.zeros(2)).at[3:].set(0.0)
 
 
 def mocap_sample(plant: HsaParams, x: Array, noise: ArrayLike) -> Array:
-    """A motion-capture sample of the plant in state x: its planar end-effector pose (x, y, θ) plus the noise draw."""
+    """A motion-capture sample of the plant in state x: its planar end-effector pose (x, y, θ) plus
+    the noise draw."""
     return kinematics.end_effector_pose(plant, x[:3]) + noise
 
 
 @dataclass(frozen=True)
 class MocapSample:
-    """One motion-capture sample: stamp [ns], the instant it becomes available [ns], noisy planar pose (x, y, θ)."""
+    """One motion-capture sample: stamp [ns], the instant it becomes available [ns], noisy planar
+    pose (x, y, θ)."""
 
     stamp_ns: int
     available_ns: int
@@ -160,25 +177,40 @@ class MocapSample:
 
 
 class World:
-    """Plant + servos + motion capture on the 1 ms grid; state in, events in, samples out (see the module docstring).
+    """Plant + servos + motion capture on the 1 ms grid; state in, events in, samples out (see the
+    module docstring).
 
-    ``advance_to(t)`` runs the grid up to t; ``write_goals`` / ``set_torque`` are what a bus client does at the current
-    instant; ``set_payload`` is the experimenter's hand; ``take_samples(t)`` hands over the mocap samples available
-    by t, in stamp order. ``plant`` is the plant in force now (its m_pl the payload of the current instant).
+    ``advance_to(t)`` runs the grid up to t; ``write_goals`` / ``set_torque`` are what a bus client
+    does at the current instant; ``set_payload`` is the experimenter's hand; ``take_samples(t)``
+    hands over the mocap samples available by t, in stamp order. ``plant`` is the plant in force now
+    (its m_pl the payload of the current instant).
     """
 
-    def __init__(self, model: HsaParams, disturbance: DisturbanceModel, motor_map: MotorMap) -> None:
+    def __init__(
+        self, model: HsaParams, disturbance: DisturbanceModel, motor_map: MotorMap
+    ) -> None:
         self.disturbance = disturbance
         self.plant = disturbance.plant_params(model)
         self.motor_map = motor_map
         self._neutral = np.asarray(motor_map.neutral_ticks, dtype=np.float64)
-        self.params = world_params(self.plant, motor_map, servo_speed(disturbance.servo_max_speed),
-                                   disturbance.servo_time_constant)
+        self.params = world_params(
+            self.plant,
+            motor_map,
+            servo_speed(disturbance.servo_max_speed),
+            disturbance.servo_time_constant,
+        )
         self._segment = _segment_fn(self.params)
         self._observe = jax.jit(functools.partial(mocap_sample, self.plant))
         self._rng = disturbance.rng()
-        x = np.array(resultcache.cached("hanging_at_rest", (self.plant,), lambda: {  # kept from a last start
-            "x": hanging_at_rest(self.plant)})["x"])
+        x = np.array(
+            resultcache.cached(
+                "hanging_at_rest",
+                (self.plant,),
+                lambda: {  # kept from a last start
+                    "x": hanging_at_rest(self.plant)
+                },
+            )["x"]
+        )
         x[3:] = 0.0  # also in a state cached before hanging_at_rest zeroed the velocities
         self.x = jnp.asarray(x)
         self.position = self._neutral.copy()  # shaft positions [ticks], continuous
@@ -189,14 +221,18 @@ class World:
         self._latency_ns = seconds_to_ns(disturbance.actuation_latency)
         self._sample_latency_ns = seconds_to_ns(disturbance.measurement_latency)
         self._goals: deque[tuple[int, np.ndarray]] = deque()  # (effective at [ns], goal ticks)
-        self._payloads: list[tuple[int, int, float]] = []  # (effective at [ns], order set, mass [kg]), sorted
+        self._payloads: list[
+            tuple[int, int, float]
+        ] = []  # (effective at [ns], order set, mass [kg]), sorted
         self._payload_seq = 0
         self._samples: deque[MocapSample] = deque()
         self._sample()
 
-    # ---------------------------------------------------------------- inputs (what the bus client does)
+    # ---------------------------------------------------------------- inputs (what the bus client
+    # does)
     def write_goals(self, ticks: ArrayLike, at_ns: int | None = None) -> None:
-        """Goal Position of every motor written at ``at_ns`` (default: now); it takes effect after the latency."""
+        """Goal Position of every motor written at ``at_ns`` (default: now); it takes effect after
+        the latency."""
         at = self.t_ns if at_ns is None else int(at_ns)
         goal = np.asarray(ticks, dtype=np.float64).copy()
         self._goals.append((to_grid(at + self._latency_ns), goal))
@@ -206,10 +242,11 @@ class World:
         self.torque = np.asarray(on, dtype=bool).copy()
 
     def set_payload(self, mass_kg: float, at_ns: int | None = None) -> None:
-        """From grid instant ``at_ns`` on (default: now; rounded up to the grid) the payload is ``mass_kg`` [kg].
+        """From grid instant ``at_ns`` on (default: now; rounded up to the grid) the payload is
+        ``mass_kg`` [kg].
 
-        Events may be set ahead in any order; of two at the same instant the later set wins. The mass is a traced
-        input of the jitted plant, so changing it does not recompile."""
+        Events may be set ahead in any order; of two at the same instant the later set wins. The
+        mass is a traced input of the jitted plant, so changing it does not recompile."""
         if not (math.isfinite(mass_kg) and mass_kg >= 0.0):
             raise ValueError(f"payload mass must be finite and >= 0 kg, got {mass_kg}")
         at = to_grid(self.t_ns if at_ns is None else at_ns)
@@ -218,10 +255,12 @@ class World:
 
     # ---------------------------------------------------------------- time
     def advance_to(self, t_ns: int) -> None:
-        """Run the grid up to ``t_ns`` (rounded up to the grid); the state is then that of instant t.
+        """Run the grid up to ``t_ns`` (rounded up to the grid); the state is then that of instant
+        t.
 
-        Per grid interval: apply the goals and payload due, move the shafts, integrate the plant; on reaching an
-        instant on the 5 ms grid, sample the pose. Intervals without an event in between run as one jitted segment."""
+        Per grid interval: apply the goals and payload due, move the shafts, integrate the plant; on
+        reaching an instant on the 5 ms grid, sample the pose. Intervals without an event in between
+        run as one jitted segment."""
         end = to_grid(t_ns)
         while self.t_ns < end:
             t = self.t_ns
@@ -233,8 +272,14 @@ class World:
             for events in (self._goals, self._payloads):
                 if events:
                     stop = min(stop, max(events[0][0], t + GRID_NS))
-            x, position, velocity = self._segment(self.x, self.position, self.goal, self.torque, self.plant.m_pl,
-                                                  (stop - t) // GRID_NS)
+            x, position, velocity = self._segment(
+                self.x,
+                self.position,
+                self.goal,
+                self.torque,
+                self.plant.m_pl,
+                (stop - t) // GRID_NS,
+            )
             self.x = x
             self.position, self.velocity = np.array(position), np.array(velocity) / (GRID_NS * 1e-9)
             self.t_ns = stop
@@ -244,16 +289,20 @@ class World:
         """Take the mocap sample of the current instant if one is due (every 5 ms, from t = 0)."""
         t = self.t_ns
         if t % MOCAP_PERIOD_NS == 0:
-            chiee = np.asarray(self._observe(self.x, self.disturbance.measure(self._rng, np.zeros(3))))  # + noise
+            chiee = np.asarray(
+                self._observe(self.x, self.disturbance.measure(self._rng, np.zeros(3)))
+            )  # + noise
             self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
 
     # ---------------------------------------------------------------- outputs
     def twists(self) -> np.ndarray:
-        """Virtual-rod twists φ [rad] the shafts realise now (continuous angle, not the reported ticks)."""
+        """Virtual-rod twists φ [rad] the shafts realise now (continuous angle, not the reported
+        ticks)."""
         return self.motor_map.rod_twists((self.position - self._neutral) * RAD_PER_TICK)
 
     def present_ticks(self) -> np.ndarray:
-        """Present Position of every motor [ticks], as the servo reports it (rounded to whole ticks)."""
+        """Present Position of every motor [ticks], as the servo reports it (rounded to whole
+        ticks)."""
         return np.rint(self.position).astype(np.int64)
 
     def true_pose(self) -> np.ndarray:
@@ -264,11 +313,14 @@ class World:
         """When the next not yet handed-over mocap sample becomes available [ns]."""
         if self._samples:
             return self._samples[0].available_ns
-        next_stamp = (self.t_ns // MOCAP_PERIOD_NS + 1) * MOCAP_PERIOD_NS  # the current instant's is taken already
+        next_stamp = (
+            self.t_ns // MOCAP_PERIOD_NS + 1
+        ) * MOCAP_PERIOD_NS  # the current instant's is taken already
         return next_stamp + self._sample_latency_ns
 
     def take_samples(self, t_ns: int) -> list[MocapSample]:
-        """The samples available by ``t_ns`` (the world must have been advanced past their stamps), oldest first."""
+        """The samples available by ``t_ns`` (the world must have been advanced past their stamps),
+        oldest first."""
         out = []
         while self._samples and self._samples[0].available_ns <= t_ns:
             out.append(self._samples.popleft())
@@ -276,8 +328,9 @@ class World:
 
 
 def _segment_fn(params: WorldParams):
-    """Jitted run of n grid intervals (:func:`interval_fn`) with goal and payload held: (x, shaft ticks, goal, torque,
-    m_pl, n) → (x, ticks, last step); the payload m_pl is a traced input (a new mass does not recompile)."""
+    """Jitted run of n grid intervals (:func:`interval_fn`) with goal and payload held: (x, shaft
+    ticks, goal, torque, m_pl, n) → (x, ticks, last step); the payload m_pl is a traced input (a new
+    mass does not recompile)."""
 
     @jax.jit
     def segment(x, position, goal, torque, m_pl, n):

@@ -1,12 +1,14 @@
-"""Model verification by open-loop replay of a recorded phi(t) (identification.md §6, the paper's GBN verification).
+"""Model verification by open-loop replay of a recorded phi(t) (identification.md §6, the paper's
+GBN verification).
 
-The measured twist is held (zero-order hold) over each interval of a uniform grid with the mean mocap period; the model
-is integrated with the Dormand-Prince 5(4) pair at a fixed 0.1 ms step (the paper's setting; the embedded error
-estimate is not used) from the measured initial configuration, and the simulated EE pose chiee and configuration q are
-compared with the measured ones (q = IK of the measured pose with the same rest strains). Metrics over the whole
-record (§6, "recommended metrics"): RMSE per coordinate, RMSE normalised by the measured range, maximum error, and the
-best time lag (one shift for all channels, minimising the sum of range-normalised squared errors) with the RMSE after
-removing it.
+The measured twist is held (zero-order hold) over each interval of a uniform grid with the mean
+mocap period; the model is integrated with the Dormand-Prince 5(4) pair at a fixed 0.1 ms step (the
+paper's setting; the embedded error estimate is not used) from the measured initial configuration,
+and the simulated EE pose chiee and configuration q are compared with the measured ones (q = IK of
+the measured pose with the same rest strains). Metrics over the whole record (§6, "recommended
+metrics"): RMSE per coordinate, RMSE normalised by the measured range, maximum error, and the best
+time lag (one shift for all channels, minimising the sum of range-normalised squared errors) with
+the RMSE after removing it.
 """
 
 from __future__ import annotations
@@ -23,8 +25,8 @@ from jax.typing import ArrayLike
 
 from hsa_core.model import kinematics
 from hsa_core.model.dynamics import forward_dynamics_fn
-from hsa_core.sysid.excitation import zero_order_hold
 from hsa_core.model.params import HsaParams
+from hsa_core.sysid.excitation import zero_order_hold
 
 DOPRI_DT = 1e-4
 """Fixed integration step of the replay [s] (the paper: Dormand-Prince 5(4) at 0.1 ms)."""
@@ -54,11 +56,20 @@ def dopri5_step(f, x: Array, dt: ArrayLike) -> Array:  # noqa: ANN001 - f: state
     return x + dt * sum(b * k for b, k in zip(_B, ks))
 
 
-def replay(params: HsaParams, x0: ArrayLike, phi_seq: ArrayLike, dt_hold: float, dt: float = DOPRI_DT) -> Array:
-    """States [q, q_dot] (N + 1, 6) at the hold boundaries: phi_seq[k] (N, 2) held dt_hold s, Dopri5 steps of ~dt."""
+def replay(
+    params: HsaParams, x0: ArrayLike, phi_seq: ArrayLike, dt_hold: float, dt: float = DOPRI_DT
+) -> Array:
+    """States [q, q_dot] (N + 1, 6) at the hold boundaries: phi_seq[k] (N, 2) held dt_hold s, Dopri5
+    steps of ~dt."""
     substeps = max(1, round(dt_hold / dt))
     h = dt_hold / substeps
-    return _replay(params, jnp.asarray(x0, dtype=jnp.float64), jnp.asarray(phi_seq, dtype=jnp.float64), h, substeps)
+    return _replay(
+        params,
+        jnp.asarray(x0, dtype=jnp.float64),
+        jnp.asarray(phi_seq, dtype=jnp.float64),
+        h,
+        substeps,
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("substeps",))
@@ -91,7 +102,8 @@ def _configurations_of(params: HsaParams, chiee: Array) -> Array:
 
 @dataclasses.dataclass(frozen=True)
 class Verification:
-    """Measured and simulated channels on the replay grid, with the metrics of identification.md §6."""
+    """Measured and simulated channels on the replay grid, with the metrics of identification.md
+    §6."""
 
     t: np.ndarray
     measured: np.ndarray
@@ -110,12 +122,16 @@ def _metrics(measured: np.ndarray, simulated: np.ndarray) -> tuple[dict, dict, d
     rmse = np.sqrt(np.mean(err**2, axis=0))
     span = np.ptp(measured, axis=0)
     nrmse = np.where(span > 0.0, rmse / np.where(span > 0.0, span, 1.0), np.nan)
-    return (dict(zip(CHANNELS, rmse.tolist())), dict(zip(CHANNELS, nrmse.tolist())),
-            dict(zip(CHANNELS, np.max(np.abs(err), axis=0).tolist())))
+    return (
+        dict(zip(CHANNELS, rmse.tolist())),
+        dict(zip(CHANNELS, nrmse.tolist())),
+        dict(zip(CHANNELS, np.max(np.abs(err), axis=0).tolist())),
+    )
 
 
 def best_lag(measured: np.ndarray, simulated: np.ndarray, max_shift: int) -> int:
-    """Shift s (samples; > 0: the simulation lags) minimising the summed range-normalised MSE of sim[k+s] - meas[k]."""
+    """Shift s (samples; > 0: the simulation lags) minimising the summed range-normalised MSE of
+    sim[k+s] - meas[k]."""
     span = np.ptp(measured, axis=0)
     span = np.where(span > 0.0, span, 1.0)
     n = len(measured)
@@ -126,13 +142,21 @@ def best_lag(measured: np.ndarray, simulated: np.ndarray, max_shift: int) -> int
     return min(costs, key=lambda s: (costs[s], abs(s)))
 
 
-def verify(params: HsaParams, t: ArrayLike, chiee: ArrayLike, phi: ArrayLike, q_dot0: ArrayLike | None = None,
-           dt: float = DOPRI_DT, max_lag: float = 0.1) -> Verification:
-    """Replay the measured phi (N, 2) at stamps t (N,) through the model and compare with the measured poses (N, 3).
+def verify(
+    params: HsaParams,
+    t: ArrayLike,
+    chiee: ArrayLike,
+    phi: ArrayLike,
+    q_dot0: ArrayLike | None = None,
+    dt: float = DOPRI_DT,
+    max_lag: float = 0.1,
+) -> Verification:
+    """Replay the measured phi (N, 2) at stamps t (N,) through the model and compare with the
+    measured poses (N, 3).
 
-    The grid is t0 + k dt_d with dt_d the mean sample period; phi is taken by zero-order hold and the poses by linear
-    interpolation on it. The initial configuration is the IK of the first pose, its rate q_dot0 (default 0: records
-    start at rest).
+    The grid is t0 + k dt_d with dt_d the mean sample period; phi is taken by zero-order hold and
+    the poses by linear interpolation on it. The initial configuration is the IK of the first pose,
+    its rate q_dot0 (default 0: records start at rest).
     """
     t, chiee, phi = np.asarray(t, float), np.asarray(chiee, float), np.asarray(phi, float)
     if len(t) < 3 or np.any(np.diff(t) <= 0.0):
@@ -150,33 +174,52 @@ def verify(params: HsaParams, t: ArrayLike, chiee: ArrayLike, phi: ArrayLike, q_
     shift = best_lag(meas, sim, max(0, int(round(max_lag / dt_d))))
     n = len(meas)
     a, b = (meas[: n - shift], sim[shift:]) if shift >= 0 else (meas[-shift:], sim[: n + shift])
-    return Verification(grid - grid[0], meas, sim, phi_grid, rmse, nrmse, max_err, shift * dt_d, _metrics(a, b)[0])
+    return Verification(
+        grid - grid[0], meas, sim, phi_grid, rmse, nrmse, max_err, shift * dt_d, _metrics(a, b)[0]
+    )
 
 
 def excitation_start(result: Verification, tol: float = 2e-3) -> float:
-    """Time [s] of the first change of the replayed phi (0 if it never changes): where a figure window should start."""
+    """Time [s] of the first change of the replayed phi (0 if it never changes): where a figure
+    window should start."""
     change = np.flatnonzero(np.any(np.abs(np.diff(result.phi, axis=0)) > tol, axis=1))
     return float(result.t[change[0] + 1]) if len(change) else 0.0
 
 
 def format_table(results: dict[str, Verification]) -> str:
-    """RMSE table (units: mm, mm, rad, 1/m, -, -), one row per verified record, with range-normalised values."""
+    """RMSE table (units: mm, mm, rad, 1/m, -, -), one row per verified record, with
+    range-normalised values."""
     scale = {"x": 1e3, "y": 1e3}
     head = "record".ljust(24) + "".join(f"{c:>20s}" for c in CHANNELS) + f"{'lag [ms]':>10s}"
     lines = [head, " " * 24 + "".join(f"{'RMSE (range %)':>20s}" for _ in CHANNELS)]
     for name, res in results.items():
-        cells = "".join(f"{res.rmse[c] * scale.get(c, 1.0):11.4g} ({100 * res.nrmse[c]:5.2f}%)" for c in CHANNELS)
+        cells = "".join(
+            f"{res.rmse[c] * scale.get(c, 1.0):11.4g} ({100 * res.nrmse[c]:5.2f}%)"
+            for c in CHANNELS
+        )
         lines.append(f"{name[:24]:24s}{cells}{res.lag * 1e3:10.1f}")
-    lines.append("units: x, y in mm; theta in rad; kappa_be in 1/m; sigma_sh, sigma_ax dimensionless; RMSE after "
-                 "removing the lag: " + "; ".join(
-                     f"{n}: " + ", ".join(f"{c} {r.rmse_lagged[c] * scale.get(c, 1.0):.3g}" for c in CHANNELS)
-                     for n, r in results.items()))
+    lines.append(
+        "units: x, y in mm; theta in rad; kappa_be in 1/m; sigma_sh, sigma_ax dimensionless; RMSE "
+        "after "
+        "removing the lag: "
+        + "; ".join(
+            f"{n}: "
+            + ", ".join(f"{c} {r.rmse_lagged[c] * scale.get(c, 1.0):.3g}" for c in CHANNELS)
+            for n, r in results.items()
+        )
+    )
     return "\n".join(lines)
 
 
-def plot(result: Verification, path: Path, window: tuple[float, float] | None = (0.0, 4.0), title: str = "") -> Path:
-    """The paper's verification figure: strains (kappa left, sigma_sh and sigma_ax right) and EE pose (x, y in mm
-    left, theta right), measured solid, simulated dashed, over `window` s (None: the whole record)."""
+def plot(
+    result: Verification,
+    path: Path,
+    window: tuple[float, float] | None = (0.0, 4.0),
+    title: str = "",
+) -> Path:
+    """The paper's verification figure: strains (kappa left, sigma_sh and sigma_ax right) and EE
+    pose (x, y in mm left, theta right), measured solid, simulated dashed, over `window` s (None:
+    the whole record)."""
     from hsa_core.analysis.plotting import save, subplots  # matplotlib only where a figure is drawn
 
     t = result.t
@@ -184,15 +227,29 @@ def plot(result: Verification, path: Path, window: tuple[float, float] | None = 
         window = (float(t[0]), float(t[-1]))
     sel = (t >= window[0]) & (t <= window[1])
     fig, (ax_q, ax_p) = subplots(2, 1, figsize=(8, 7), sharex=True)
-    panels = ((ax_q, (3,), (4, 5), "kappa_be [1/m]", "sigma [-]", 1.0),
-              (ax_p, (0, 1), (2,), "EE position [mm]", "theta_ee [rad]", 1e3))
+    panels = (
+        (ax_q, (3,), (4, 5), "kappa_be [1/m]", "sigma [-]", 1.0),
+        (ax_p, (0, 1), (2,), "EE position [mm]", "theta_ee [rad]", 1e3),
+    )
     for ax, left, right, ylabel_l, ylabel_r, scale in panels:
         ax_r = ax.twinx()
         for axis, idx, s in ((ax, left, scale), (ax_r, right, 1.0)):
             for i in idx:
                 color = f"C{i}"
-                axis.plot(t[sel], result.measured[sel, i] * s, "-", color=color, label=f"{CHANNELS[i]} measured")
-                axis.plot(t[sel], result.simulated[sel, i] * s, "--", color=color, label=f"{CHANNELS[i]} simulated")
+                axis.plot(
+                    t[sel],
+                    result.measured[sel, i] * s,
+                    "-",
+                    color=color,
+                    label=f"{CHANNELS[i]} measured",
+                )
+                axis.plot(
+                    t[sel],
+                    result.simulated[sel, i] * s,
+                    "--",
+                    color=color,
+                    label=f"{CHANNELS[i]} simulated",
+                )
         ax.set_ylabel(ylabel_l)
         ax_r.set_ylabel(ylabel_r)
         handles = ax.get_legend_handles_labels()[0] + ax_r.get_legend_handles_labels()[0]

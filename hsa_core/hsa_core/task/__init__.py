@@ -1,1 +1,2 @@
-"""What the robot is asked to do: steady-state planning, reachability, workspace, trajectories, sequencing."""
+"""What the robot is asked to do: steady-state planning, reachability, workspace, trajectories,
+sequencing."""

@@ -1,8 +1,10 @@
-"""Reachability of a target: the polygon of end-effector positions the robot can hold (no model, NumPy only).
+"""Reachability of a target: the polygon of end-effector positions the robot can hold (no model,
+NumPy only).
 
-The forward map phi -> p_ee of the robot is one-to-one on the box [0, phi_max]^2, so the reachable set is the polygon
-traced by the images of the box edges (:func:`boundary_phis`). :class:`ReachabilityRegion` accepts a point inside that
-polygon or within ``margin`` of it; a test costs tens of microseconds. The planner builds it from its own equilibria
+The forward map phi -> p_ee of the robot is one-to-one on the box [0, phi_max]^2, so the reachable
+set is the polygon traced by the images of the box edges (:func:`boundary_phis`).
+:class:`ReachabilityRegion` accepts a point inside that polygon or within ``margin`` of it; a test
+costs tens of microseconds. The planner builds it from its own equilibria
 (:mod:`hsa_core.task.planning`); :mod:`hsa_core.task.workspace` maps the whole workspace.
 """
 
@@ -13,21 +15,27 @@ from numpy.typing import ArrayLike
 
 
 def boundary_phis(phi_lo: ArrayLike, phi_hi: ArrayLike, n_per_edge: int = 32) -> np.ndarray:
-    """Points (4 n, 2) walking once around the edges of the box [phi_lo, phi_hi] (each corner once)."""
+    """Points (4 n, 2) walking once around the edges of the box [phi_lo, phi_hi] (each corner
+    once)."""
     lo, hi = np.asarray(phi_lo, float), np.asarray(phi_hi, float)
     s = np.linspace(0.0, 1.0, n_per_edge, endpoint=False)
     corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
-    return np.concatenate([a + s[:, None] * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0))])
+    return np.concatenate(
+        [a + s[:, None] * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0))]
+    )
 
 
 class ReachabilityRegion:
-    """Polygon of reachable EE positions (boundary image of the phi box) inflated by `margin` [m]."""
+    """Polygon of reachable EE positions (boundary image of the phi box) inflated by `margin`
+    [m]."""
 
     def __init__(self, boundary: ArrayLike, margin: float) -> None:
         """Keep the closed polygon `boundary` (M, 2) [m] and the margin [m]."""
         self.boundary = np.asarray(boundary, dtype=float)
         if self.boundary.ndim != 2 or self.boundary.shape[1] != 2 or len(self.boundary) < 3:
-            raise ValueError(f"boundary must be (M >= 3, 2) positions, got shape {self.boundary.shape}")
+            raise ValueError(
+                f"boundary must be (M >= 3, 2) positions, got shape {self.boundary.shape}"
+            )
         if not margin >= 0.0:
             raise ValueError(f"margin must be >= 0, got {margin!r}")
         self.margin = float(margin)
@@ -56,6 +64,8 @@ class ReachabilityRegion:
     def contains(self, p: ArrayLike) -> bool:
         """True unless p is certainly unreachable: outside the polygon by more than the margin."""
         x, y = np.asarray(p, dtype=float)
-        if not (self._box_lo[0] <= x <= self._box_hi[0] and self._box_lo[1] <= y <= self._box_hi[1]):
+        if not (
+            self._box_lo[0] <= x <= self._box_hi[0] and self._box_lo[1] <= y <= self._box_hi[1]
+        ):
             return False  # outside the inflated bounding box: no polygon arithmetic needed
         return self.inside(p) or self.distance(p) <= self.margin

@@ -1,35 +1,40 @@
-"""Reference trajectories of the experiments: step lists, image-contour references and parametric shapes.
+"""Reference trajectories of the experiments: step lists, image-contour references and parametric
+shapes.
 
-Every reference is a ``TimedReference``: setpoint j (an EE position p^d_j = [x, y] in {0}, m) becomes active at t_j
-(s, t_0 = 0) and stays active until t_{j+1} (zero-order hold). After the last setpoint's slot, at t ≥ ``duration``,
-the reference is finished; ``sample`` keeps returning the last setpoint (hold, as experiments.md §2 requires).
+Every reference is a ``TimedReference``: setpoint j (an EE position p^d_j = [x, y] in {0}, m)
+becomes active at t_j (s, t_0 = 0) and stays active until t_{j+1} (zero-order hold). After the last
+setpoint's slot, at t ≥ ``duration``, the reference is finished; ``sample`` keeps returning the last
+setpoint (hold, as experiments.md §2 requires).
 
-* **Steps** (experiments.md §2): the FPU list of 2023-09-25 or the EPU list of 2023-10-19, 10 s per setpoint, so
-  11 setpoints last 110 s.
+* **Steps** (experiments.md §2): the FPU list of 2023-09-25 or the EPU list of 2023-10-19, 10 s per
+  setpoint, so 11 setpoints last 110 s.
 * **Image contours** (experiments.md §3), ``contour_reference``:
-  1. read the image (colour) and convert it to grey; optionally crop a centred square whose side is the smaller image
-     dimension (the height for the landscape star asset);
-  2. threshold: pixels > ``threshold`` are the shape, or pixels ≤ ``threshold`` with ``invert`` (defaults 140,
-     inverted; the star used 128, not inverted);
-  3. external contours without approximation (``cv2.findContours``, RETR_EXTERNAL, CHAIN_APPROX_NONE); the first one
-     is used. OpenCV starts it at the top-most, then left-most boundary pixel and traces it counter-clockwise as
-     displayed;
-  4. subtract the centroid of the contour's moments, truncated to whole pixels: (⌊m10/m00⌋, ⌊m01/m00⌋);
+  1. read the image (colour) and convert it to grey; optionally crop a centred square whose side is
+     the smaller image dimension (the height for the landscape star asset);
+  2. threshold: pixels > ``threshold`` are the shape, or pixels ≤ ``threshold`` with ``invert``
+     (defaults 140, inverted; the star used 128, not inverted);
+  3. external contours without approximation (``cv2.findContours``, RETR_EXTERNAL,
+     CHAIN_APPROX_NONE); the first one is used. OpenCV starts it at the top-most, then left-most
+     boundary pixel and traces it counter-clockwise as displayed;
+  4. subtract the centroid of the contour's moments, truncated to whole pixels: (⌊m10/m00⌋,
+     ⌊m01/m00⌋);
   5. divide by the largest absolute pixel coordinate (so all lie in [−1, 1], aspect ratio kept);
-  6. negate y (image y points down); the traced order is now counter-clockwise, i.e. of positive signed area, in
-     the (x, y) plane;
+  6. negate y (image y points down); the traced order is now counter-clockwise, i.e. of positive
+     signed area, in the (x, y) plane;
   7. keep every k-th point, starting with the first;
   8. optionally flip (multiply by −1; the flame, CSAIL and bat assets were flipped, the star not);
   9. p^d_j = centroid_robot + r_max · p_norm,j.
 
-  ``direction`` then selects the order: "traced" (as above, the original behaviour), "ccw" or "cw" (signed area in
-  {0}'s x-y plane positive or negative); reversing keeps the first point and visits the others backwards.
-  Setpoints are spaced by 1/rate (8 Hz default).
-* **Parametric shapes**: a regular 5-pointed star outline (inner/outer radius ratio of the pentagram by default) and a
-  circle, sampled at points equally spaced by arc length, starting at angle ``start_angle`` from +x towards +y.
+  ``direction`` then selects the order: "traced" (as above, the original behaviour), "ccw" or "cw"
+  (signed area in {0}'s x-y plane positive or negative); reversing keeps the first point and visits
+  the others backwards. Setpoints are spaced by 1/rate (8 Hz default).
+* **Parametric shapes**: a regular 5-pointed star outline (inner/outer radius ratio of the pentagram
+  by default) and a circle, sampled at points equally spaced by arc length, starting at angle
+  ``start_angle`` from +x towards +y.
 
-Safe range: the reachable workspace allows contours of radius ≤ 0.03 m around y ≈ 0.1285 m (experiments.md §3).
-A radius outside (0, R_MAX_SAFE] raises ``ValueError``; raise ``max_radius`` explicitly to go beyond it.
+Safe range: the reachable workspace allows contours of radius ≤ 0.03 m around y ≈ 0.1285 m
+(experiments.md §3). A radius outside (0, R_MAX_SAFE] raises ``ValueError``; raise ``max_radius``
+explicitly to go beyond it.
 """
 
 from __future__ import annotations
@@ -73,12 +78,15 @@ EPU_STEPS_20231019 = (
     (-0.00122529, 0.14039634),
 )
 STEP_LISTS = {"fpu": FPU_STEPS_20230925, "epu": EPU_STEPS_20231019}
-PENTAGRAM_RATIO = math.cos(math.radians(72.0)) / math.cos(math.radians(36.0))  # inner / outer radius
+PENTAGRAM_RATIO = math.cos(math.radians(72.0)) / math.cos(
+    math.radians(36.0)
+)  # inner / outer radius
 
 
 @dataclass(frozen=True, eq=False)
 class TimedReference:
-    """Setpoints p_des[j] (m, in {0}) active from t[j] (s) on; finished at t ≥ duration (zero-order hold)."""
+    """Setpoints p_des[j] (m, in {0}) active from t[j] (s) on; finished at t ≥ duration (zero-order
+    hold)."""
 
     t: np.ndarray
     p_des: np.ndarray
@@ -90,7 +98,9 @@ class TimedReference:
         t = np.array(self.t, dtype=np.float64)
         p_des = np.array(self.p_des, dtype=np.float64)
         if t.ndim != 1 or t.size == 0 or p_des.shape != (t.size, 2):
-            raise ValueError(f"need t (N,) and p_des (N, 2) with N >= 1, got {t.shape} and {p_des.shape}")
+            raise ValueError(
+                f"need t (N,) and p_des (N, 2) with N >= 1, got {t.shape} and {p_des.shape}"
+            )
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p_des))):
             raise ValueError("t and p_des must be finite")
         if t[0] != 0.0 or np.any(np.diff(t) <= 0.0) or not self.duration > t[-1]:
@@ -125,7 +135,8 @@ def _check_radius(radius: float, max_radius: float) -> None:
     """Reject radii outside the documented safe range (0, max_radius]."""
     if not 0.0 < radius <= max_radius:
         raise ValueError(
-            f"radius {radius} m outside the safe range (0, {max_radius}] m (experiments.md §3: r_max <= "
+            f"radius {radius} m outside the safe range (0, {max_radius}] m (experiments.md §3: "
+            "r_max <= "
             f"{R_MAX_SAFE} m around y = 0.1285 m); pass max_radius to override deliberately"
         )
 
@@ -177,7 +188,8 @@ def _orient(points: np.ndarray, direction: Direction | str) -> np.ndarray:
 def step_reference(
     points: str | ArrayLike = "fpu", period: float = STEP_PERIOD, name: str | None = None
 ) -> TimedReference:
-    """Step reference: "fpu" (2023-09-25) or "epu" (2023-10-19) list of experiments.md §2, or given (N, 2) points."""
+    """Step reference: "fpu" (2023-09-25) or "epu" (2023-10-19) list of experiments.md §2, or given
+    (N, 2) points."""
     if isinstance(points, str):
         if points not in STEP_LISTS:
             raise ValueError(f"unknown step list {points!r}; choose from {sorted(STEP_LISTS)}")
@@ -200,14 +212,16 @@ def contour_reference(
     max_radius: float = R_MAX_SAFE,
     name: str | None = None,
 ) -> TimedReference:
-    """Reference along the first external contour of a binary shape in an image (pipeline: module docstring)."""
+    """Reference along the first external contour of a binary shape in an image (pipeline: module
+    docstring)."""
     _check_radius(r_max, max_radius)
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
     path = Path(image_path)
     if not path.is_file():
         raise FileNotFoundError(f"image not found: {path}")
-    import cv2  # OpenCV only where an image is read: the sequencer and the planner load this module without it
+    # OpenCV only where an image is read: the sequencer and the planner load this module without it
+    import cv2
 
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
@@ -248,13 +262,16 @@ def circle_reference(
     direction: Direction | str = Direction.CCW,
     max_radius: float = R_MAX_SAFE,
 ) -> TimedReference:
-    """Circle of the given radius [m] around the centroid, n_points equally spaced, ccw or cw in {0}."""
+    """Circle of the given radius [m] around the centroid, n_points equally spaced, ccw or cw in
+    {0}."""
     _check_radius(radius, max_radius)
     if direction not in TURNING or n_points < 3:
         raise ValueError("need direction 'ccw' or 'cw' and n_points >= 3")
     sense = 1.0 if Direction(direction) is Direction.CCW else -1.0
     angle = start_angle + sense * 2.0 * math.pi * np.arange(n_points) / n_points
-    p_des = np.asarray(centroid, dtype=np.float64) + radius * np.column_stack([np.cos(angle), np.sin(angle)])
+    p_des = np.asarray(centroid, dtype=np.float64) + radius * np.column_stack(
+        [np.cos(angle), np.sin(angle)]
+    )
     return _timed(p_des, _period(rate), "circle")
 
 
@@ -268,7 +285,8 @@ def star_reference(
     direction: Direction | str = Direction.CCW,
     max_radius: float = R_MAX_SAFE,
 ) -> TimedReference:
-    """Outline of a 5-pointed star (outer tip radius [m], tip at start_angle), n_points equally spaced by arc length."""
+    """Outline of a 5-pointed star (outer tip radius [m], tip at start_angle), n_points equally
+    spaced by arc length."""
     _check_radius(radius, max_radius)
     if direction not in TURNING or n_points < 10 or not 0.0 < inner_ratio < 1.0:
         raise ValueError("need direction 'ccw' or 'cw', n_points >= 10 and 0 < inner_ratio < 1")
@@ -278,5 +296,7 @@ def star_reference(
     vertices = np.column_stack([r * np.cos(angle), r * np.sin(angle)])
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(vertices, axis=0), axis=1))])
     s = arc[-1] * np.arange(n_points) / n_points
-    outline = np.column_stack([np.interp(s, arc, vertices[:, 0]), np.interp(s, arc, vertices[:, 1])])
+    outline = np.column_stack(
+        [np.interp(s, arc, vertices[:, 0]), np.interp(s, arc, vertices[:, 1])]
+    )
     return _timed(np.asarray(centroid, dtype=np.float64) + outline, _period(rate), "star")

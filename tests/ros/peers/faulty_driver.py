@@ -1,7 +1,8 @@
-"""Test-side launcher of the real dynamixel_driver whose control cycle raises ``InjectedFault`` (an uncaught
-exception) while a given file exists: test_shutdown_torque proves that the runner's shutdown guard still turns torque
-off (exit code 1). It runs the production path — ``DynamixelDriver`` under ``hsa_common.runner.run`` after
-``configure_jax``, as ``hsa_dynamixel_driver.node.main`` does — with only the cycle wrapped.
+"""Test-side launcher of the real dynamixel_driver whose control cycle raises ``InjectedFault`` (an
+uncaught exception) while a given file exists: test_shutdown_torque proves that the runner's
+shutdown guard still turns torque off (exit code 1). It runs the production path —
+``DynamixelDriver`` under ``hsa_common.runner.run`` after ``configure_jax``, as
+``hsa_dynamixel_driver.node.main`` does — with only the cycle wrapped.
 
 argv: the fault file, then the driver's ``--ros-args``.
 """
@@ -25,7 +26,9 @@ class FaultyDriver(DynamixelDriver):
         """The production driver, with the hook armed on ``fault_file``."""
         super().__init__()
         self._fault_file = fault_file
-        self.get_logger().warning(f"test hook armed: the control cycle raises while {fault_file} exists")
+        self.get_logger().warning(
+            f"test hook armed: the control cycle raises while {fault_file} exists"
+        )
 
     def _cycle(self) -> None:
         """Raise while the fault file exists, else the production cycle."""

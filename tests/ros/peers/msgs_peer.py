@@ -1,4 +1,5 @@
-"""Peer process for test_msgs: publishes PlanarState at 50 Hz and serves PlanSetpoint with a scripted answer."""
+"""Peer process for test_msgs: publishes PlanarState at 50 Hz and serves PlanSetpoint with a
+scripted answer."""
 
 import sys
 
@@ -10,7 +11,8 @@ from hsa_msgs.srv import PlanSetpoint
 
 
 class Peer(Node):
-    """Publishes a recognisable state and answers plan requests by echoing the target into the setpoint."""
+    """Publishes a recognisable state and answers plan requests by echoing the target into the
+    setpoint."""
 
     def __init__(self) -> None:
         super().__init__("msgs_peer")
@@ -30,7 +32,9 @@ class Peer(Node):
         self.pub.publish(msg)
         self.count += 1
 
-    def plan(self, request: PlanSetpoint.Request, response: PlanSetpoint.Response) -> PlanSetpoint.Response:
+    def plan(
+        self, request: PlanSetpoint.Request, response: PlanSetpoint.Response
+    ) -> PlanSetpoint.Response:
         if request.y <= 0.0:
             response.success = False
             response.status = PlanSetpoint.Response.STATUS_UNREACHABLE

@@ -1,5 +1,5 @@
-"""A node under ``hsa_common.runner.run`` whose construction takes 60 s (as a JAX compilation does, only longer):
-test_exit_deadline proves a stop signal during construction ends the process at once.
+"""A node under ``hsa_common.runner.run`` whose construction takes 60 s (as a JAX compilation does,
+only longer): test_exit_deadline proves a stop signal during construction ends the process at once.
 """
 
 import sys

@@ -1,6 +1,6 @@
-"""A node under ``hsa_common.runner.run`` whose ``destroy_node`` hangs in native code holding the GIL, as rclpy's did
-inside the middleware beside busy processes: test_exit_deadline proves the runner still ends the process, with the
-node's exit code.
+"""A node under ``hsa_common.runner.run`` whose ``destroy_node`` hangs in native code holding the
+GIL, as rclpy's did inside the middleware beside busy processes: test_exit_deadline proves the
+runner still ends the process, with the node's exit code.
 
 argv: the exit code the node sets.
 """

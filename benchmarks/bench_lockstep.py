@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
+from hsa_bag.bagrun import runlog_from_bag
 from hsa_core.analysis import metrics
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.sim.experiment import ExperimentConfig, run_experiment

@@ -1,7 +1,7 @@
 """How far today's simulator is from the real robot: the paper's four reference runs against the
 offline experiment.
 
-For each packaged real run (hsa_core.analysis.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU
+For each packaged real run (hsa_core.runs.reference: FPU PID, P-satI-D, P-satI-D + GC; EPU
 P-satI-D) this runs ``hsa_core.sim.experiment.run_experiment`` (what ``hsa_experiment`` runs) with
 the run's material, law and the paper's gains on the default world (seed 0), and compares the
 measured end-effector position with the robot's (hsa_core.analysis.sim_to_real, each step aligned at
@@ -15,7 +15,7 @@ Variants (``--variants``):
 * ``logbook_sigma``: the same with the run's σ_a,eq from the logbook (controller model and plant);
 * ``own_profile`` (added by ``--profiles``): the run replayed with its own conditions, as
   ``hsa_experiment --run BAG`` does (hsa_core.sim.experiment.replay_config: the run's profile of
-  hsa_core.sim.profiles, law, gains, σ_a,eq and real step instants), on the same default world;
+  hsa_core.runs.profiles, law, gains, σ_a,eq and real step instants), on the same default world;
 * ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook
   σ_a,eq has a setpoint the planner refuses, so it is compared only this way);
 * ``own_rate_only`` / ``own_estimator_only``: ``own_profile_nominal_sigma`` with the lab profile's
@@ -79,7 +79,7 @@ def _own_profile_nominal_sigma(real):
 
 def _own_rate_only(real):
     """The replay with nominal σ_a,eq and the lab profile's velocity estimator."""
-    from hsa_core.sim.profiles import load_profile
+    from hsa_core.runs.profiles import load_profile
 
     lab = load_profile("lab")
     return dataclasses.replace(
@@ -89,7 +89,7 @@ def _own_rate_only(real):
 
 def _own_estimator_only(real):
     """The replay with nominal σ_a,eq and the lab profile's control period and integrator step."""
-    from hsa_core.sim.profiles import load_profile
+    from hsa_core.runs.profiles import load_profile
 
     lab = load_profile("lab")
     return dataclasses.replace(
@@ -121,7 +121,8 @@ def main() -> int:
     )
     args = parser.parse_args()
     configure_jax()
-    from hsa_core.analysis import reference, sim_to_real
+    from hsa_core.analysis import sim_to_real
+    from hsa_core.runs import reference
     from hsa_core.sim.experiment import run_experiment
 
     variants = args.variants + (

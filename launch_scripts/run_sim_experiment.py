@@ -33,12 +33,12 @@ import yaml
 from hsa_bag.analysis import analyze
 from hsa_common import convert, rosenv
 from hsa_common.launcher import Launcher, LaunchFile
+from hsa_core import cli
 from hsa_core.analysis import metrics
-from hsa_core.analysis.reference import run_names
-from hsa_core.apps import cli
 from hsa_core.apps.tune import gains_yaml
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.sim.profiles import DEFAULT_PROFILE, load_profile, profile_names
+from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile, profile_names
+from hsa_core.runs.reference import run_names
 from hsa_core.sim.run_conditions import graph_arguments, run_schedule
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")

@@ -2,8 +2,8 @@
 installation).
 
 RUN and REFERENCE are each a bag, an NPZ RunLog (``hsa_experiment``'s ``log.npz``) or the name of a
-packaged real run of the paper (``hsa_core.analysis.reference``, e.g. 20230925_093236). A recorded
-or simulated run is its tracking ticks (t = 0 at the first, as :func:`hsa_bag.analysis.load_run`
+packaged real run of the paper (``hsa_core.runs.reference``, e.g. 20230925_093236). A recorded
+or simulated run is its tracking ticks (t = 0 at the first, as :func:`hsa_bag.bagrun.load_run`
 reads it); a real run its 100 Hz grid; each ends ``duration`` after its t = 0 (110 s by default,
 experiments.md §4). Every number is :mod:`hsa_core.analysis.sim_to_real` (each step aligned at its
 own instant, steps 1–10): D and D per step, rise time, overshoot, end error and end peak-to-peak per
@@ -21,11 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_bag.analysis import FIGURES, STEP_RUN_DURATION, TOPIC, load_run, run_name
 from hsa_bag.bagio import BagError
-from hsa_core.analysis import reference, sim_to_real
+from hsa_bag.bagrun import FIGURES, STEP_RUN_DURATION, TOPIC, load_run, run_name
+from hsa_core.analysis import sim_to_real
 from hsa_core.analysis.plotting import save_all_formats, subplots
 from hsa_core.analysis.sim_to_real import StepRun, StepTable
+from hsa_core.runs import reference
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from hsa_core.apps import cli
+from hsa_core import cli
 
 DESCRIPTION = "bag_player: publish a bag into the live graph with the recorded timing."
 

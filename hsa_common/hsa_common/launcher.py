@@ -50,7 +50,7 @@ from typing import Any, BinaryIO
 import yaml
 
 from hsa_common import fastdds_shm, parent_death, rosenv
-from hsa_core.apps import cli
+from hsa_core import cli
 
 # innermost first: $(var a_$(var b)) nests
 _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s$]+)*)\s*\)")

@@ -57,7 +57,7 @@ from hsa_core.controller.control_loop import SETPOINT_INTAKE, ControlLoop, Tick
 from hsa_core.controller.supervision import Action, Mode, Supervisor, SupervisorConfig
 from hsa_core.controller.validation import SetpointValidator
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.sim.profiles import VelocityEstimator
+from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sim.run_conditions import TickEstimator
 from hsa_core.task.planning import Setpoint as CoreSetpoint
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint

@@ -23,7 +23,7 @@ from hsa_core.controller.control import (
 )
 from hsa_core.controller.supervision import DRIVER_TIMEOUT, HOLD_TIMEOUT, STALE_TIMEOUT
 from hsa_core.controller.validation import POSE_TOLERANCE
-from hsa_core.sim.profiles import VelocityEstimator
+from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.task.planning import MAX_OPTIMALITY_ERROR
 
 

@@ -17,10 +17,10 @@ import numpy as np
 import yaml
 
 from hsa_bag.bagio import BagError
+from hsa_core.analysis import workspace
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.model.params import CONFIG_DIR, HsaParams, ParameterError, load_params
 from hsa_core.sysid import calibration, identification, verification
-from hsa_core.task import workspace
 from hsa_identification.records import load_arrays, load_record
 
 DEFAULT_OUT = Path("out/identification")

@@ -12,7 +12,7 @@ import pytest
 
 from hsa_bag import analysis
 from hsa_core.analysis import sim_to_real
-from hsa_core.analysis.reference import load_run
+from hsa_core.runs.reference import load_run
 from hsa_core.sim.experiment import replay_config, run_experiment
 
 REAL = "20231019_143126"  # EPU P-satI-D: the quickest run to simulate

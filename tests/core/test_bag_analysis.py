@@ -28,11 +28,11 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from hsa_bag import analysis
+from hsa_bag import analysis, bagrun
 from hsa_bag.bagio import Bag, BagError
 from hsa_bag.recover import recover_bag
 from hsa_bag.storage import SplitBagWriter, read_metadata
-from hsa_core.analysis.runlog import RunLog
+from hsa_core.runs.runlog import RunLog
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "hsa_msgs" / "msg"
 INFO = "hsa_msgs/msg/ControllerInfo"
@@ -181,7 +181,7 @@ def info_bag(tmp_path_factory) -> Path:
 
 
 def test_runlog_from_bag_keeps_tracking_ticks_with_header_time(info_bag: Path) -> None:
-    log = analysis.runlog_from_bag(info_bag)
+    log = bagrun.runlog_from_bag(info_bag)
     n = len(TARGETS) * N
     assert len(log) == n  # 10 waiting and 5 stopped ticks dropped
     np.testing.assert_allclose(
@@ -246,7 +246,7 @@ def test_cli_writes_tables_figures_and_exports(info_bag: Path, tmp_path: Path, c
     }
     assert "RMSE [mm]" in (out / "metrics.txt").read_text()
     saved = RunLog.load_npz(out / "run.npz")
-    np.testing.assert_allclose(saved.chiee, analysis.runlog_from_bag(info_bag).chiee)
+    np.testing.assert_allclose(saved.chiee, bagrun.runlog_from_bag(info_bag).chiee)
     header = (out / "run.csv").read_text().splitlines()[0].split(",")
     assert (
         header[:4] == ["t [s]", "chiee_x [m]", "chiee_y [m]", "chiee_theta [rad]"]
@@ -344,7 +344,7 @@ def write_full_bag(
 
 
 def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> None:
-    log = analysis.runlog_from_bag(write_full_bag(tmp_path / "sim_run"))
+    log = bagrun.runlog_from_bag(write_full_bag(tmp_path / "sim_run"))
     first_tracking = step_response()[10][0]  # 10 waiting ticks come first
     t0 = step_response()[0][0]
     for k in (0, 1, 17, len(log) - 1):  # the newest measurement at or before the tick
@@ -360,15 +360,15 @@ def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> No
         4.7123890, abs=1e-6
     )  # EPU's φ_max (epu.yaml, 270°)
 
-    robot = analysis.runlog_from_bag(
+    robot = bagrun.runlog_from_bag(
         write_full_bag(tmp_path / "robot_run", nodes=("dynamixel_driver",))
     )
     assert robot.meta["setup"] == "robot" and robot.meta["material"] == "epu"
-    told = analysis.runlog_from_bag(
+    told = bagrun.runlog_from_bag(
         write_full_bag(tmp_path / "told", custom={"setup": "robot", "material": "fpu"})
     )
     assert told.meta["setup"] == "robot" and told.meta["material"] == "fpu"  # custom_data wins
-    eei = analysis.runlog_from_bag(write_full_bag(tmp_path / "eei", z_ee=0.01))
+    eei = bagrun.runlog_from_bag(write_full_bag(tmp_path / "eei", z_ee=0.01))
     assert eei.meta["ee_integral"] == "true"
 
 
@@ -396,7 +396,7 @@ def test_several_runs_are_analysed_and_overlaid(tmp_path: Path, capsys) -> None:
     b = write_full_bag(tmp_path / "pid_run", controller="pid")
     npz_run = tmp_path / "exp" / "epu_psatid"
     npz_run.mkdir(parents=True)
-    analysis.runlog_from_bag(a).save_npz(npz_run / "log.npz")  # an offline experiment's log
+    bagrun.runlog_from_bag(a).save_npz(npz_run / "log.npz")  # an offline experiment's log
     out = tmp_path / "cmp"
     assert analysis.main([str(a), str(b), str(npz_run / "log.npz"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -493,8 +493,8 @@ def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path,
         assert (
             sum(f"skipped {count} undecodable message(s) on {topic}" in line for line in lines) == 1
         ), lines
-    log = analysis.runlog_from_bag(tmp_path / "spoiled")
-    reference = analysis.runlog_from_bag(tmp_path / "clean")
+    log = bagrun.runlog_from_bag(tmp_path / "spoiled")
+    reference = bagrun.runlog_from_bag(tmp_path / "clean")
     np.testing.assert_array_equal(log.chiee, reference.chiee)
     np.testing.assert_array_equal(log.phi_meas, reference.phi_meas)
     assert log.meta["setup"] == "sim" and log.meta["material"] == "epu"

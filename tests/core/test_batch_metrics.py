@@ -1,4 +1,4 @@
-"""The batched JAX metrics (hsa_core.analysis.batch_metrics) against their Python reference:
+"""The batched JAX metrics (hsa_core.apps.batch_metrics) against their Python reference:
 closed_loop.evaluate (hsa_core.analysis.metrics), robustness.classify and tune.effort, run by run on
 the same logs, to 1e-9 relative."""
 
@@ -8,8 +8,7 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core.analysis import batch_metrics
-from hsa_core.apps import robustness, tune
+from hsa_core.apps import batch_metrics, robustness, tune
 from hsa_core.controller.control import ControllerKind
 from hsa_core.model.actuation import MotorMap
 from hsa_core.sim import closed_loop

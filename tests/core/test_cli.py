@@ -1,4 +1,4 @@
-"""hsa_core.apps.cli: the shared argument types refuse what the CLIs' docs refuse, and a refusal is
+"""hsa_core.cli: the shared argument types refuse what the CLIs' docs refuse, and a refusal is
 one line on stderr with exit status 2."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from hsa_core.apps import cli
+from hsa_core import cli
 
 
 @pytest.mark.parametrize(

@@ -14,9 +14,9 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core.analysis import reference
 from hsa_core.controller.control import CollocatedGains, default_gains
-from hsa_core.sim import closed_loop, profiles
+from hsa_core.runs import profiles, reference
+from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
 from hsa_core.task.trajectories import TimedReference, step_reference
@@ -213,7 +213,7 @@ def test_the_batch_is_split_over_every_device() -> None:
 
 
 def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> None:
-    """σ_a,eq calibrated before a run (hsa_core.analysis.reference conditions): the model's, and the
+    """σ_a,eq calibrated before a run (hsa_core.runs.reference conditions): the model's, and the
     plant's plus the offset."""
     config = ExperimentConfig(
         "fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hsa_core.analysis import plotting
-from hsa_core.analysis.runlog import RunLog
 from hsa_core.model.params import load_params
+from hsa_core.runs.runlog import RunLog
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, main, run_experiment
 from hsa_core.task.trajectories import step_reference

@@ -16,10 +16,10 @@ import jax
 import numpy as np
 import pytest
 
+from hsa_core.analysis.workspace import equilibrium_poses
 from hsa_core.model import dynamics, kinematics, simulation
 from hsa_core.model.params import load_params
 from hsa_core.sysid import identification as ident
-from hsa_core.task.workspace import equilibrium_poses
 
 SCALE = {
     "C_eps": 1.08,

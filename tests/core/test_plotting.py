@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hsa_core.analysis import plotting
-from hsa_core.analysis.runlog import RunLog
+from hsa_core.runs.runlog import RunLog
 
 DT = 0.025
 TARGETS = [(0.0, 0.120), (0.005, 0.128), (-0.035, 0.122)]

@@ -1,4 +1,4 @@
-"""Run profiles (hsa_core.sim.profiles) and replaying a paper run with its own conditions
+"""Run profiles (hsa_core.runs.profiles) and replaying a paper run with its own conditions
 (hsa_core.sim.experiment): the profiles hold the spec's values, ``lab`` is today's default exactly,
 a replay takes the run's logbook conditions and real step instants, and the September profile's
 rate, integrator step and estimator reach the run."""
@@ -11,12 +11,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hsa_core.analysis import reference
 from hsa_core.controller.control import CollocatedGains, PidGains
-from hsa_core.sim import experiment, profiles
+from hsa_core.runs import profiles, reference
+from hsa_core.runs.profiles import VelocityEstimator
+from hsa_core.sim import experiment
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
-from hsa_core.sim.profiles import VelocityEstimator
 from hsa_core.task.trajectories import TimedReference, step_reference
 
 

@@ -1,4 +1,4 @@
-"""The packaged real-robot reference runs (hsa_core.analysis.reference): every run loads with its
+"""The packaged real-robot reference runs (hsa_core.runs.reference): every run loads with its
 logbook conditions, the RMSE recomputed from its traces is the provenance README's, and the step
 instants are where the reference moves."""
 
@@ -9,9 +9,9 @@ import datetime
 import numpy as np
 import pytest
 
-from hsa_core.analysis import reference
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains
-from hsa_core.sim.profiles import VelocityEstimator, load_profile
+from hsa_core.runs import reference
+from hsa_core.runs.profiles import VelocityEstimator, load_profile
 
 README_RMSE = {
     "20230925_092200": 5.92,

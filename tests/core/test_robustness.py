@@ -9,8 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from hsa_core.analysis import batch_metrics
-from hsa_core.apps import robustness
+from hsa_core.apps import batch_metrics, robustness
 from hsa_core.controller.control import ControllerKind
 from hsa_core.model.actuation import MotorMap
 from hsa_core.model.params import load_params

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hsa_core.analysis.reference import load_run
 from hsa_core.model.params import load_params
+from hsa_core.runs.profiles import load_profile
+from hsa_core.runs.reference import load_run
 from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.profiles import load_profile
 from hsa_core.sim.run_conditions import (
     TickEstimator,
     graph_arguments,

@@ -10,9 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hsa_core.analysis import workspace
 from hsa_core.model import dynamics, kinematics
 from hsa_core.model.params import load_params
-from hsa_core.task import planning, workspace
+from hsa_core.task import planning
 from hsa_core.task.planning import REACH_MARGIN, Planner
 
 

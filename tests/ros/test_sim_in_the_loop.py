@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hsa_bag.analysis import runlog_from_bag
 from hsa_bag.bagio import Bag
+from hsa_bag.bagrun import runlog_from_bag
 from hsa_core.analysis import metrics
 from hsa_core.sim.experiment import ExperimentConfig, run_experiment
 from hsa_core.task.trajectories import step_reference

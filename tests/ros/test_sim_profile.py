@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
-from hsa_bag.analysis import runlog_from_bag
+from hsa_bag.bagrun import runlog_from_bag
+from hsa_core.runs.profiles import load_profile
 from hsa_core.sim.experiment import profile_config, run_experiment
-from hsa_core.sim.profiles import load_profile
 from hsa_core.sim.run_conditions import graph_arguments
 from hsa_core.task.trajectories import step_reference
 from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process

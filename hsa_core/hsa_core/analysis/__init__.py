@@ -1,2 +1,1 @@
-"""What a run is judged by: run logs, metrics, the real reference runs, sim-to-real, figures, live
-payloads."""
+"""What a run is judged by: metrics, sim-to-real, figures, the workspace map, live payloads."""

@@ -36,7 +36,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from hsa_core.analysis.metrics import step_bounds, tracking_rmse
-from hsa_core.analysis.runlog import RunLog
+from hsa_core.runs.runlog import RunLog
 
 MM = 1e3  # m → mm for axes
 FORMATS = ("pdf", "png")

@@ -3,7 +3,7 @@ ROS).
 
 A run is its measured end-effector position and the setpoint in force, sampled at increasing times
 (:class:`StepRun`; a simulation's controller ticks, or a reference run's 100 Hz grid). Its steps
-start where the setpoint moves (:func:`hsa_core.analysis.reference.step_instants`); step k ends
+start where the setpoint moves (:func:`hsa_core.runs.reference.step_instants`); step k ends
 where step k + 1 starts, the last one at the run's ``end``. The measures (positions in m, times in
 s):
 
@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from hsa_core.analysis.metrics import RESPONSE_FRACTION, STEADY_STATE_WINDOW
-from hsa_core.analysis.reference import step_instants
+from hsa_core.runs.reference import step_instants
 
 STEPS = tuple(range(1, 11))
 """Steps compared (step 0 is the start from rest)."""

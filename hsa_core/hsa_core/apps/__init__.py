@@ -1,2 +1,1 @@
-"""Whole applications on the batched loop and their shared argument parsing: tune, robustness,
-calibrate."""
+"""Whole applications on the batched loop: batch metrics, tune, robustness, calibrate."""

@@ -3,7 +3,7 @@
 The world's parameters that no identification fixed
 (:class:`~hsa_core.sim.disturbance.DisturbanceModel` fields: the actuation latency, the servos'
 speed cap and time constant, the plant's damping and shear-stiffness factors) are fitted to the
-paper's reference runs (:mod:`hsa_core.analysis.reference`), each replayed with its own conditions
+paper's reference runs (:mod:`hsa_core.runs.reference`), each replayed with its own conditions
 (:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants).
 The measure is D of :mod:`hsa_core.analysis.sim_to_real` (each step aligned at its own instant,
 steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one set of world
@@ -46,9 +46,10 @@ import jax
 import numpy as np
 import yaml
 
-from hsa_core.analysis import reference, sim_to_real
-from hsa_core.apps import cli
+from hsa_core import cli
+from hsa_core.analysis import sim_to_real
 from hsa_core.jaxsetup import configure_jax
+from hsa_core.runs import reference
 from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, replay_config

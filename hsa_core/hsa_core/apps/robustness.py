@@ -9,7 +9,7 @@ so the laws are compared plant by plant. Runs go through
 :func:`hsa_core.sim.closed_loop.batch_rollout` (batched, split over every JAX device; the plants in
 as few calls of at most ``--batch`` runs as possible, all of one size, a short last call padded to
 it, so the loop compiles once) and each batch is evaluated on the devices in one call, with the
-experiment's metrics and the classification below (:func:`hsa_core.analysis.batch_metrics.evaluate`;
+experiment's metrics and the classification below (:func:`hsa_core.apps.batch_metrics.evaluate`;
 :func:`classify` is its reference in Python).
 
 Classification per run, from the plant's noise-free EE position in the last 2 s of every step:
@@ -42,10 +42,11 @@ import jax
 import matplotlib
 import numpy as np
 
-from hsa_core.analysis import batch_metrics, plotting
-from hsa_core.analysis.batch_metrics import OSCILLATION_PTP_M, UNSTABLE_M
+from hsa_core import cli
+from hsa_core.analysis import plotting
 from hsa_core.analysis.metrics import STEADY_STATE_WINDOW
-from hsa_core.apps import cli
+from hsa_core.apps import batch_metrics
+from hsa_core.apps.batch_metrics import OSCILLATION_PTP_M, UNSTABLE_M
 from hsa_core.controller.control import (
     CollocatedGains,
     ControllerKind,
@@ -113,7 +114,7 @@ def perturbed_plants(base: HsaParams, n: int, spread: float, seed: int) -> Plant
 
 def classify(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> tuple[bool, bool]:
     """(unstable, limit cycle) of one run, from the noise-free EE position in each step's last 2 s:
-    the Python reference of :attr:`hsa_core.analysis.batch_metrics.RunSummary.unstable` and
+    the Python reference of :attr:`hsa_core.apps.batch_metrics.RunSummary.unstable` and
     ``limit_cycle``."""
     window = closed_loop.metrics_window(spec, log)
     true = np.asarray(log.true_chiee)[window, :2]

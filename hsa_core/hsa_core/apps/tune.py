@@ -10,7 +10,7 @@ plant, then the mean):
 with t_r the mean response time, overshoot the mean overshoot, effort the mean |φ_k − φ_{k−1}| of
 the command per tick (chatter the servos would have to follow), and bad = 1 for an unstable or
 limit-cycling run (:func:`hsa_core.apps.robustness.classify`). All of them come from
-:func:`hsa_core.analysis.batch_metrics.evaluate`, one compiled call per batch of runs. RMSE
+:func:`hsa_core.apps.batch_metrics.evaluate`, one compiled call per batch of runs. RMSE
 dominates; the other terms break ties towards fast, calm responses and make an oscillating or
 diverging run lose against any settled one.
 
@@ -43,8 +43,9 @@ import matplotlib
 import numpy as np
 import yaml
 
-from hsa_core.analysis import batch_metrics, plotting
-from hsa_core.apps import cli, robustness
+from hsa_core import cli
+from hsa_core.analysis import plotting
+from hsa_core.apps import batch_metrics, robustness
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.model.params import load_params
@@ -87,7 +88,7 @@ def to_gains(
 
 def effort(log: closed_loop.TickLog, spec: closed_loop.LoopSpec) -> float:
     """Mean |Δφ| per tick of the command over the metrics window [rad], of one run: the Python
-    reference of :attr:`hsa_core.analysis.batch_metrics.RunSummary.effort`."""
+    reference of :attr:`hsa_core.apps.batch_metrics.RunSummary.effort`."""
     phi = np.asarray(log.phi_cmd)[closed_loop.metrics_window(spec, log)]
     return float(np.mean(np.abs(np.diff(phi, axis=0)))) if len(phi) > 1 else 0.0
 

@@ -1,2 +1,2 @@
-"""The simulated world and runs on it: world, disturbance, run profiles and conditions, the offline
-experiment, the batched JAX loop and the lockstep decisions."""
+"""The simulated world and runs on it: world, disturbance, run conditions, the offline experiment,
+the batched JAX loop and the lockstep decisions."""

@@ -21,7 +21,7 @@ mocap latency + 5 ms stays below stale_timeout).
 What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the plant's parameters
 (with its payload), the gains, the noise sequence, the servo speed and time constant, the actuation
 latency. What shapes the loop is static (:class:`LoopSpec`): law, rate, mocap latency, length,
-velocity estimator (the September 2023 stand-in of :mod:`hsa_core.sim.profiles` takes the newest
+velocity estimator (the September 2023 stand-in of :mod:`hsa_core.runs.profiles` takes the newest
 state into its 16-sample fit at every tick, on the true stamps, as ``run_experiment`` does). For the
 same :class:`~hsa_core.sim.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s
 (test: tests/core/test_closed_loop.py).
@@ -47,9 +47,9 @@ from hsa_core.model import kinematics
 from hsa_core.model.actuation import MotorMap
 from hsa_core.model.params import HsaParams
 from hsa_core.model.wiring import load_wiring
+from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sensing.estimation import derivative_coefficients
 from hsa_core.sim.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
-from hsa_core.sim.profiles import VelocityEstimator
 from hsa_core.sim.run_conditions import SPLINE_WINDOW, run_disturbance
 from hsa_core.sim.world import (
     GRID_NS,

@@ -25,9 +25,9 @@ configuration and seed both produce the same ticks to float round-off:
   written again, and with nothing sent the motors keep the goals of the last write (the driver's
   watchdog hold).
 
-A run profile (hsa_core.sim.profiles) sets the conditions of a period: :func:`profile_config`
+A run profile (hsa_core.runs.profiles) sets the conditions of a period: :func:`profile_config`
 applies one (rate, integrator step, velocity estimator, σ_a,eq, payload), :func:`replay_config` a
-reference run's own (hsa_core.analysis.reference: its profile, law, gains, σ_a,eq and real step
+reference run's own (hsa_core.runs.reference: its profile, law, gains, σ_a,eq and real step
 instants). With the ``smoothing_spline_16`` estimator the kinematics node's estimator is replaced by
 the September stand-in: at every tick the newest mocap state enters a 16-sample cubic end-point fit
 on the true stamps, and the state it gives goes to the tick. A payload is the plant's (it hangs at
@@ -50,10 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hsa_core import cli
 from hsa_core.analysis import metrics, plotting
-from hsa_core.analysis.reference import ReferenceRun, run_names
-from hsa_core.analysis.runlog import RunLog
-from hsa_core.apps import cli
 from hsa_core.controller.control import (
     CollocatedGains,
     Controller,
@@ -74,15 +72,17 @@ from hsa_core.controller.supervision import (
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.model.params import HsaParams, load_params
 from hsa_core.model.wiring import load_wiring
-from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.profiles import (
+from hsa_core.runs.profiles import (
     DEFAULT_PROFILE,
     RunProfile,
     VelocityEstimator,
     load_profile,
     profile_names,
 )
+from hsa_core.runs.reference import ReferenceRun, run_names
+from hsa_core.runs.runlog import RunLog
+from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
+from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.run_conditions import TickEstimator, plant_params, run_disturbance
 from hsa_core.sim.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
 from hsa_core.task.planning import Planner, PlanResult

@@ -2,7 +2,7 @@
 (no ROS).
 
 * :class:`TickEstimator`: the September 2023 velocity estimator (``smoothing_spline_16``,
-  hsa_core.sim.profiles), which runs at the controller's ticks: at every tick the newest state
+  hsa_core.runs.profiles), which runs at the controller's ticks: at every tick the newest state
   (stamp, q, χ_ee) enters a cubic end-point fit over the last ``SPLINE_WINDOW`` such samples on
   their true stamps; no estimate (no command) before the 16th. The offline experiment and
   controller_node (parameter ``velocity_estimator``) both run this class.
@@ -21,15 +21,15 @@ import dataclasses
 
 import numpy as np
 
-from hsa_core.analysis.reference import ReferenceRun
 from hsa_core.model.params import HsaParams
+from hsa_core.runs.profiles import RunProfile
+from hsa_core.runs.reference import ReferenceRun
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator
 from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.profiles import RunProfile
 
 SPLINE_WINDOW, SPLINE_ORDER, SPLINE_GAP_FACTOR = 16, 3, 5.0
 """Samples, degree and gap factor (× the control period) of the September 2023 stand-in
-(hsa_core.sim.profiles)."""
+(hsa_core.runs.profiles)."""
 
 
 class TickEstimator:

@@ -1,2 +1,1 @@
-"""What the robot is asked to do: steady-state planning, reachability, workspace, trajectories,
-sequencing."""
+"""What the robot is asked to do: steady-state planning, reachability, trajectories, sequencing."""

@@ -442,8 +442,8 @@ class Planner:
             jax.block_until_ready(_solve_equilibrium(*args))
 
     def _reachability_region(self) -> ReachabilityRegion:
-        """Reachable polygon: equilibria along the edges of the phi box (hsa_core.task.workspace),
-        with REACH_MARGIN.
+        """Reachable polygon: equilibria along the edges of the phi box
+        (hsa_core.analysis.workspace), with REACH_MARGIN.
 
         Always built with the exact kappa rule: the exp2023 shift moves equilibria by <= 0.04 mm
         (model.md §8.3), far inside the margin, and its jump at kappa = 0 would stall the

@@ -5,7 +5,7 @@ The forward map phi -> p_ee of the robot is one-to-one on the box [0, phi_max]^2
 set is the polygon traced by the images of the box edges (:func:`boundary_phis`).
 :class:`ReachabilityRegion` accepts a point inside that polygon or within ``margin`` of it; a test
 costs tens of microseconds. The planner builds it from its own equilibria
-(:mod:`hsa_core.task.planning`); :mod:`hsa_core.task.workspace` maps the whole workspace.
+(:mod:`hsa_core.task.planning`); :mod:`hsa_core.analysis.workspace` maps the whole workspace.
 """
 
 from __future__ import annotations

@@ -17,10 +17,10 @@ import numpy as np
 from hsa_core.jaxsetup import configure_jax
 
 configure_jax()
+from hsa_core.analysis.workspace import equilibrium_poses  # noqa: E402
 from hsa_core.model.params import load_params  # noqa: E402
 from hsa_core.sim.disturbance import DisturbanceModel  # noqa: E402
 from hsa_core.sysid import identification as ident  # noqa: E402
-from hsa_core.task.workspace import equilibrium_poses  # noqa: E402
 
 RATE, WINDOW = 200.0, 1.0
 # name, role, phi per level as fractions of phi_max, payload [kg] of the first half of level 0

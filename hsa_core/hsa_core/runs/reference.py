@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains
-from hsa_core.sim.profiles import RunProfile, load_profile
+from hsa_core.runs.profiles import RunProfile, load_profile
 from hsa_core.task.trajectories import STEP_LISTS, TimedReference
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "config" / "realdata"
@@ -35,7 +35,7 @@ STEP_THRESHOLD = 0.5e-3
 @dataclass(frozen=True)
 class RunConditions:
     """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg],
-    date and the run profile of its period (hsa_core.sim.profiles: control period, integrator step,
+    date and the run profile of its period (hsa_core.runs.profiles: control period, integrator step,
     velocity estimator, bus)."""
 
     bag: str

@@ -8,8 +8,8 @@ import math
 from typing import TYPE_CHECKING, NoReturn
 
 if TYPE_CHECKING:
-    from hsa_core.analysis.reference import ReferenceRun
-    from hsa_core.sim.profiles import RunProfile
+    from hsa_core.runs.profiles import RunProfile
+    from hsa_core.runs.reference import ReferenceRun
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -62,8 +62,8 @@ def sigma_a_eq(text: str) -> tuple[float, float]:
 
 
 def run_profile(text: str) -> RunProfile:
-    """argparse type of --profile: a packaged run profile (hsa_core.sim.profiles)."""
-    from hsa_core.sim.profiles import load_profile
+    """argparse type of --profile: a packaged run profile (hsa_core.runs.profiles)."""
+    from hsa_core.runs.profiles import load_profile
 
     try:
         return load_profile(text)
@@ -72,9 +72,9 @@ def run_profile(text: str) -> RunProfile:
 
 
 def reference_run(text: str) -> ReferenceRun:
-    """argparse type of --run: a packaged real run of the paper (hsa_core.analysis.reference,
+    """argparse type of --run: a packaged real run of the paper (hsa_core.runs.reference,
     imported on use: it loads JAX)."""
-    from hsa_core.analysis.reference import load_run
+    from hsa_core.runs.reference import load_run
 
     try:
         return load_run(text)

@@ -16,7 +16,7 @@ refused by name instead of being ignored. Implemented, with the same meaning:
 
 A node's executable is ``<prefix>/lib/<pkg>/<exec>`` on AMENT_PREFIX_PATH, as ``ros2 run`` and
 ``ros2 launch`` find it (tools/bootstrap.sh lays the venv out that way). Every process gets the
-project ROS environment (hsa_core.rosenv) and stays in the launcher's process group, so SIGINT to
+project ROS environment (hsa_common.rosenv) and stays in the launcher's process group, so SIGINT to
 the group stops all of them. Fail fast: a process that exits non-zero while the graph runs stops the
 graph; the launcher names it with its last error line and exits with its code. On SIGINT, SIGTERM,
 SIGHUP (terminal closed) or SIGQUIT to the launcher, or when an ``on_exit: shutdown`` process ends,

@@ -1,9 +1,9 @@
 """A deadline that ends the process with a chosen exit code even while Python is stuck in native
 code.
 
-Why: a node's last step, rclpy's ``destroy_node``, can hang inside the middleware — beside busy
-processes a planner_node stuck in the final node-handle destruction (rmw_fastrtps) until the
-launcher SIGKILLed it 25 s on — and that call holds the GIL, so no Python thread, signal handler or
+Why: a node's last step, rclpy's ``destroy_node``, can hang inside the middleware (in the final
+node-handle destruction of rmw_fastrtps; docs/launch.md, "Teardown bounds"), and that call holds the
+GIL, so no Python thread, signal handler or
 ``Thread.join(timeout)`` can end it. :func:`arm` starts a POSIX timer whose expiry runs libc's
 ``_exit(code)`` on a thread of its own (``SIGEV_THREAD``), outside the interpreter.
 

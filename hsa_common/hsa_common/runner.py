@@ -27,10 +27,11 @@ simulator's bus answering it) must not queue behind them.
 
 After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its
 Fast DDS shared-memory files from /dev/shm) a node leaves with ``os._exit``: what must persist is
-persisted by then, and the interpreter's own teardown (JAX/XLA) took 7 s beside busy processes (0.1
-s without it), past the launcher's SIGTERM. rclpy's shutdown itself is bounded (``TEARDOWN_LIMIT``):
-it can hang inside the middleware while holding the GIL, so past the limit the node prints every
-thread's stack and a C-level timer ends it with its exit code (:mod:`hsa_common.exit_deadline`).
+persisted by then, and the interpreter's own teardown (JAX/XLA) can outlast the launcher's SIGTERM
+on a busy machine (docs/launch.md, "Teardown bounds"). rclpy's shutdown itself is bounded
+(``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so past the limit the
+node prints every thread's stack and a C-level timer ends it with its exit code
+(:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
 barrier (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and,
@@ -69,17 +70,16 @@ from hsa_common.parameters import ParameterValidationError
 
 TEARDOWN_NICE = 5
 """Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a
-graph stop, but not starved — at 19 a teardown beside busy processes took a minute (54-67 s measured
-beside six busy processes), so the launcher's SIGTERM escalation hit every node."""
+graph stop, but not starved (at 19 the launcher's SIGTERM escalation hit every node on a busy
+machine; docs/launch.md, "Teardown bounds")."""
 SPIN_PERIOD = 0.02
 """[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (<
 100 ms torque-off)."""
 TEARDOWN_LIMIT = 5.0
 """[s] longest wait for rclpy's teardown (destroy_node, shutdown) after the node's own: past it the
 node prints every thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exit code
-(:mod:`hsa_common.exit_deadline`). It takes milliseconds, but beside busy processes a planner_node
-once hung in it until the launcher's SIGKILL, 25 s on (and CI SIGKILLed two other nodes after the
-same 25 s)."""
+(:mod:`hsa_common.exit_deadline`). It takes milliseconds, but can hang inside the middleware
+(docs/launch.md, "Teardown bounds")."""
 TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
 STUCK_AFTER = 10.0

@@ -1,5 +1,5 @@
 """The newest phi_cmd on its way to the servos: clipped to [0, φ_max], clamped to the absolute goal
-limits and rate-limited on the node clock (planning_and_control.md §7; issue 11). ROS-free: the node
+limits and rate-limited on the node clock (planning_and_control.md §7). ROS-free: the node
 writes and publishes."""
 
 from __future__ import annotations

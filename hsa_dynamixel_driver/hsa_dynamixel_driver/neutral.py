@@ -1,7 +1,7 @@
 """Neutral ticks of the dynamixel_driver: where the configured neutral comes from, and the persisted
 calibration file.
 
-The configured neutral fixes the absolute goal limits before the bus is opened (issue 10): the
+The configured neutral fixes the absolute goal limits before the bus is opened: the
 ``neutral_ticks`` parameter, or the ``neutral_file`` written once from the present positions at the
 first start (the decision whether those may be stored is
 `hsa_core.driver.servo_supervision.PositionCheck.first_calibration`).

@@ -68,8 +68,8 @@ CLOCK_RESEND = (
 GIL_SWITCH_INTERVAL = 5e-4
 """[s] Python thread switch interval of this process (default 5 ms): the emulator's serving thread
 must answer within the Dynamixel SDK's wall-clock packet timeout (≈ 34 ms) while the main thread
-handles the barrier's reports; with the default, reads timed out on a busy machine (4 of 4484 in a
-lockstep run beside two busy processes)."""
+handles the barrier's reports; with the default, reads timed out on a busy machine
+(docs/simulation.md)."""
 MAX_INSTANTS_PER_PUMP = (
     1000  # lockstep: give the executor a turn at least this often (acks, services)
 )

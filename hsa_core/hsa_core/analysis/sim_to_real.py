@@ -26,7 +26,7 @@ s):
 * :func:`step_table` puts every per-step measure of a run and a reference side by side
   (``hsa_analyze --against``);
 * **onset time** (:func:`onset_times`): per step, the aligned time the progress first reaches 10 %;
-* :func:`compare` collects them as the sim-versus-real table of issue 20: D, x peak-to-peak (max
+* :func:`compare` collects them as the sim-versus-real table: D, x peak-to-peak (max
   over steps), end error (median over steps), the median relative rise- and response-time
   differences and each run's RMSE.
 """

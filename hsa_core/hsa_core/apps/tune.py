@@ -18,11 +18,10 @@ diverging run lose against any settled one.
 Gaussian in log10(gain), evaluate all of it over all plants in one batched call, refit the Gaussian
 to the best fifth, repeat; the paper's gains are a member of the first population. Why not
 gradients: the command reaches the servos as whole ticks (``trunc``), whose derivative is zero, so
-the exact gradient of any tracking measure with respect to the gains is zero. Measured on a 2 s
-P-satI-D run: ``jax.grad`` of the EE RMSE by kp gives 0.0, a finite difference −6.9e-5 m per unit of
-kp. A smooth surrogate (no quantisation, soft clip) used only for gradients would give a direction,
-but the speed cap and the limit cycles the objective penalises are where it and the loop differ
-most.
+the exact gradient of any tracking measure with respect to the gains is zero (docs/simulation.md,
+"The batched closed loop"). A smooth surrogate (no quantisation, soft clip) used only for gradients
+would give a direction, but the speed cap and the limit cycles the objective penalises are where it
+and the loop differ most.
 
 Output in ``--out``: ``gains.yaml`` (a controller_node parameter file with the tuned gains; given
 after the material's file it replaces the paper's gains: ``./run.sh --gains FILE``, launch argument

@@ -1,4 +1,4 @@
-"""Controller supervision (planning_and_control.md §5, issue 10) as a pure state machine: events in,
+"""Controller supervision (planning_and_control.md §5) as a pure state machine: events in,
 decision out.
 
 The node (or any loop) reports events with the time passed in explicitly (int nanoseconds on one

@@ -1,4 +1,4 @@
-"""Physical plausibility of the controller's inputs (issue 10): setpoints, states and sample delays,
+"""Physical plausibility of the controller's inputs: setpoints, states and sample delays,
 ROS-free.
 
 * `configuration_problem` / `state_problem`: magnitude gates on q, q_dot, chiee, chiee_dot. The

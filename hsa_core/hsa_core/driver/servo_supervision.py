@@ -1,4 +1,4 @@
-"""Servo supervision of the dynamixel_driver (issues 6, 10-12) as a pure state machine: events in,
+"""Servo supervision of the dynamixel_driver as a pure state machine: events in,
 decisions out.
 
 The driver does the I/O (bus, timers, services, logging) and reports what happened, with the

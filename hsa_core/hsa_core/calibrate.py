@@ -19,10 +19,12 @@ set of world parameters for every run.
   vector machine.
 * **Identifiability and uncertainty**: after the search each parameter is scanned alone over its
   whole range around the best world (one batched call per run): the interval where the pooled D
-  stays within ``tolerance`` of the best is reported as its uncertainty, and a parameter whose scan
-  moves D by less than ``tolerance`` over the whole range is reported as not identified (the default
-  value kept, not fitted to noise). ``tolerance`` defaults to 0.05 mm, a sixth of the robot's own
-  repeatability (0.32 mm RMS between two runs).
+  stays within ``tolerance`` of the best is reported as its uncertainty. A parameter whose scan
+  moves D by less than ``tolerance`` over the whole range is not identified (flat); one whose
+  interval reaches a bound of its range (or the edge of the region where the run stays finite) is
+  not identified (at bound): the data put its minimum outside what is physical or simulable. Either
+  way the default value is kept, not fitted to noise or to a bound. ``tolerance`` defaults to
+  0.05 mm, a sixth of the robot's own repeatability (0.32 mm RMS between two runs).
 * **Leave-one-run-out**: the search repeated on all runs but one, and D of the left-out run with
   those parameters.
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import enum
 import json
 import math
 import sys
@@ -277,27 +280,45 @@ def search(
 def scan(
     runs: list[PreparedRun], name: str, world: DisturbanceModel, points: int = 9
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which one
-    is the world's own (the nearest grid point moved onto it): (values, pooled D [m]), one call per
-    run."""
+    """Parameter ``name`` alone over its whole range around ``world``: ``points`` − 1 values evenly
+    spaced from its lower to its upper bound (both included; at least the two) and the world's own,
+    sorted: (values, pooled D [m]), one call per run."""
     p = PARAMETERS[name]
-    values = p.value(np.linspace(0.0, 1.0, points))
-    values[np.argmin(np.abs(values - getattr(world, name)))] = getattr(world, name)
-    values = np.sort(values)
+    grid = p.value(np.linspace(0.0, 1.0, max(points - 1, 2)))
+    values = np.sort(np.append(grid, getattr(world, name)))
     d = pooled([deviations(r, worlds_of(world, (name,), values[:, None])) for r in runs])
     return values, d
+
+
+class Identification(enum.Enum):
+    """What a scan says of a parameter (:func:`identification`)."""
+
+    IDENTIFIED = "identified"
+    FLAT = "not identified (flat)"
+    AT_BOUND = "not identified (at bound)"
 
 
 def identification(
     values: np.ndarray, d: np.ndarray, best: float, tolerance: float = TOLERANCE
 ) -> dict:
-    """From a scan: identified (D moves by ≥ tolerance over the range), the interval where D ≤ min
-    + tolerance."""
+    """From a scan (``values`` sorted, the parameter's bounds first and last): the interval where D ≤
+    min + tolerance, and the status: flat (D moves by less than tolerance over the range), at bound
+    (the interval reaches the first or the last value where D is finite: a bound of the search, or
+    the edge of the region where the run is finite, so the data put the minimum outside the range),
+    else identified."""
     finite = np.isfinite(d)
-    inside = values[finite & (d <= np.min(d[finite]) + tolerance)]
+    inside = finite & (d <= np.min(d[finite]) + tolerance)
+    ends = np.flatnonzero(finite)[[0, -1]]
+    if np.max(d[finite]) - np.min(d[finite]) < tolerance:
+        status = Identification.FLAT
+    elif inside[ends].any():
+        status = Identification.AT_BOUND
+    else:
+        status = Identification.IDENTIFIED
     return {
-        "identified": bool(np.max(d[finite]) - np.min(d[finite]) >= tolerance),
-        "interval": [float(inside.min()), float(inside.max())],
+        "identified": status is Identification.IDENTIFIED,
+        "status": status.value,
+        "interval": [float(values[inside].min()), float(values[inside].max())],
         "best": best,
         "scan": {"values": values.tolist(), "D_mm": (d * 1e3).round(4).tolist()},
     }
@@ -322,6 +343,7 @@ def world_document(report: dict) -> dict:
             n: {
                 "value": report["kept"][n],
                 "identified": ident["identified"],
+                "status": ident["status"],
                 "interval": ident["interval"],
                 "uncertainty": f"pooled D within {TOLERANCE * 1e3:.2f} mm of its minimum",
                 "scan": ident["scan"],

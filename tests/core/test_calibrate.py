@@ -56,6 +56,28 @@ def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_r
     assert not flat["identified"]
 
 
+def test_a_scan_whose_interval_reaches_a_bound_is_not_identified() -> None:
+    """D falling to the scan's lower bound, or to the last value where the run is finite, moves by
+    far more than the tolerance, yet the data put the minimum outside the range: not identified."""
+    values = np.array([0.0, 0.025, 0.05, 0.1, 0.15])
+    falling = calibrate.identification(values, np.array([1.0, 1.2, 1.5, 2.0, 2.5]) * 1e-3, 0.0)
+    assert not falling["identified"] and falling["status"] == "not identified (at bound)"
+    assert falling["interval"] == [0.0, 0.0]
+    unstable = np.array([1.9, 1.8, 1.6, math.inf, math.inf]) * 1e-3  # an integration limit
+    at_edge = calibrate.identification(values, unstable, 0.05)
+    assert at_edge["status"] == "not identified (at bound)" and at_edge["interval"] == [0.05, 0.05]
+    inner = calibrate.identification(values, np.array([2.0, 1.5, 1.0, 1.5, 2.0]) * 1e-3, 0.05)
+    assert inner["identified"] and inner["status"] == "identified"
+
+
+def test_a_scan_holds_both_bounds_and_the_world_s_value() -> None:
+    run = synthetic_run(DisturbanceModel())
+    values, d = calibrate.scan([run], "servo_time_constant",
+                               DisturbanceModel(servo_time_constant=0.149), points=8)
+    np.testing.assert_allclose(values, [0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.149, 0.15])
+    assert d.shape == (8,) and d[0] == pytest.approx(0.0, abs=1e-12)  # the truth: the default
+
+
 def test_parameters_map_to_their_grid_and_bounds() -> None:
     lat = calibrate.PARAMETERS["actuation_latency"]
     np.testing.assert_allclose(lat.value(np.array([-1.0, 0.5, 2.0])), [0.0, 0.125, 0.25])

@@ -181,7 +181,8 @@ def _max_latency_ms(run: PreparedRun) -> int:
 
 def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_real.StepRun]:
     """One batched call: the run in each world, as StepRuns (measured EE position at the ticks of
-    the metrics)."""
+    the metrics; NaN throughout where the plant's true pose is not finite: a diverged plant, which
+    the controller's estimator would hide behind its last finite state)."""
     axes = closed_loop.LoopInputs(0, None, None, 0, 0, 0)
     spec = dataclasses.replace(
         run.spec, goal_slots=closed_loop.goal_slots_for(_max_latency_ms(run), run.spec.period_ms)
@@ -189,15 +190,16 @@ def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_re
     logs = closed_loop.batch_rollout(spec, candidate_inputs(run, worlds), run.constants, axes)
     ran = np.asarray(logs.ran)
     chiee, chiee_des = np.asarray(logs.chiee), np.asarray(logs.chiee_des)
+    true_chiee = np.asarray(logs.true_chiee)
     n, period = run.spec.n_eval, run.spec.period_ms * 1e-3
     out = []
     for i in range(len(worlds)):
         first = int(np.argmax(ran[i]))
         window = slice(first, first + n)
         t = np.arange(len(chiee[i, window])) * period
-        out.append(
-            sim_to_real.StepRun(t, chiee[i, window, :2], chiee_des[i, window, :2], n * period)
-        )
+        p = chiee[i, window, :2]
+        p = p if np.isfinite(true_chiee[i, window]).all() else np.full_like(p, np.nan)
+        out.append(sim_to_real.StepRun(t, p, chiee_des[i, window, :2], n * period))
     return out
 
 
@@ -325,8 +327,9 @@ def identification(
 
 
 def world_document(report: dict) -> dict:
-    """The world YAML of a fit report: each parameter's value, identifiability, interval and scan (the
-    evidence), and D per run in the default and the calibrated world."""
+    """The world YAML of a fit report: each parameter's value (the fitted one if identified, else the
+    default), the search's best, the status, interval and scan (the evidence), and D per run in the
+    default and the calibrated world."""
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
@@ -342,6 +345,7 @@ def world_document(report: dict) -> dict:
         "parameters": {
             n: {
                 "value": report["kept"][n],
+                "fitted": report["best"][n],
                 "identified": ident["identified"],
                 "status": ident["status"],
                 "interval": ident["interval"],

@@ -13,6 +13,7 @@ import yaml
 from hsa_core import calibrate, closed_loop, sim_to_real
 from hsa_core.disturbance import DisturbanceModel
 from hsa_core.experiment import ExperimentConfig
+from hsa_core.profiles import VelocityEstimator
 from hsa_core.trajectories import TimedReference, step_reference
 
 
@@ -76,6 +77,21 @@ def test_a_scan_holds_both_bounds_and_the_world_s_value() -> None:
                                DisturbanceModel(servo_time_constant=0.149), points=8)
     np.testing.assert_allclose(values, [0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.149, 0.15])
     assert d.shape == (8,) and d[0] == pytest.approx(0.0, abs=1e-12)  # the truth: the default
+
+
+def test_a_diverged_plant_is_no_candidate_even_when_the_estimator_hides_it() -> None:
+    """Damping far beyond the RK4 step's stability limit: under the September estimator (which
+    refuses non-finite states and keeps its last finite one) the measured pose stays finite, yet
+    the candidate's positions are NaN, so its D is inf."""
+    ref = step_reference("fpu")
+    reference = TimedReference(np.array([0.0]), ref.p_des[1:2], "one_point", 1.0)
+    config = ExperimentConfig("fpu", "psatid", reference=reference, rate=1000.0 / 36,
+                              velocity_estimator=VelocityEstimator.SMOOTHING_SPLINE_16)
+    spec, inputs, constants = closed_loop.prepare(config)
+    run = calibrate.PreparedRun("x", config, spec, inputs, constants, None, "", (1,), 0.3)
+    worlds = [DisturbanceModel(), DisturbanceModel(damping_scale=20.0)]
+    calm, diverged = calibrate.simulate(run, worlds)
+    assert np.isnan(diverged.p).all() and np.isfinite(calm.p).all()
 
 
 def test_parameters_map_to_their_grid_and_bounds() -> None:
@@ -147,7 +163,8 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
     assert len(row["calibrated"]["D_per_step_mm"]) == 1 and math.isfinite(row["calibrated"]["D_mm"])
     assert set(report["identification"]) == {"servo_time_constant"}
     world = yaml.safe_load((out / "world.yaml").read_text())
-    assert set(world["parameters"]["servo_time_constant"]) >= {"value", "identified", "interval"}
+    assert set(world["parameters"]["servo_time_constant"]) >= {
+        "value", "fitted", "identified", "status", "interval"}
     assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
     assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
     assert (out / "20231019_143126.png").stat().st_size > 10_000

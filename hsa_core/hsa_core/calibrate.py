@@ -303,11 +303,11 @@ class Identification(enum.Enum):
 def identification(
     values: np.ndarray, d: np.ndarray, best: float, tolerance: float = TOLERANCE
 ) -> dict:
-    """From a scan (``values`` sorted, the parameter's bounds first and last): the interval where D ≤
-    min + tolerance, and the status: flat (D moves by less than tolerance over the range), at bound
-    (the interval reaches the first or the last value where D is finite: a bound of the search, or
-    the edge of the region where the run is finite, so the data put the minimum outside the range),
-    else identified."""
+    """From a scan (``values`` sorted, the parameter's bounds first and last): the interval where
+    D ≤ min + tolerance, and the status: flat (D moves by less than tolerance over the range), at
+    bound (the interval reaches the first or the last value where D is finite: a bound of the
+    search, or the edge of the region where the run is finite, so the data put the minimum outside
+    the range), else identified."""
     finite = np.isfinite(d)
     inside = finite & (d <= np.min(d[finite]) + tolerance)
     ends = np.flatnonzero(finite)[[0, -1]]
@@ -327,9 +327,9 @@ def identification(
 
 
 def world_document(report: dict) -> dict:
-    """The world YAML of a fit report: each parameter's value (the fitted one if identified, else the
-    default), the search's best, the status, interval and scan (the evidence), and D per run in the
-    default and the calibrated world."""
+    """The world YAML of a fit report: each parameter's value (the fitted one if identified, else
+    the default), the search's best, the status, interval and scan (the evidence), and D per run in
+    the default and the calibrated world."""
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],

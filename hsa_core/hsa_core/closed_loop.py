@@ -50,8 +50,8 @@ from hsa_core.sequencer_timing import first_point_ns
 from hsa_core.params import HsaParams
 from hsa_core.planning import Planner
 from hsa_core.profiles import VelocityEstimator
-from hsa_core.run_conditions import (SPLINE_WINDOW, TickWindow, run_disturbance, tick_rates, tick_take,
-                                     tick_window)
+from hsa_core.run_conditions import (SPLINE_WINDOW, TickWindow, run_disturbance, tick_rates,
+                                     tick_take, tick_window)
 from hsa_core.trajectories import step_reference
 from hsa_core.wiring import load_wiring
 from hsa_core.world import (GRID_NS, MOCAP_PERIOD_NS, hanging_at_rest, interval_fn, mocap_sample, seconds_to_ns,

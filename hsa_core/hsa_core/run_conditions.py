@@ -75,7 +75,8 @@ def tick_rates(window: TickWindow, xp: Any = np) -> tuple[Any, Any]:
 
 class TickEstimator:
     """The September 2023 stand-in estimator, fed once per controller tick (module docstring):
-    :func:`tick_take` and :func:`tick_rates` in numpy, as the batched loop runs them in jax.numpy."""
+    :func:`tick_take` and :func:`tick_rates` in numpy, as the batched loop runs them in
+    jax.numpy."""
 
     def __init__(self, period: float) -> None:
         """``period`` [s]: the control period (the nominal spacing of the samples)."""
@@ -84,9 +85,9 @@ class TickEstimator:
         self._origin: int | None = None
 
     def update(self, stamp_ns: int, q: np.ndarray, chiee: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The newest state at a tick → (q̇, χ̇_ee), or None: fewer than SPLINE_WINDOW samples since the
-        last (re)start, or a state not taken (the same stamp as at the previous tick, older, or not
-        finite)."""
+        """The newest state at a tick → (q̇, χ̇_ee), or None: fewer than SPLINE_WINDOW samples since
+        the last (re)start, or a state not taken (the same stamp as at the previous tick, older, or
+        not finite)."""
         self._origin = stamp_ns if self._origin is None else self._origin
         self._window, taken = tick_take(self._window, (stamp_ns - self._origin) * 1e-9,
                                         np.concatenate([q, chiee]), self._period)

@@ -12,6 +12,7 @@ import yaml
 
 from hsa_core.analysis import sim_to_real
 from hsa_core.apps import calibrate
+from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig
@@ -56,6 +57,49 @@ def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_r
         np.array([1.0, 2.0, 3.0]), np.array([1e-3, 1e-3 + 1e-6, 1e-3]), 2.0
     )
     assert not flat["identified"]
+
+
+def test_a_scan_whose_interval_reaches_a_bound_is_not_identified() -> None:
+    """D falling to the scan's lower bound, or to the last value where the run is finite, moves by
+    far more than the tolerance, yet the data put the minimum outside the range: not identified."""
+    values = np.array([0.0, 0.025, 0.05, 0.1, 0.15])
+    falling = calibrate.identification(values, np.array([1.0, 1.2, 1.5, 2.0, 2.5]) * 1e-3, 0.0)
+    assert not falling["identified"] and falling["status"] == "not identified (at bound)"
+    assert falling["interval"] == [0.0, 0.0]
+    unstable = np.array([1.9, 1.8, 1.6, math.inf, math.inf]) * 1e-3  # an integration limit
+    at_edge = calibrate.identification(values, unstable, 0.05)
+    assert at_edge["status"] == "not identified (at bound)" and at_edge["interval"] == [0.05, 0.05]
+    inner = calibrate.identification(values, np.array([2.0, 1.5, 1.0, 1.5, 2.0]) * 1e-3, 0.05)
+    assert inner["identified"] and inner["status"] == "identified"
+
+
+def test_a_scan_holds_both_bounds_and_the_world_s_value() -> None:
+    run = synthetic_run(DisturbanceModel())
+    values, d = calibrate.scan(
+        [run], "servo_time_constant", DisturbanceModel(servo_time_constant=0.149), points=8
+    )
+    np.testing.assert_allclose(values, [0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.149, 0.15])
+    assert d.shape == (8,) and d[0] == pytest.approx(0.0, abs=1e-12)  # the truth: the default
+
+
+def test_a_diverged_plant_is_no_candidate_even_when_the_estimator_hides_it() -> None:
+    """Damping far beyond the RK4 step's stability limit: under the September estimator (which
+    refuses non-finite states and keeps its last finite one) the measured pose stays finite, yet
+    the candidate's positions are NaN, so its D is inf."""
+    ref = step_reference("fpu")
+    reference = TimedReference(np.array([0.0]), ref.p_des[1:2], "one_point", 1.0)
+    config = ExperimentConfig(
+        "fpu",
+        "psatid",
+        reference=reference,
+        rate=1000.0 / 36,
+        velocity_estimator=VelocityEstimator.SMOOTHING_SPLINE_16,
+    )
+    spec, inputs, constants = closed_loop.prepare(config)
+    run = calibrate.PreparedRun("x", config, spec, inputs, constants, None, "", (1,), 0.3)
+    worlds = [DisturbanceModel(), DisturbanceModel(damping_scale=20.0)]
+    calm, diverged = calibrate.simulate(run, worlds)
+    assert np.isnan(diverged.p).all() and np.isfinite(calm.p).all()
 
 
 def test_parameters_map_to_their_grid_and_bounds() -> None:
@@ -127,7 +171,13 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
     assert len(row["calibrated"]["D_per_step_mm"]) == 1 and math.isfinite(row["calibrated"]["D_mm"])
     assert set(report["identification"]) == {"servo_time_constant"}
     world = yaml.safe_load((out / "world.yaml").read_text())
-    assert set(world["parameters"]["servo_time_constant"]) >= {"value", "identified", "interval"}
+    assert set(world["parameters"]["servo_time_constant"]) >= {
+        "value",
+        "fitted",
+        "identified",
+        "status",
+        "interval",
+    }
     assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
     assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
     assert (out / "20231019_143126.png").stat().st_size > 10_000

@@ -18,6 +18,9 @@ from hsa_core.sim.run_conditions import (
     plant_params,
     run_disturbance,
     run_schedule,
+    tick_rates,
+    tick_take,
+    tick_window,
 )
 
 
@@ -89,6 +92,36 @@ def test_the_tick_estimator_differentiates_a_cubic_after_sixteen_ticks() -> None
     assert all(r is None for r in results[:15]) and all(r is not None for r in results[15:])
     slope = coeffs[1] + 2 * coeffs[2] * t[-1] + 3 * coeffs[3] * t[-1] ** 2
     np.testing.assert_allclose(np.concatenate(results[-1]), slope, rtol=1e-7)
+
+
+def test_the_batched_loop_s_traced_window_is_the_tick_estimator() -> None:
+    """One definition of the September window: tick_take/tick_rates traced with jax.numpy (as the
+    batched loop runs them) give, tick by tick, what TickEstimator gives, through a repeated stamp,
+    a non-finite state and a gap that restarts the count."""
+    import jax
+    import jax.numpy as jnp
+
+    period = 0.036
+    stamps = list(np.arange(18) * period)
+    stamps[5] = stamps[4]  # no new sample at this tick
+    stamps += list(stamps[-1] + 0.2 + np.arange(17) * period)  # a 0.236 s gap (> 5 periods)
+    rng = np.random.default_rng(3)
+    states = rng.normal(size=(len(stamps), 6))
+    states[9, 2] = np.nan
+    estimator = TickEstimator(period)
+    take = jax.jit(lambda w, t, z: tick_take(w, t, z, period, jnp))
+    rates = jax.jit(lambda w: tick_rates(w, jnp))
+    window, ready = tick_window(jnp), []
+    for stamp, z in zip(stamps, states):
+        expected = estimator.update(int(round(stamp * 1e9)) + 7_000_000_000, z[:3], z[3:])
+        window, taken = take(window, stamp, z)
+        derivative, full = rates(window)
+        assert (expected is not None) == bool(taken & full)
+        if expected is not None:
+            np.testing.assert_allclose(np.concatenate(expected), derivative, rtol=1e-9, atol=1e-9)
+        ready.append(expected is not None)
+    # 16 distinct finite states from the 18th tick; none right after the gap; 16 again at its end
+    assert ready.index(True) == 17 and not any(ready[18:33]) and ready[33:] == [True, True]
 
 
 def test_a_payload_is_the_plants_only() -> None:

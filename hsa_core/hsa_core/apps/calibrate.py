@@ -20,10 +20,12 @@ parameters for every run.
   candidate on a vector machine.
 * **Identifiability and uncertainty**: after the search each parameter is scanned alone over its
   whole range around the best world (one batched call per run): the interval where the pooled D
-  stays within ``tolerance`` of the best is reported as its uncertainty, and a parameter whose scan
-  moves D by less than ``tolerance`` over the whole range is reported as not identified (the default
-  value kept, not fitted to noise). ``tolerance`` defaults to 0.05 mm, a sixth of the robot's own
-  repeatability (0.32 mm RMS between two runs).
+  stays within ``tolerance`` of the best is reported as its uncertainty. A parameter whose scan
+  moves D by less than ``tolerance`` over the whole range is not identified (flat); one whose
+  interval reaches a bound of its range (or the edge of the region where the run stays finite) is
+  not identified (at bound): the data put its minimum outside what is physical or simulable. Either
+  way the default value is kept, not fitted to noise or to a bound. ``tolerance`` defaults to
+  0.05 mm, a sixth of the robot's own repeatability (0.32 mm RMS between two runs).
 * **Leave-one-run-out**: the search repeated on all runs but one, and D of the left-out run with
   those parameters.
 
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import enum
 import json
 import math
 import sys
@@ -181,7 +184,8 @@ def _max_latency_ms(run: PreparedRun) -> int:
 
 def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_real.StepRun]:
     """One batched call: the run in each world, as StepRuns (measured EE position at the ticks of
-    the metrics)."""
+    the metrics; NaN throughout where the plant's true pose is not finite: a diverged plant, which
+    the controller's estimator would hide behind its last finite state)."""
     axes = closed_loop.LoopInputs(0, None, None, 0, 0, 0)
     spec = dataclasses.replace(
         run.spec, goal_slots=closed_loop.goal_slots_for(_max_latency_ms(run), run.spec.period_ms)
@@ -189,15 +193,16 @@ def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_re
     logs = closed_loop.batch_rollout(spec, candidate_inputs(run, worlds), run.constants, axes)
     ran = np.asarray(logs.ran)
     chiee, chiee_des = np.asarray(logs.chiee), np.asarray(logs.chiee_des)
+    true_chiee = np.asarray(logs.true_chiee)
     n, period = run.spec.n_eval, run.spec.period_ms * 1e-3
     out = []
     for i in range(len(worlds)):
         first = int(np.argmax(ran[i]))
         window = slice(first, first + n)
         t = np.arange(len(chiee[i, window])) * period
-        out.append(
-            sim_to_real.StepRun(t, chiee[i, window, :2], chiee_des[i, window, :2], n * period)
-        )
+        p = chiee[i, window, :2]
+        p = p if np.isfinite(true_chiee[i, window]).all() else np.full_like(p, np.nan)
+        out.append(sim_to_real.StepRun(t, p, chiee_des[i, window, :2], n * period))
     return out
 
 
@@ -280,35 +285,54 @@ def search(
 def scan(
     runs: list[PreparedRun], name: str, world: DisturbanceModel, points: int = 9
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Parameter ``name`` alone over its whole range around ``world``, ``points`` values of which
-    one is the world's own (the nearest grid point moved onto it): (values, pooled D [m]), one call
-    per run."""
+    """Parameter ``name`` alone over its whole range around ``world``: ``points`` − 1 values evenly
+    spaced from its lower to its upper bound (both included; at least the two) and the world's own,
+    sorted: (values, pooled D [m]), one call per run."""
     p = PARAMETERS[name]
-    values = p.value(np.linspace(0.0, 1.0, points))
-    values[np.argmin(np.abs(values - getattr(world, name)))] = getattr(world, name)
-    values = np.sort(values)
+    grid = p.value(np.linspace(0.0, 1.0, max(points - 1, 2)))
+    values = np.sort(np.append(grid, getattr(world, name)))
     d = pooled([deviations(r, worlds_of(world, (name,), values[:, None])) for r in runs])
     return values, d
+
+
+class Identification(enum.Enum):
+    """What a scan says of a parameter (:func:`identification`)."""
+
+    IDENTIFIED = "identified"
+    FLAT = "not identified (flat)"
+    AT_BOUND = "not identified (at bound)"
 
 
 def identification(
     values: np.ndarray, d: np.ndarray, best: float, tolerance: float = TOLERANCE
 ) -> dict:
-    """From a scan: identified (D moves by ≥ tolerance over the range), the interval where D ≤ min
-    + tolerance."""
+    """From a scan (``values`` sorted, the parameter's bounds first and last): the interval where
+    D ≤ min + tolerance, and the status: flat (D moves by less than tolerance over the range), at
+    bound (the interval reaches the first or the last value where D is finite: a bound of the
+    search, or the edge of the region where the run is finite, so the data put the minimum outside
+    the range), else identified."""
     finite = np.isfinite(d)
-    inside = values[finite & (d <= np.min(d[finite]) + tolerance)]
+    inside = finite & (d <= np.min(d[finite]) + tolerance)
+    ends = np.flatnonzero(finite)[[0, -1]]
+    if np.max(d[finite]) - np.min(d[finite]) < tolerance:
+        status = Identification.FLAT
+    elif inside[ends].any():
+        status = Identification.AT_BOUND
+    else:
+        status = Identification.IDENTIFIED
     return {
-        "identified": bool(np.max(d[finite]) - np.min(d[finite]) >= tolerance),
-        "interval": [float(inside.min()), float(inside.max())],
+        "identified": status is Identification.IDENTIFIED,
+        "status": status.value,
+        "interval": [float(values[inside].min()), float(values[inside].max())],
         "best": best,
         "scan": {"values": values.tolist(), "D_mm": (d * 1e3).round(4).tolist()},
     }
 
 
 def world_document(report: dict) -> dict:
-    """The world YAML of a fit report: each parameter's value, identifiability, interval and scan
-    (the evidence), and D per run in the default and the calibrated world."""
+    """The world YAML of a fit report: each parameter's value (the fitted one if identified, else
+    the default), the search's best, the status, interval and scan (the evidence), and D per run in
+    the default and the calibrated world."""
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
@@ -324,7 +348,9 @@ def world_document(report: dict) -> dict:
         "parameters": {
             n: {
                 "value": report["kept"][n],
+                "fitted": report["best"][n],
                 "identified": ident["identified"],
+                "status": ident["status"],
                 "interval": ident["interval"],
                 "uncertainty": f"pooled D within {TOLERANCE * 1e3:.2f} mm of its minimum",
                 "scan": ident["scan"],

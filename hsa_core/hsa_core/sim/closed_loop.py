@@ -22,9 +22,10 @@ What varies per run is an argument (a pytree, so ``jax.vmap`` batches it): the p
 (with its payload), the gains, the noise sequence, the servo speed and time constant, the actuation
 latency. What shapes the loop is static (:class:`LoopSpec`): law, rate, mocap latency, length,
 velocity estimator (the September 2023 stand-in of :mod:`hsa_core.runs.profiles` takes the newest
-state into its 16-sample fit at every tick, on the true stamps, as ``run_experiment`` does). For the
-same :class:`~hsa_core.sim.experiment.ExperimentConfig` the metrics equal ``run_experiment``'s
-(test: tests/core/test_closed_loop.py).
+state into its 16-sample fit at every tick, on the true stamps:
+:func:`hsa_core.sim.run_conditions.tick_take` and ``tick_rates`` traced, the functions
+``run_experiment`` runs in numpy). For the same :class:`~hsa_core.sim.experiment.ExperimentConfig`
+the metrics equal ``run_experiment``'s (test: tests/core/test_closed_loop.py).
 """
 
 from __future__ import annotations
@@ -50,7 +51,14 @@ from hsa_core.model.wiring import load_wiring
 from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sensing.estimation import derivative_coefficients
 from hsa_core.sim.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
-from hsa_core.sim.run_conditions import SPLINE_WINDOW, run_disturbance
+from hsa_core.sim.run_conditions import (
+    SPLINE_WINDOW,
+    TickWindow,
+    run_disturbance,
+    tick_rates,
+    tick_take,
+    tick_window,
+)
 from hsa_core.sim.world import (
     GRID_NS,
     MOCAP_PERIOD_NS,
@@ -135,7 +143,7 @@ class _Carry(NamedTuple):
     ctrl: Array  # [e_int, z_ee]
     samples: Array  # (Q, 3) recent noisy poses, by sample index mod Q
     newest: Array  # (6,) the newest delivered [q, chiee] (the September estimator's input)
-    newest_stamp: Array  # [s] its stamp (-1: none yet)
+    newest_stamp: Array  # [s] its stamp (-inf: none yet)
 
 
 def prepare(
@@ -301,26 +309,21 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         """Control tick j at t = j·period, then the instants up to the next tick."""
         t = j * period
         if at_ticks:  # the September stand-in: the newest state enters its fit at every tick
-            take = c.newest_stamp > c.stamps[-1]
-            window = jnp.concatenate([c.window[1:], c.newest[None]])
-            stamps = jnp.concatenate([c.stamps[1:], c.newest_stamp[None]])
-            c = c._replace(
-                window=jnp.where(take, window, c.window),
-                stamps=jnp.where(take, stamps, c.stamps),
-                count=c.count + take,
+            taken, _ = tick_take(
+                TickWindow(c.window, c.stamps, c.count),
+                c.newest_stamp,
+                c.newest,
+                period * MS * 1e-9,
+                jnp,
             )
+            c = c._replace(window=taken.z, stamps=taken.stamps, count=taken.count)
         ref_i = constants.ref_index[j]
         run = (ref_i >= 0) & (c.count >= n_window)
         ref = jax.tree_util.tree_map(lambda a: a[jnp.maximum(ref_i, 0)], constants.refs)
-        mean_dt = (c.stamps[-1] - c.stamps[0]) / (n_window - 1)
-        if at_ticks:  # a window not yet full is not fitted (its derivative is never used)
-            full = c.count >= n_window
-            mean_dt = jnp.where(full, mean_dt, 1.0)
-            stamps = jnp.where(full, c.stamps, jnp.arange(n_window) * 1.0)
-            tau = (stamps - stamps[-1]) / mean_dt
-            derivative = derivative_coefficients(tau, ESTIMATOR_ORDER, jnp) @ c.window / mean_dt
+        if at_ticks:  # run only once the window is ready: the same condition
+            derivative, _ = tick_rates(TickWindow(c.window, c.stamps, c.count), jnp)
         else:
-            derivative = coeffs @ c.window / mean_dt
+            derivative = coeffs @ c.window / ((c.stamps[-1] - c.stamps[0]) / (n_window - 1))
         meas = control.Measurement(
             c.window[-1, :3], derivative[:3], c.window[-1, 3:], derivative[3:]
         )
@@ -358,6 +361,11 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
         return c, log
 
+    window = (
+        tick_window(jnp)
+        if at_ticks
+        else TickWindow(jnp.zeros((n_window, 6)), jnp.full(n_window, -1.0), jnp.asarray(0))
+    )
     c = _Carry(
         hanging_at_rest(plant),
         neutral,
@@ -365,13 +373,11 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         jnp.tile(neutral, (spec.goal_slots, 1)),
         jnp.full(spec.goal_slots, -1),
         jnp.asarray(0),
-        jnp.zeros((n_window, 6)),
-        jnp.full(n_window, -1.0),
-        jnp.asarray(0),
+        *window,
         jnp.zeros(4),
         jnp.zeros((queue, 3)),
         jnp.zeros(6),
-        jnp.asarray(-1.0),
+        jnp.asarray(-jnp.inf),
     )
     c = jax.lax.fori_loop(
         0, period, lambda i, cc: instant(cc, i), c

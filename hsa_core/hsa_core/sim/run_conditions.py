@@ -5,7 +5,9 @@
   hsa_core.runs.profiles), which runs at the controller's ticks: at every tick the newest state
   (stamp, q, χ_ee) enters a cubic end-point fit over the last ``SPLINE_WINDOW`` such samples on
   their true stamps; no estimate (no command) before the 16th. The offline experiment and
-  controller_node (parameter ``velocity_estimator``) both run this class.
+  controller_node (parameter ``velocity_estimator``) both run this class; it is :func:`tick_take`
+  and :func:`tick_rates` (numpy or jax.numpy), which the batched loop (hsa_core.sim.closed_loop)
+  traces.
 * :func:`plant_params`: the plant of a run with a payload (it hangs at rest with it from t = 0); the
   controller's model keeps the material's. The offline experiment and sim_node (parameter
   ``payload``) both build their world from it.
@@ -18,13 +20,14 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from hsa_core.model.params import HsaParams
 from hsa_core.runs.profiles import RunProfile
 from hsa_core.runs.reference import ReferenceRun
-from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator
+from hsa_core.sensing.estimation import derivative_coefficients
 from hsa_core.sim.disturbance import DisturbanceModel
 
 SPLINE_WINDOW, SPLINE_ORDER, SPLINE_GAP_FACTOR = 16, 3, 5.0
@@ -32,28 +35,72 @@ SPLINE_WINDOW, SPLINE_ORDER, SPLINE_GAP_FACTOR = 16, 3, 5.0
 (hsa_core.runs.profiles)."""
 
 
+class TickWindow(NamedTuple):
+    """The September estimator's window (arrays of numpy or jax.numpy): the last ``SPLINE_WINDOW``
+    states [q, χ_ee] taken, oldest first; their stamps [s]; the states taken since the last
+    (re)start."""
+
+    z: Any
+    stamps: Any
+    count: Any
+
+
+def tick_window(xp: Any = np) -> TickWindow:
+    """An empty window (no state taken; stamps −inf)."""
+    return TickWindow(xp.zeros((SPLINE_WINDOW, 6)), xp.full(SPLINE_WINDOW, -xp.inf), xp.asarray(0))
+
+
+def tick_take(
+    window: TickWindow, stamp: Any, z: Any, period: float, xp: Any = np
+) -> tuple[TickWindow, Any]:
+    """The newest state (``stamp`` [s], ``z`` = [q, χ_ee]) at a tick → (window, taken). It is taken
+    when finite and newer than the window's newest; a gap of more than ``SPLINE_GAP_FACTOR`` control
+    periods (``period`` [s]) restarts the count. Traceable with ``xp`` = jax.numpy."""
+    newest = window.stamps[-1]
+    taken = (stamp > newest) & xp.isfinite(stamp) & xp.all(xp.isfinite(z))
+    gap = (window.count > 0) & (stamp - newest > SPLINE_GAP_FACTOR * period)
+    shifted = TickWindow(
+        xp.concatenate([window.z[1:], xp.reshape(z, (1, 6))]),
+        xp.concatenate([window.stamps[1:], xp.reshape(stamp, (1,))]),
+        xp.where(gap, 1, window.count + 1),
+    )
+    return TickWindow(*(xp.where(taken, new, old) for new, old in zip(shifted, window))), taken
+
+
+def tick_rates(window: TickWindow, xp: Any = np) -> tuple[Any, Any]:
+    """(ż (6,), ready): the derivative at the newest stamp of the least-squares cubic through the
+    window on its true stamps, and whether ``SPLINE_WINDOW`` states were taken since the last
+    (re)start (a window not ready gives a finite derivative that means nothing)."""
+    ready = window.count >= SPLINE_WINDOW
+    stamps = xp.where(ready, window.stamps, xp.arange(SPLINE_WINDOW) * 1.0)
+    mean_dt = (stamps[-1] - stamps[0]) / (SPLINE_WINDOW - 1)
+    c = derivative_coefficients((stamps - stamps[-1]) / mean_dt, SPLINE_ORDER, xp)
+    return c @ window.z / mean_dt, ready
+
+
 class TickEstimator:
-    """The September 2023 stand-in estimator, fed once per controller tick (module docstring)."""
+    """The September 2023 stand-in estimator, fed once per controller tick (module docstring):
+    :func:`tick_take` and :func:`tick_rates` in numpy, as the batched loop runs them in
+    jax.numpy."""
 
     def __init__(self, period: float) -> None:
         """``period`` [s]: the control period (the nominal spacing of the samples)."""
-        self._fit = SavitzkyGolayDifferentiator(
-            window=SPLINE_WINDOW,
-            order=SPLINE_ORDER,
-            dim=6,
-            gap_factor=SPLINE_GAP_FACTOR,
-            nominal_period=period,
-        )
+        self._period = period
+        self._window = tick_window()
         self._origin: int | None = None
 
     def update(
         self, stamp_ns: int, q: np.ndarray, chiee: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The newest state at a tick → (q̇, χ̇_ee), or None: fewer than SPLINE_WINDOW samples, or
-        the same stamp as at the previous tick (no new sample)."""
+        """The newest state at a tick → (q̇, χ̇_ee), or None: fewer than SPLINE_WINDOW samples since
+        the last (re)start, or a state not taken (the same stamp as at the previous tick, older, or
+        not finite)."""
         self._origin = stamp_ns if self._origin is None else self._origin
-        estimate = self._fit.update((stamp_ns - self._origin) * 1e-9, np.concatenate([q, chiee]))
-        return (estimate.derivative[:3], estimate.derivative[3:]) if estimate.ready else None
+        self._window, taken = tick_take(
+            self._window, (stamp_ns - self._origin) * 1e-9, np.concatenate([q, chiee]), self._period
+        )
+        rates, ready = tick_rates(self._window)
+        return (rates[:3], rates[3:]) if taken and ready else None
 
 
 def plant_params(model: HsaParams, payload: float) -> HsaParams:

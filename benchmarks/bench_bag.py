@@ -140,9 +140,8 @@ def play(bag: Path, *args: str) -> tuple[float, int]:
         text=True,
         timeout=600,
     )
-    match = re.search(
-        r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stderr
-    )  # its logger
+    # its logger
+    match = re.search(r"published (\d+) messages in \d+ pass\(es\), ([\d.]+) s", proc.stderr)
     if proc.returncode != 0 or match is None:
         raise RuntimeError(f"bag_player failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return float(match.group(2)), int(match.group(1))

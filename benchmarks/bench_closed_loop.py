@@ -97,9 +97,8 @@ def cli_part(n1: int, n2: int, batch: int, cache: str) -> dict:
     """The CLI's end-to-end figures (module docstring), with a compilation cache the warm-up call
     fills."""
     env = {**os.environ, "HSA_JAX_CACHE_DIR": cache}
-    env.pop(
-        "XLA_FLAGS", None
-    )  # the CLI makes one XLA device per core itself, as a user's call does
+    # the CLI makes one XLA device per core itself, as a user's call does
+    env.pop("XLA_FLAGS", None)
     with tempfile.TemporaryDirectory(prefix="hsa_cli_") as tmp:
         out = Path(tmp)
         warm = cli_run(batch, batch, out, env)
@@ -146,16 +145,14 @@ def main() -> int:
             os.environ.get("XLA_FLAGS", "")
             + f" --xla_force_host_platform_device_count={args.host_devices}"
         ).strip()
-    cache = tempfile.TemporaryDirectory(
-        prefix="hsa_jax_cache_"
-    )  # empty: each first call is a cold start
+    # empty: each first call is a cold start
+    cache = tempfile.TemporaryDirectory(prefix="hsa_jax_cache_")
     os.environ["HSA_JAX_CACHE_DIR"] = cache.name
     configure_jax()
     load_before = os.getloadavg()[0]  # the machine may be shared: the load next to the figures
     if args.skip_kernel and args.out.is_file():
-        result = json.loads(
-            args.out.read_text()
-        )  # the kernel's figures stay, the CLI's are replaced
+        # the kernel's figures stay, the CLI's are replaced
+        result = json.loads(args.out.read_text())
     else:
         result = kernel_part(args.batches)
     if args.cli:
@@ -200,9 +197,8 @@ def kernel_part(batches: list[int]) -> dict:
             noise=closed_loop.noise_batch(config.disturbance, spec, np.arange(batch))
         )
         t0 = time.perf_counter()
-        jax.block_until_ready(
-            closed_loop.batch_rollout(spec, batched, constants, axes)
-        )  # compiles, then runs
+        # compiles, then runs
+        jax.block_until_ready(closed_loop.batch_rollout(spec, batched, constants, axes))
         first = time.perf_counter() - t0
         t0 = time.perf_counter()
         logs = jax.block_until_ready(closed_loop.batch_rollout(spec, batched, constants, axes))
@@ -210,8 +206,8 @@ def kernel_part(batches: list[int]) -> dict:
         seed0 = closed_loop.evaluate(spec, jax.tree_util.tree_map(lambda a: a[0], logs))
         got, want = (
             metric_vector(seed0),
-            metric_vector(offline.metrics),
-        )  # seed 0 is the offline run's noise
+            metric_vector(offline.metrics),  # seed 0 is the offline run's noise
+        )
         rows.append(
             {
                 "batch": batch,

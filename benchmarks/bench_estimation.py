@@ -86,9 +86,8 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=100_000, help="timed calls per SG case")
     n = parser.parse_args().samples
     period = 0.005
-    regular = 1000.0 + period * np.arange(
-        n
-    )  # stamps relative to a recent origin (see the estimation docstring)
+    # stamps relative to a recent origin (see the estimation docstring)
+    regular = 1000.0 + period * np.arange(n)
     jitter = regular + np.random.default_rng(1).uniform(-0.05, 0.05, n) * period
     results: dict[str, object] = {
         "machine": {

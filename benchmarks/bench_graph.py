@@ -95,9 +95,8 @@ def run_graph(
     assert proc.stdout is not None
     for line in proc.stdout:
         if not start and "[hsa.controller_node]" in line and "-> tracking" in line:
-            t_start = (
-                time.monotonic()
-            )  # CPU window: from the first controller output to the end of the schedule
+            # CPU window: from the first controller output to the end of the schedule
+            t_start = time.monotonic()
             for child in psutil.Process(proc.pid).children():
                 times = child.cpu_times()
                 start[child.pid] = (Path(child.cmdline()[1]).name, child, times.user + times.system)

@@ -120,9 +120,8 @@ class Sampler:
         for rows in by_pid.values():
             first = min(rows, key=lambda r: abs(r[0] - t0))[1]
             last = min(rows, key=lambda r: abs(r[0] - t1))[1]
-            name = next(
-                (s[0] for _, s in rows if s[0] != "?"), "?"
-            )  # an exited process has no command line
+            # an exited process has no command line
+            name = next((s[0] for _, s in rows if s[0] != "?"), "?")
             entry = out.setdefault(
                 name, {"cpu_s": 0.0, "voluntary_switches": 0, "involuntary_switches": 0}
             )

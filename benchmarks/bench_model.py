@@ -202,9 +202,8 @@ def simulator(material: str, kind: str, repeats: int) -> dict:
     duration, hold = 10.0, 0.025
     n = round(duration / hold)
     phi_seq = jnp.asarray(_phi_sequence(p, n, kind))
-    x0 = simulation.steady_state_rollout(
-        p, phi_seq[0]
-    )  # start at rest in the equilibrium of the first sample
+    # start at rest in the equilibrium of the first sample
+    x0 = simulation.steady_state_rollout(p, phi_seq[0])
     dt, substeps = simulation.DEFAULT_DT, simulation.DEFAULT_SUBSTEPS
     run = jax.jit(partial(simulation.simulate, dt=dt, substeps=substeps))
     t = time.perf_counter()
@@ -288,9 +287,8 @@ def main() -> None:
         from hsa_core.jaxsetup import configure_jax
 
         configure_jax()
-        jax.config.update(
-            "jax_cpu_enable_async_dispatch", not args.inline
-        )  # after: the section compares both
+        # after: the section compares both
+        jax.config.update("jax_cpu_enable_async_dispatch", not args.inline)
 
         print(json.dumps(warm_latencies(args.n)))
         return

@@ -288,9 +288,8 @@ def linear_analysis() -> dict[str, object]:
     x0 = jnp.asarray(simulation.steady_state_rollout(plant, phi0)).at[3:].set(0.0)
     rhs = lambda x, phi: jnp.concatenate([x[3:], q_ddot(x[:3], x[3:], phi)])  # noqa: E731
     a = np.asarray(jax.jacfwd(rhs, 0)(x0, phi0))
-    b = np.asarray(jax.jacfwd(rhs, 1)(x0, phi0)) @ np.array(
-        [[1.0, 1.0], [-1.0, 1.0]]
-    )  # u = (u_x, u_y) -> φ
+    # u = (u_x, u_y) -> φ
+    b = np.asarray(jax.jacfwd(rhs, 1)(x0, phi0)) @ np.array([[1.0, 1.0], [-1.0, 1.0]])
     c = np.asarray(jax.jacfwd(lambda x: kinematics.end_effector_pose(plant, x[:3]))(x0))[:2]
     eig = np.linalg.eigvals(a)
     mode = eig[np.argmin(np.where(eig.imag > 0, np.abs(eig), np.inf))]
@@ -332,9 +331,8 @@ def linear_analysis() -> dict[str, object]:
             "phase_at_10hz_deg": float(np.degrees(np.angle(loop(10.0, exact, kd)))),
         }
     f_lc = 10.13
-    triangle = DEFAULT.servo_max_speed / (
-        4.0 * f_lc
-    )  # amplitude of a full-speed triangle at f_lc [rad]
+    # amplitude of a full-speed triangle at f_lc [rad]
+    triangle = DEFAULT.servo_max_speed / (4.0 * f_lc)
     return {
         "operating_point": "FPU plant (default mismatch), phi = phi_max/2 on both rods, at rest",
         "bending_mode_hz": float(abs(mode) / (2.0 * math.pi)),

@@ -157,9 +157,8 @@ def _conditions(args: argparse.Namespace) -> dict[str, str]:
     gains.write_text(gains_yaml(cond.law, cond.gains, f"gains of the real run {cond.bag}"))
     sequencer = args.out / "sequencer.yaml"
     schedule = run_schedule(args.run) | {"exit_on_finish": True, "finish_hold": 2.0}
-    rate = schedule.pop(
-        "rate"
-    )  # a launch argument: the graph gives it to the sequencer after its file
+    # a launch argument: the graph gives it to the sequencer after its file
+    rate = schedule.pop("rate")
     sequencer.write_text(yaml.safe_dump({"/**": {"ros__parameters": schedule}}))
     return graph_arguments(
         cond.profile, sigma_a_eq=args.sigma_a_eq, payload=args.payload, run=args.run
@@ -265,9 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     bag = args.out / "bag"
     if bag.exists():
         parser.error(f"{bag} exists; choose another --out")
-    domain = (
-        rosenv.apply()
-    )  # the user's ROS_DOMAIN_ID, or a reserved one; a bad one is refused before --out is made
+    # the user's ROS_DOMAIN_ID, or a reserved one; a bad one is refused before --out is made
+    domain = rosenv.apply()
     args.out.mkdir(parents=True, exist_ok=True)
     launch_args = {
         "material": args.material,

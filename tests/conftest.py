@@ -17,8 +17,7 @@ os.environ["ROS_PYTHON_CHECK_FIELDS"] = "1"
 # with SIGHUP's default action.
 if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
     signal.signal(signal.SIGHUP, signal.SIG_DFL)
-ROS_DOMAIN_ID = rosenv.apply(
-    rosenv.reserve_domain_id()
-)  # run-specific: a test session never takes the user's domain
+# run-specific: a test session never takes the user's domain
+ROS_DOMAIN_ID = rosenv.apply(rosenv.reserve_domain_id())
 # the test process is an entry point like any other (hsa_core's import sets nothing)
 configure_jax()

@@ -200,9 +200,8 @@ class Bag:
         store = get_typestore(Stores.EMPTY)
         try:
             store.register(get_types_from_msg(info.msgdef, info.msgtype))
-            store.get_msgdef(
-                info.msgtype
-            )  # every nested type must resolve now, not at the first message
+            # every nested type must resolve now, not at the first message
+            store.get_msgdef(info.msgtype)
         except KeyError as exc:
             raise BagError(
                 f"{where}: the bag's definition lacks the nested type {exc.args[0]}"

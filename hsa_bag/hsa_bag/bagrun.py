@@ -50,8 +50,8 @@ FIGURES = "figures"  # subdirectory of a run's output that holds its figures
 GENERIC_STEMS = (
     "log",
     "run",
-    "bag",
-)  # file or directory names that say nothing: the run is named by its parent
+    "bag",  # file or directory names that say nothing: the run is named by its parent
+)
 SKIPPED = "skipped "  # RunLog meta key prefix: undecodable messages left out, per topic
 
 
@@ -180,9 +180,8 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
     arrays = {name: np.array(col, dtype=np.float64) for name, col in zip(names, columns)}
     phi_meas = None
     if measured is not None:
-        newest = (
-            np.searchsorted(measured[0], stamps, side="right") - 1
-        )  # newest measurement at or before each tick
+        # newest measurement at or before each tick
+        newest = np.searchsorted(measured[0], stamps, side="right") - 1
         phi_meas = np.where((newest >= 0)[:, None], measured[1][np.maximum(newest, 0)], np.nan)
     meta = {
         "bag": str(path),

@@ -285,9 +285,8 @@ class Player:
         logger = self.node.get_logger()
         while not self.stop.is_set():
             started = playback.barrier.started
-            matched = (
-                lockstep.matched_of(self.node) if not started else {}
-            )  # graph queries only before the start
+            # graph queries only before the start
+            matched = lockstep.matched_of(self.node) if not started else {}
             step = playback.step(
                 None if upcoming is None else upcoming[1], matched, time.monotonic()
             )
@@ -351,9 +350,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     stop = threading.Event()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    parent_death.on_stop_signals(
-        lambda *_: stop.set()
-    )  # as every node: a closed terminal or Ctrl-\ stops it
+    # as every node: a closed terminal or Ctrl-\ stops it
+    parent_death.on_stop_signals(lambda *_: stop.set())
     node = rclpy.create_node("bag_player")
     try:
         try:
@@ -384,9 +382,8 @@ def main(argv: list[str] | None = None) -> int:
             else f"at rate {options.rate}"
         )
         logger = node.get_logger()
-        logger.info(
-            "ready"
-        )  # publishers and lockstep subscriptions exist, as every node's runner logs it
+        # publishers and lockstep subscriptions exist, as every node's runner logs it
+        logger.info("ready")
         logger.info(f"playing {path}: {topics}; {span:.3f} s of bag time {pace}")
         result = player.play()
         summary = (

@@ -185,20 +185,17 @@ class BagRecorder(Node):
                 "new path, or "
                 f"'{self._bag.path}/' for a new date-time bag inside it)"
             ) from exc
-        self.lockstep_clock = lockstep.LeadClock(
-            self
-        )  # log times; lockstep instants wait until it is there
+        # log times; lockstep instants wait until it is there
+        self.lockstep_clock = lockstep.LeadClock(self)
         self._recording: dict[str, Recording] = {}
         self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
         self._undecodable: dict[
             str, int
         ] = {}  # topic -> messages left out because they do not decode
-        self._undecodable_logged = (
-            -UNDECODABLE_LOG_PERIOD
-        )  # steady time [s] of the last WARN about them
-        lockstep.wall_timer(
-            self, params["discovery_period"], self._discover
-        )  # discovery is a wall-clock matter
+        # steady time [s] of the last WARN about them
+        self._undecodable_logged = -UNDECODABLE_LOG_PERIOD
+        # discovery is a wall-clock matter
+        lockstep.wall_timer(self, params["discovery_period"], self._discover)
         self.create_timer(params["flush_period"], self._bag.flush)
         Diagnostics(self).add("recording", self._report)
         self.get_logger().info(f"recording to {self._bag.path.resolve()}")

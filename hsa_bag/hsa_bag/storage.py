@@ -95,8 +95,8 @@ def merge_info(total: Info | None, part: Info) -> Info:
         count = topics[key]["message_count"] if key in topics else 0
         topics[key] = {
             "topic_metadata": meta,
-            "message_count": count + entry["message_count"],
-        }  # latest QoS wins
+            "message_count": count + entry["message_count"],  # latest QoS wins
+        }
     merged["topics_with_message_count"] = list(topics.values())
     return merged
 
@@ -132,9 +132,8 @@ class SplitFile:
         storage.path.rename(self.path)  # the open file handle follows the rename
         storage.path = self.path
         staging.rmdir()
-        self._writer.metapath = (
-            directory / f".{stem}.{METADATA}"
-        )  # close() leaves this file's own metadata here
+        # close() leaves this file's own metadata here
+        self._writer.metapath = directory / f".{stem}.{METADATA}"
         self.first_timestamp: int | None = None  # of the first message written
 
     def set_custom_data(self, key: str, value: str) -> None:

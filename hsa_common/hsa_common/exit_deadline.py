@@ -62,6 +62,5 @@ def arm(seconds: float, code: int) -> bool:
         return False
     whole = int(seconds)
     when = _ITimerSpec(value=_TimeSpec(whole, int((seconds - whole) * 1e9)))
-    return (
-        timer_settime(timer, 0, ctypes.byref(when), None) == 0
-    )  # the timer lives in the kernel until it fires
+    # the timer lives in the kernel until it fires
+    return timer_settime(timer, 0, ctypes.byref(when), None) == 0

@@ -89,8 +89,8 @@ _REQUIRED = {
     "arg": {"name"},
     "let": {"name", "value"},
     "executable": {"cmd"},
-    "node": {"pkg", "exec"},
-}  # pkg: ours
+    "node": {"pkg", "exec"},  # pkg: ours
+}
 _IMPLEMENTED = {
     "arg": SCHEMA["arg"],
     "let": SCHEMA["let"],
@@ -126,9 +126,8 @@ class Process:
     cmd: list[str]
     shutdown_on_exit: bool = False
     popen: subprocess.Popen | None = field(default=None, repr=False)
-    errors: deque[str] = field(
-        default_factory=lambda: deque(maxlen=50), repr=False
-    )  # last stderr lines
+    # last stderr lines
+    errors: deque[str] = field(default_factory=lambda: deque(maxlen=50), repr=False)
     pump: threading.Thread | None = field(default=None, repr=False)
 
     def message(self) -> str:
@@ -350,8 +349,8 @@ class LaunchFile:
         if "namespace" in spec:
             cmd += [
                 "-r",
-                f"__ns:=/{sub(spec['namespace']).lstrip('/')}",
-            ]  # launch_ros makes it absolute too
+                f"__ns:=/{sub(spec['namespace']).lstrip('/')}",  # launch_ros makes it absolute too
+            ]
         for param in spec.get("param", []):
             if "from" in param:
                 file = Path(sub(param["from"]))
@@ -410,12 +409,10 @@ class Launcher:
     def run(self) -> int:
         """Start everything, wait for a stop condition, stop everything; return the failed or worst
         exit code."""
-        env = (
-            rosenv.ros_environment()
-        )  # inherits this process's reserved domain (rosenv.apply in main)
-        env[parent_death.PARENT_ENV] = str(
-            os.getpid()
-        )  # the children's check that this launcher still lives
+        # inherits this process's reserved domain (rosenv.apply in main)
+        env = rosenv.ros_environment()
+        # the children's check that this launcher still lives
+        env[parent_death.PARENT_ENV] = str(os.getpid())
         parent_death.on_stop_signals(self._request_stop)
         self._remove_unused_shm()
         for proc in self.procs:

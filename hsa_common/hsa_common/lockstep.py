@@ -113,9 +113,8 @@ class Participant:
         self.published: Counter[str] = Counter()
         self.taken: Counter[str] = Counter()
         self.pending = 0
-        self.lead_clock: LeadClock | None = getattr(
-            node, "lockstep_clock", None
-        )  # a recorder: instants wait for it
+        # a recorder: instants wait for it
+        self.lead_clock: LeadClock | None = getattr(node, "lockstep_clock", None)
         self.clock_acks = self.lead_clock is not None
         self._wrapped: set[int] = set()
         self._pubs: dict[str, list[Any]] = {}
@@ -145,9 +144,8 @@ class Participant:
             self._wrapped.add(id(sub))
             self.taken.setdefault(sub.topic_name, 0)
             sub.callback = self._counting(sub.callback, self.taken, sub.topic_name)
-        private = (
-            self.node.get_fully_qualified_name() + "/"
-        )  # parameter, lifecycle and type services of the node
+        # parameter, lifecycle and type services of the node
+        private = self.node.get_fully_qualified_name() + "/"
         for srv in self.node.services:
             if id(srv) in self._wrapped:
                 continue

@@ -34,9 +34,8 @@ QOS_OVERRIDES = "qos_overrides."
 """Prefix of the standard QoS override parameters, declared when the publisher or subscription is
 created."""
 
-Validator = Callable[
-    [Any], str | None
-]  # returns an error message, or None if the value is acceptable
+# returns an error message, or None if the value is acceptable
+Validator = Callable[[Any], str | None]
 T = TypeVar("T")
 
 
@@ -148,9 +147,8 @@ def _accept_integer_spelling(node: Node, spec: ParamSpec) -> None:
     'DOUBLE'"); launch arguments and parameter files are written by people, so ``2`` must mean
     ``2.0``, under ros2 launch as well.
     """
-    given = node._parameter_overrides.get(
-        spec.name
-    )  # the resolved overrides (see unknown_overrides)
+    # the resolved overrides (see unknown_overrides)
+    given = node._parameter_overrides.get(spec.name)
     if given is None:
         return
     default = spec.default
@@ -178,9 +176,8 @@ RUNNER_PARAMS = frozenset({"lockstep"})
 def unknown_overrides(node: Node) -> list[str]:
     """Names given to the node (parameter files, ``-p``) that it has not declared; QoS overrides are
     declared later."""
-    given = (
-        node._parameter_overrides
-    )  # rclpy keeps the node's resolved overrides only here (no public accessor)
+    # rclpy keeps the node's resolved overrides only here (no public accessor)
+    given = node._parameter_overrides
     return sorted(
         name
         for name in given

@@ -83,8 +83,8 @@ def alive(pid: int) -> bool:
         return False
     return stat.rsplit(")", 1)[-1].split()[0] not in (
         "Z",
-        "X",
-    )  # the state follows the command name's ')'
+        "X",  # the state follows the command name's ')'
+    )
 
 
 def on_stop_signals(handler: Callable[[int, object], None]) -> None:

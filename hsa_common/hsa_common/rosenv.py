@@ -146,9 +146,8 @@ def ros_environment(
     env.pop("ROS_STATIC_PEERS", None)
     prefixes = [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     if sys.prefix not in prefixes:
-        prefixes.append(
-            sys.prefix
-        )  # the venv is the ROS install prefix (ament index of the wheels and hsa_msgs)
+        # the venv is the ROS install prefix (ament index of the wheels and hsa_msgs)
+        prefixes.append(sys.prefix)
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(prefixes)
     return env
 

@@ -87,9 +87,8 @@ STUCK_AFTER = 10.0
 stderr: a stop takes well under a second, so by then it is stuck, and the launcher's SIGKILL would
 otherwise leave no trace of where."""
 
-_DUMP_LOCK = (
-    threading.Lock()
-)  # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
+# orders the stop watch's stack dump and the teardown's (one faulthandler timer)
+_DUMP_LOCK = threading.Lock()
 _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
 
 
@@ -106,9 +105,8 @@ def run_nodes(
     DDS participant), one executor; the nodes are created in order and their ``on_shutdown`` hooks
     run in that order; the exit code is the first non-zero ``exit_code`` of the nodes."""
     rosenv.ensure_for_node()
-    tie = parent_death.tie_to_parent(
-        signal.SIGTERM
-    )  # before the SIGHUP handler: an ignored SIGHUP means nohup
+    # before the SIGHUP handler: an ignored SIGHUP means nohup
+    tie = parent_death.tie_to_parent(signal.SIGTERM)
     stop: list[int] = []
     starting = threading.Event()
     starting.set()
@@ -143,9 +141,8 @@ def run_nodes(
             rclpy.try_shutdown()
             return 2
         except BaseException:
-            _shut_down(
-                nodes
-            )  # a later node failed or a stop came: the nodes made so far stop first
+            # a later node failed or a stop came: the nodes made so far stop first
+            _shut_down(nodes)
             raise
         starting.clear()
     except StopBeforeReady:
@@ -190,9 +187,8 @@ def run_nodes(
         for hook in hooks:
             hook()
         if not hooks:
-            os.nice(
-                TEARDOWN_NICE
-            )  # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
+            # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
+            os.nice(TEARDOWN_NICE)
         executor.shutdown(timeout_sec=1.0)
         # the work is done; the middleware's teardown may hang holding the GIL (exit_deadline)
         with _DUMP_LOCK:

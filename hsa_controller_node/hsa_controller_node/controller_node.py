@@ -91,13 +91,11 @@ class ControllerNode(Node):
         )
         self._loop = ControlLoop(controller, supervisor, self._now_ns(), check=validator.problem)
         guard_updates(self, SPECS, self._apply)
-        self._motor_map = load_wiring_param(p["wiring_file"]).motor_map(
-            params
-        )  # motor_goal_angles, as the driver maps
+        # motor_goal_angles, as the driver maps
+        self._motor_map = load_wiring_param(p["wiring_file"]).motor_map(params)
         self._last_info: ControllerInfo | None = None  # info of the newest tracking tick
-        self._setpoints: deque[bytes] = (
-            deque()
-        )  # serialized setpoints received since the last tick, newest last
+        # serialized setpoints received since the last tick, newest last
+        self._setpoints: deque[bytes] = deque()
         self._tick_estimator = (
             TickEstimator(1.0 / p["rate"])
             if VelocityEstimator(p["velocity_estimator"]) is VelocityEstimator.SMOOTHING_SPLINE_16

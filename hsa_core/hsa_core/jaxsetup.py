@@ -29,9 +29,8 @@ def configure_jax() -> None:
     cache = cache_dir()
     if cache is not None:
         jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update(
-            "jax_persistent_cache_min_compile_time_secs", 0.0
-        )  # the small ones add up at start
+        # the small ones add up at start
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def use_every_core() -> None:

@@ -83,13 +83,11 @@ class Servos:
         """Load the model and wiring, fix the configured neutral (a refused parameter raises
         ParameterValidationError)."""
         self._p, self._log, self._now = p, logger, now
-        self.wiring = load_wiring_param(
-            p["wiring_file"]
-        )  # motor IDs, rods and rod signs: the robot's wiring file
+        # motor IDs, rods and rod signs: the robot's wiring file
+        self.wiring = load_wiring_param(p["wiring_file"])
         self._model = load_model(p)  # the rods' handedness and twist limit
-        self.limit = (
-            self._model.phi_limit
-        )  # the φ limit; the motor map's goal clamp is its `motor` bound
+        # the φ limit; the motor map's goal clamp is its `motor` bound
+        self.limit = self._model.phi_limit
         self.ids: list[int] = list(self.wiring.motor_ids)
         self.stored_neutral = configured_neutral(p, self.ids, self.wiring.neutral_ticks)
         self.sup = ServoSupervisor(
@@ -284,9 +282,8 @@ class Servos:
                 self.bus.enable_torque()
         except BusError as exc:
             self.count_error(exc)
-            self.bus.disable_torque(
-                verify=False
-            )  # servos enabled before the failure must not stay on
+            # servos enabled before the failure must not stay on
+            self.bus.disable_torque(verify=False)
             problem = f"torque-on failed: {exc}"
             delay = self.sup.torque_failed(problem, self._now())
             retry = f"; retrying in {delay:.3g} s" if delay is not None else ""
@@ -356,9 +353,8 @@ class Servos:
             for dxl_id in ids:
                 self.bus.reboot(dxl_id)
             self.bus.wait_answering(ids, REBOOT_WAIT_S)
-            self.bus.configure(
-                return_delay=self._p["return_delay"]
-            )  # RAM defaults: torque off; EEPROM checked
+            # RAM defaults: torque off; EEPROM checked
+            self.bus.configure(return_delay=self._p["return_delay"])
             reading = self.bus.read_positions()
             errors = self._hardware_errors()
         except BusError as exc:

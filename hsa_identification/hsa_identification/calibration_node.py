@@ -113,9 +113,8 @@ class CalibrationNode(Node):
         )
         self._phis: deque[tuple[float, np.ndarray]] = deque(maxlen=self._values["buffer_size"])
         n = self._values["num_samples"]
-        calibration.calibrate(
-            self._params, np.tile([0.0, float(self._params.l), 0.0], (n, 1))
-        )  # compile now
+        # compile now
+        calibration.calibrate(self._params, np.tile([0.0, float(self._params.l), 0.0], (n, 1)))
         self._last: dict[str, Any] = {"result": "none yet"}
         self._level = WARN
         self.create_subscription(

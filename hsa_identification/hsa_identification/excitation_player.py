@@ -142,9 +142,8 @@ class ExcitationPlayer(Node):
             **{key: v[key] for key in ("level", "n_levels", "hold", "t_step", "settling_time")},
         }
         info.publish(String(data=json.dumps(description)))
-        self._t0 = (
-            self.get_clock().now()
-        )  # node clock: simulated time under use_sim_time (lockstep)
+        # node clock: simulated time under use_sim_time (lockstep)
+        self._t0 = self.get_clock().now()
         self._finished = False
         self.create_timer(self._exc.dt, self._tick)
         self.get_logger().info(

@@ -117,9 +117,8 @@ class KinematicsNode(Node):
         self._params = load_model(self._p)
         self._estimator = self._make_estimator()
         self._delay = DelayGate(self._p["max_lag"], history=max(1, round(self._p["mocap_rate"])))
-        configuration_from_pose(
-            self._params, REST_POSE
-        )  # JIT-compile the IK now, not on the first sample
+        # JIT-compile the IK now, not on the first sample
+        configuration_from_pose(self._params, REST_POSE)
         guard_updates(self, SPECS, self._update)
         self._received = self._published = self._restarts = 0
         self._rejected: Counter[str] = Counter()

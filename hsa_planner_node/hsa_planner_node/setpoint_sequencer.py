@@ -271,9 +271,8 @@ class SetpointSequencer(Node):
         self._ref = build_reference(self._p)
         self._n = len(self._ref)
         self._period = self._ref.duration / self._n
-        self._warm_start = (
-            self._p["trajectory"] != "steps"
-        )  # continuous references warm-start (§2.1)
+        # continuous references warm-start (§2.1)
+        self._warm_start = self._p["trajectory"] != "steps"
         self._client = self.create_client(PlanSetpoint, "plan_setpoint", qos_profile=qos.SERVICE)
         self._setpoint_pub = self.create_publisher(
             Setpoint, "setpoint", qos.LATCHED, qos_overriding_options=qos.overridable()
@@ -359,9 +358,8 @@ class SetpointSequencer(Node):
         if response.success:
             msg = response.setpoint
             msg.trajectory_index, msg.trajectory_length = j, self._n
-            msg.header.stamp = (
-                now.to_msg()
-            )  # when it becomes the active point: a tick at this instant still uses the last
+            # when it becomes the active point: a tick at this instant still uses the last
+            msg.header.stamp = now.to_msg()
             self._setpoint_pub.publish(msg)
             self._setpoint_index = j
             self._published += 1

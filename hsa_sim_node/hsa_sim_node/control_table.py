@@ -150,6 +150,6 @@ OWNER = {a: item for item in ITEMS.values() for a in range(item.address, item.ad
 GOALS = (
     ADDR_GOAL_PWM,
     ADDR_GOAL_VELOCITY,
-    ADDR_GOAL_POSITION,
-)  # read-only while a bus-watchdog error is latched
+    ADDR_GOAL_POSITION,  # read-only while a bus-watchdog error is latched
+)
 COMPUTED = (ADDR_REALTIME_TICK, ADDR_MOVING, ADDR_PRESENT_VELOCITY, ADDR_PRESENT_POSITION)

@@ -211,9 +211,8 @@ class MX28Emulator:
 
     def _plug(self) -> None:
         master, slave = os.openpty()
-        tty.setraw(
-            slave
-        )  # before any client opens it, or the line discipline mangles the first bytes
+        # before any client opens it, or the line discipline mangles the first bytes
+        tty.setraw(slave)
         os.set_blocking(master, False)
         self._master, self._slave, self._wake = master, slave, os.pipe()
         staging = self._link.with_name(self._link.name + ".new")
@@ -408,18 +407,16 @@ class MX28Emulator:
                 deaf = [
                     s for s in self._servos if code is not None and code != s.table[ADDR_BAUD_RATE]
                 ]
-                self._stats.baud_mismatches += bool(
-                    deaf
-                )  # those servos only see garbage at the wrong rate
+                # those servos only see garbage at the wrong rate
+                self._stats.baud_mismatches += bool(deaf)
                 for servo in self._servos:
                     if servo not in deaf:
                         replies += [
                             (slot, servo, err, data)
                             for slot, err, data in execute(servo, packet, now)
                         ]
-            replies.sort(
-                key=lambda reply: reply[0]
-            )  # stable: sync-read order, or ID order for a broadcast ping
+            # stable: sync-read order, or ID order for a broadcast ping
+            replies.sort(key=lambda reply: reply[0])
             return [
                 self._status(servo, err, data)
                 for _, servo, err, data in replies

@@ -225,9 +225,8 @@ class SimNode(Node):
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"
         os.makedirs(os.path.dirname(port), exist_ok=True)
         plant = plant_params(model, self._p["payload"])
-        self._world = World(
-            plant, disturbance, self._map
-        )  # compiles: the bus appears only when it can answer in time
+        # compiles: the bus appears only when it can answer in time
+        self._world = World(plant, disturbance, self._map)
         self._world.set_torque([False] * len(ids))
         for t_ns, mass in payload_schedule(self._p["payload_schedule"] or []):
             self._world.set_payload(mass, t_ns)
@@ -260,8 +259,8 @@ class SimNode(Node):
             "clocks": 0,
             "leads": 0,
             "runs": 0,
-            "pumps": 0,
-        }  # lockstep: barrier
+            "pumps": 0,  # lockstep: barrier
+        }
         self._acks_by: Counter[str] = Counter()
         self._world_rates, self._emulator_rates = (
             RateMeter(time.monotonic_ns()),
@@ -383,9 +382,8 @@ class SimNode(Node):
                 self._sync_shafts()
                 if step.action is Action.RUN:
                     self._traffic["runs"] += 1
-                    self._publish_samples(
-                        step.t_ns
-                    )  # no /clock: data callbacks keep the clock of the last instant
+                    # no /clock: data callbacks keep the clock of the last instant
+                    self._publish_samples(step.t_ns)
             else:
                 return self._waiting(step)
 

@@ -89,9 +89,8 @@ class Servo:
         self.put(ADDR_BAUD_RATE, baud_code)
         self.position = float(ticks)
         self.velocity = 0.0
-        self.put(
-            ADDR_GOAL_POSITION, ticks
-        )  # assumption: at power-on the goal equals the present position
+        # assumption: at power-on the goal equals the present position
+        self.put(ADDR_GOAL_POSITION, ticks)
         self.model = model
         self.responsive = True
         self.updated = now

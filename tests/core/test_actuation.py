@@ -176,16 +176,14 @@ def test_neutral_check_at_rest_passes_twisted_only_while_held():
     assert neutral_check([0.05, -0.1, 0.0, 0.0], 0.1, held=False) is None
     problem = neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=False)
     assert problem is not None and "untwist the robot or re-home" in problem and "\n" not in problem
-    assert (
-        neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=True) is None
-    )  # a driver restart: the servos were held
+    # a driver restart: the servos were held
+    assert neutral_check([1.0, -1.0, 0.0, 0.0], 0.1, held=True) is None
 
 
 def test_read_neutral_is_accepted_only_near_the_configured_one():
     configured = (2048, 2048, 2048, 2048)
-    assert (
-        accept_read_neutral((2050, 2040, 2048, 2100), configured, 0.1) is None
-    )  # 52 ticks = 0.08 rad
+    # 52 ticks = 0.08 rad
+    assert accept_read_neutral((2050, 2040, 2048, 2100), configured, 0.1) is None
     problem = accept_read_neutral((2700, 1396, 2048, 2048), configured, 0.1)  # twisted by 1 rad
     assert problem is not None and "configured neutral" in problem
 

@@ -61,9 +61,8 @@ def test_an_offline_log_against_the_real_run(tmp_path: Path, capsys) -> None:
     )
     assert doc["deviation"] == expected.deviation and 0.0 < doc["deviation"] < 0.005
     steps = np.array([row["deviation"] for row in doc["steps"]])
-    assert np.sqrt(np.mean(steps**2)) == pytest.approx(
-        doc["deviation"], rel=1e-12
-    )  # D is the RMS of the steps'
+    # D is the RMS of the steps'
+    assert np.sqrt(np.mean(steps**2)) == pytest.approx(doc["deviation"], rel=1e-12)
     starts = np.array([row["start"]["reference"] for row in doc["steps"]])
     np.testing.assert_allclose(starts, real.step_instants, atol=1e-9)
     assert "replay (log) against 20231019_143126 (real run)" in out

@@ -184,9 +184,8 @@ def test_runlog_from_bag_keeps_tracking_ticks_with_header_time(info_bag: Path) -
     log = bagrun.runlog_from_bag(info_bag)
     n = len(TARGETS) * N
     assert len(log) == n  # 10 waiting and 5 stopped ticks dropped
-    np.testing.assert_allclose(
-        log.t, np.arange(n) * DT, atol=1e-9
-    )  # header stamps, not the jittered receive times
+    # header stamps, not the jittered receive times
+    np.testing.assert_allclose(log.t, np.arange(n) * DT, atol=1e-9)
     k = np.arange(n)
     np.testing.assert_allclose(log.chiee[:, 2], 0.01 * k)
     np.testing.assert_allclose(log.chiee_des[:, 2], -0.02)
@@ -238,8 +237,8 @@ def test_cli_writes_tables_figures_and_exports(info_bag: Path, tmp_path: Path, c
         "metrics.txt",
         "run.csv",
         "run.npz",
-        "figures",
-    }  # README layout
+        "figures",  # README layout
+    }
     figures = ("end_effector", "steps", "path", "actuation", "configuration", "collocated")
     assert {p.name for p in (out / "figures").iterdir()} == {
         f"{f}.{x}" for f in figures for x in ("pdf", "png")
@@ -356,9 +355,8 @@ def test_measured_phi_material_and_setup_come_from_the_bag(tmp_path: Path) -> No
         and log.meta["setup"] == "sim"
         and log.meta["ee_integral"] == "false"
     )
-    assert float(log.meta["phi_max"]) == pytest.approx(
-        4.7123890, abs=1e-6
-    )  # EPU's φ_max (epu.yaml, 270°)
+    # EPU's φ_max (epu.yaml, 270°)
+    assert float(log.meta["phi_max"]) == pytest.approx(4.7123890, abs=1e-6)
 
     robot = bagrun.runlog_from_bag(
         write_full_bag(tmp_path / "robot_run", nodes=("dynamixel_driver",))
@@ -382,9 +380,8 @@ def test_figures_of_a_bag_name_the_run_and_draw_measured_phi(tmp_path: Path) -> 
     fig = plotting.actuation_figure(result.log, label)
     for ax in fig.axes:
         assert [line.get_gid() for line in ax.get_lines()].count("measured") == 1
-        assert "reference" not in [
-            line.get_gid() for line in ax.get_lines()
-        ]  # a PID run has no φ^ss
+        # a PID run has no φ^ss
+        assert "reference" not in [line.get_gid() for line in ax.get_lines()]
         assert sorted(
             line.get_ydata()[0] for line in ax.get_lines() if line.get_gid() == "limit"
         ) == [0.0, pytest.approx(4.7123890, abs=1e-6)]
@@ -469,9 +466,8 @@ def garbage(k: int) -> bytes:
 def test_undecodable_messages_are_skipped_and_reported_per_topic(tmp_path: Path, capsys) -> None:
     spoiled = {analysis.TOPIC: 7, "/hsa/phi_present": 5, "/diagnostics": 3}
     t0 = step_response()[0][0]
-    bag = SplitBagWriter(
-        tmp_path / "spoiled", STORE
-    )  # the recorder's writer, malformed payloads among the real ones
+    # the recorder's writer, malformed payloads among the real ones
+    bag = SplitBagWriter(tmp_path / "spoiled", STORE)
     bag.open()
     with Bag(write_full_bag(tmp_path / "clean")) as clean:
         handles = {
@@ -610,9 +606,8 @@ def test_split_bag_layout_metadata_and_independent_readers(tmp_path: Path) -> No
     info = read_metadata(path)
     files = info["relative_file_paths"]
     assert len(files) >= 3 and files == [f"split_{k}.mcap" for k in range(len(files))]
-    assert sorted(p.name for p in path.iterdir()) == sorted(
-        [*files, "metadata.yaml"]
-    )  # no staging left over
+    # no staging left over
+    assert sorted(p.name for p in path.iterdir()) == sorted([*files, "metadata.yaml"])
     assert (
         info["version"] == 9
         and info["storage_identifier"] == "mcap"
@@ -628,9 +623,8 @@ def test_split_bag_layout_metadata_and_independent_readers(tmp_path: Path) -> No
     topic = info["topics_with_message_count"][0]
     assert topic["message_count"] == 600
     assert topic["topic_metadata"]["offered_qos_profiles"][0]["durability"] == "transient_local"
-    assert all(
-        (path / f).stat().st_size <= 8_000 + 3_000 for f in files
-    )  # + summary and footer written at close
+    # + summary and footer written at close
+    assert all((path / f).stat().st_size <= 8_000 + 3_000 for f in files)
 
     seen = []
     for (
@@ -673,9 +667,8 @@ def test_killed_writer_loses_only_the_unflushed_chunk(tmp_path: Path) -> None:
     bag.flush()
     for i in range(150, 170):  # never flushed
         bag.write(text, i * 10**7, string(i))
-    crashed = shutil.copytree(
-        path, tmp_path / "on_disk"
-    )  # what the disk holds if the process dies now
+    # what the disk holds if the process dies now
+    crashed = shutil.copytree(path, tmp_path / "on_disk")
     bag.close()
 
     assert read_metadata(crashed)["relative_file_paths"] == ["killed_0.mcap"]

@@ -176,16 +176,14 @@ def test_edge_cases_match_the_python_metrics() -> None:
                 (N_EVAL + 2, (0.0, 0.124)),
             ],
         ),
-        synthetic_log(
-            rng, 40, [(0, (0.0, 0.12)), (200, (0.004, 0.126))]
-        ),  # the window runs past the log's end
+        # the window runs past the log's end
+        synthetic_log(rng, 40, [(0, (0.0, 0.12)), (200, (0.004, 0.126))]),
         synthetic_log(rng, N_EVAL + 10, [(0, (0.0, 0.12)), (100, (0.004, 0.126))]),  # never ran
     ]
     exact = synthetic_log(rng, 5, [(0, (0.0, 0.12)), (205, (0.005, 0.128)), (405, (0.001, 0.121))])
     exact.chiee[205, :2] = exact.chiee_des[205, :2]  # e0 = 0: t_r = 0
-    exact.chiee[400:405, :2] = (
-        exact.chiee_des[400:405, :2] + 0.02
-    )  # the last tick of a step outside: t_s NaN
+    # the last tick of a step outside: t_s NaN
+    exact.chiee[400:405, :2] = exact.chiee_des[400:405, :2] + 0.02
     logs.append(exact)
     far = synthetic_log(rng, 5, [(0, (0.0, 0.12)), (105, (0.02, 0.14)), (305, (0.0, 0.12))])
     far.chiee[105:305, :2] = far.chiee_des[105:305, :2] + 0.03  # never reached, and unstable

@@ -33,9 +33,8 @@ def synthetic_run(truth: DisturbanceModel) -> calibrate.PreparedRun:
 
 
 def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_reported() -> None:
-    truth = DisturbanceModel(
-        actuation_latency=0.047
-    )  # longer than the 25 ms period: two goals in flight
+    # longer than the 25 ms period: two goals in flight
+    truth = DisturbanceModel(actuation_latency=0.047)
     run = synthetic_run(truth)
     fit = calibrate.search(
         [run], ("actuation_latency",), DisturbanceModel(), population=8, generations=4
@@ -45,14 +44,12 @@ def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_r
     values, d = calibrate.scan(
         [run], "actuation_latency", DisturbanceModel(actuation_latency=0.047), points=8
     )
-    assert (
-        len(values) == 8 and 0.047 in values
-    )  # the population's batch size: no second compilation
+    # the population's batch size: no second compilation
+    assert len(values) == 8 and 0.047 in values
     found = calibrate.identification(values, d, fit.best["actuation_latency"])
     assert found["identified"] and found["interval"][0] <= 0.047 <= found["interval"][1]
-    assert d[np.argmin(np.abs(values - 0.047))] == pytest.approx(
-        0.0, abs=1e-12
-    )  # the truth reproduces the robot
+    # the truth reproduces the robot
+    assert d[np.argmin(np.abs(values - 0.047))] == pytest.approx(0.0, abs=1e-12)
     flat = calibrate.identification(
         np.array([1.0, 2.0, 3.0]), np.array([1e-3, 1e-3 + 1e-6, 1e-3]), 2.0
     )

@@ -64,9 +64,8 @@ def test_noisy_rest_is_recovered_within_its_reported_uncertainty():
         assert np.all(np.abs(result.sigma_a_eq - truth) < 1e-3)
     z = np.array(z)
     assert np.all(np.abs(z) < 4.0)
-    assert (
-        0.3 < np.sqrt(np.mean(z**2)) < 2.0
-    )  # the reported sigma is the right size, not just large
+    # the reported sigma is the right size, not just large
+    assert 0.3 < np.sqrt(np.mean(z**2)) < 2.0
 
 
 def test_rest_check_accepts_a_noisy_rest_and_refuses_twist_motion_and_short_windows():

@@ -18,8 +18,8 @@ REPO = Path(__file__).parents[2]
         (["--controller", "pdi"], "unknown law(s) ['pdi']"),
         (
             ["--controller", "psatid,pdi"],
-            "unknown law(s) ['pdi']",
-        ),  # it ran psatid in full, then crashed
+            "unknown law(s) ['pdi']",  # it ran psatid in full, then crashed
+        ),
         (["--rate", "33"], "must divide 1000 Hz"),
         (["--rate", "0"], "must divide 1000 Hz"),
         (["--trajectory", "no_such_image.png"], "must be steps, star, circle or an image file"),

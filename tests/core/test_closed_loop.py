@@ -50,9 +50,8 @@ def metric_values(m) -> np.ndarray:
     "law, ee_integral", [("psatid", False), ("pid", False), ("psatid_gc", True)]
 )
 def test_the_jax_loop_reproduces_the_offline_experiment(law: str, ee_integral: bool) -> None:
-    config = ExperimentConfig(
-        "fpu", law, ee_integral, reference=short(seconds=40.0)
-    )  # e_ss of 3 steps compared
+    # e_ss of 3 steps compared
+    config = ExperimentConfig("fpu", law, ee_integral, reference=short(seconds=40.0))
     offline = run_experiment(config)
     spec, inputs, constants = closed_loop.prepare(config)
     log = closed_loop.compiled(spec, inputs, constants)
@@ -223,9 +222,8 @@ def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> 
     np.testing.assert_allclose(
         inputs.plant.sigma_a_eq, np.add([1.02, 1.03], config.disturbance.rest_strain_offset)
     )
-    np.testing.assert_allclose(
-        ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0]
-    )  # default: nominal
+    # default: nominal
+    np.testing.assert_allclose(ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0])
 
 
 def test_a_run_with_mocap_outages_is_refused() -> None:

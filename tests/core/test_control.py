@@ -193,9 +193,8 @@ def test_tanh_integrator_bounds_the_integral_rate(controllers):
     for k in range(20):
         q = SETPOINT.q_des + rng.normal(scale=[3.0, 0.02, 0.05])
         _, info = c.step(q, rng.normal(size=3), CHIEE, CHIEE_DOT, SETPOINT)
-        assert np.all(
-            np.abs(info.e_int - prev) <= DT * (1.0 + 1e-12)
-        )  # K_i e_int changes by <= K_i dt per tick
+        # K_i e_int changes by <= K_i dt per tick
+        assert np.all(np.abs(info.e_int - prev) <= DT * (1.0 + 1e-12))
         prev = info.e_int
     # A large collocated error saturates the integrand: e_int grows by exactly dt per tick (to
     # rounding).
@@ -370,7 +369,6 @@ def test_ee_integral_removes_steady_state_error_under_model_mismatch(params):
     extended = closed_loop_ee_error(
         plant, Controller("psatid", params, ee_integral=EeIntegralGains()), setpoint, 8.0
     )
-    assert (
-        np.ptp(plain[-40:]) < 1e-6 and np.mean(plain[-40:]) > 0.4e-3
-    )  # settled, with an offset > 0.4 mm
+    # settled, with an offset > 0.4 mm
+    assert np.ptp(plain[-40:]) < 1e-6 and np.mean(plain[-40:]) > 0.4e-3
     assert np.max(extended[-40:]) < 0.2e-3

@@ -79,9 +79,8 @@ def _tracking_at(t: int) -> tuple[FakeLaw, ControlLoop]:
 def test_a_setpoint_is_active_from_the_first_tick_after_its_stamp() -> None:
     law, loop = _loop()
     loop.receive_setpoint(100 * MS, SP_A, "a")
-    first = loop.tick(
-        100 * MS
-    )  # a tick at the very instant of the stamp still uses the previous (none)
+    # a tick at the very instant of the stamp still uses the previous (none)
+    first = loop.tick(100 * MS)
     assert (
         first.activated == ()
         and first.mode is Mode.WAITING_FOR_SETPOINT
@@ -224,18 +223,16 @@ def test_track_then_hold_then_stale_then_track_again() -> None:
     entry = held[0].transition
     assert (entry.old, entry.new) == (Mode.TRACKING, Mode.HOLD) and math.isnan(entry.outage_s)
     assert all(h.transition is None for h in held[1:])
-    assert law.n == 5 and np.array_equal(
-        law.state.e_int, [5.0, 5.0]
-    )  # not stepped: integrators frozen
+    # not stepped: integrators frozen
+    assert law.n == 5 and np.array_equal(law.state.e_int, [5.0, 5.0])
     stale = loop.tick(t + 275 * MS)  # age 275 ms > hold_timeout: nothing sent
     assert (stale.mode, stale.sent, stale.command) == (Mode.STALE, Action.NONE, None) and law.n == 5
     _state(loop, t + 290 * MS)
     back = loop.tick(t + 300 * MS)
     assert back.sent is Action.STEP and back.command.source_stamp_ns == t + 290 * MS and law.n == 6
     assert back.transition.new is Mode.TRACKING
-    assert back.transition.outage_s == pytest.approx(
-        0.2
-    )  # last tracking tick t + 100 ms, back at t + 300 ms
+    # last tracking tick t + 100 ms, back at t + 300 ms
+    assert back.transition.outage_s == pytest.approx(0.2)
     c = loop.counters
     assert (c.stale_events, c.held_ticks, c.stale_stops, c.saturated) == (1, 6, 1, 1)
     assert loop.last_outage_s == pytest.approx(0.2)
@@ -260,9 +257,8 @@ def test_a_refused_step_sends_nothing_keeps_the_mode_and_leaves_nothing_to_hold(
     law.refuse_step = True
     refused = loop.tick(25 * MS)
     assert refused.sent is Action.NONE and refused.refused.startswith("non-finite command")
-    assert (
-        refused.mode is Mode.WAITING_FOR_SETPOINT and refused.transition is None
-    )  # the mode before the tick
+    # the mode before the tick
+    assert refused.mode is Mode.WAITING_FOR_SETPOINT and refused.transition is None
     assert loop.counters.refused_ticks == 1
     stale = loop.tick(150 * MS)  # age 130 ms, but no command was ever sent: nothing to hold
     assert (stale.mode, stale.sent) == (Mode.STALE, Action.NONE)
@@ -273,9 +269,8 @@ def test_states_are_checked_before_they_can_be_used() -> None:
     loop.receive_setpoint(0, SP_A, "a")
     assert loop.state(10 * MS, 10 * MS, Q, ZERO, np.array([math.nan, 0.1, 0.0]), ZERO) is not None
     assert loop.state(10 * MS, 10 * MS, Q, ZERO, np.array([5.0, 0.1, 0.0]), ZERO) is not None
-    assert (
-        loop.state(10 * MS, 10 * MS, Q, ZERO, CHIEE, ZERO, velocity_valid=False) is None
-    )  # not refused, not used
+    # not refused, not used
+    assert loop.state(10 * MS, 10 * MS, Q, ZERO, CHIEE, ZERO, velocity_valid=False) is None
     assert loop.tick(25 * MS).mode is Mode.WAITING_FOR_STATE
     _state(loop, 30 * MS)
     assert loop.state(30 * MS, 31 * MS, Q, ZERO, CHIEE, ZERO) == "older than the newest state"
@@ -314,9 +309,8 @@ def test_driver_torque_off_leaves_tracking_freezes_the_integrators_and_is_counte
         modes.append(tick.mode)
         assert (tick.sent is Action.NONE) == (tick.mode is Mode.TORQUE_OFF)
     assert modes == [Mode.TRACKING] * 3 + [Mode.TORQUE_OFF] * 4 + [Mode.TRACKING] * 5
-    assert (
-        law.n == 8 and loop.counters.torque_off_events == 1
-    )  # 4 ticks without a step: integrators frozen
+    # 4 ticks without a step: integrators frozen
+    assert law.n == 8 and loop.counters.torque_off_events == 1
 
 
 def test_deadline_misses_and_the_period_tick_rate() -> None:
@@ -325,7 +319,6 @@ def test_deadline_misses_and_the_period_tick_rate() -> None:
         loop.tick(t * MS)
     assert (loop.counters.ticks, loop.counters.deadline_misses) == (5, 1)
     period = loop.period(200 * MS)
-    assert (
-        period.rate_hz == pytest.approx(25.0) and period.compute_s == ()
-    )  # 5 ticks in 0.2 s, no step
+    # 5 ticks in 0.2 s, no step
+    assert period.rate_hz == pytest.approx(25.0) and period.compute_s == ()
     assert loop.period(300 * MS).rate_hz == 0.0

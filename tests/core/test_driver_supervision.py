@@ -80,15 +80,13 @@ def test_next_instant_is_measured_from_the_final_goal_of_the_previous_one() -> N
 
 def test_dt_is_capped_at_one_period_and_a_held_goal_moves_one_period_at_once() -> None:
     limiter = limiter_at(HELD, 1.00)
-    np.testing.assert_array_equal(
-        write(limiter, HELD + 5000, 3.00), HELD + STEP
-    )  # 2 s later: still one period
+    # 2 s later: still one period
+    np.testing.assert_array_equal(write(limiter, HELD + 5000, 3.00), HELD + STEP)
     fresh = GoalRateLimiter()
     fresh.reset(HELD)  # torque came on holding HELD: the first write may move a full period's step
     np.testing.assert_array_equal(write(fresh, HELD + 5000, 7.0), HELD + STEP)
-    np.testing.assert_array_equal(
-        write(fresh, HELD - 5000, 7.0), HELD - STEP
-    )  # same instant: from HELD again
+    # same instant: from HELD again
+    np.testing.assert_array_equal(write(fresh, HELD - 5000, 7.0), HELD - STEP)
 
 
 def test_clock_jumping_back_allows_no_motion() -> None:
@@ -134,12 +132,10 @@ def test_flood_bound_holds_for_any_interleaving() -> None:
 
 def test_reboot_refused_only_while_tracking_with_torque_on() -> None:
     assert "tracking" in reboot_refusal(active=True, link_up=True, torque_on=True, tracking=True)
-    assert (
-        reboot_refusal(active=True, link_up=True, torque_on=True, tracking=False) is None
-    )  # holding
-    assert (
-        reboot_refusal(active=True, link_up=True, torque_on=False, tracking=True) is None
-    )  # torque off
+    # holding
+    assert reboot_refusal(active=True, link_up=True, torque_on=True, tracking=False) is None
+    # torque off
+    assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=True) is None
     assert reboot_refusal(active=True, link_up=True, torque_on=False, tracking=False) is None
     assert (
         reboot_refusal(active=False, link_up=True, torque_on=False, tracking=False)
@@ -180,9 +176,8 @@ def test_pipeline_maps_a_command_to_goal_ticks_and_rate_limits_it() -> None:
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
     step = goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD)
-    np.testing.assert_array_equal(
-        step.ticks, HELD + [STEP, -STEP, 65, -65]
-    )  # 130 ticks shortened to 65
+    # 130 ticks shortened to 65
+    np.testing.assert_array_equal(step.ticks, HELD + [STEP, -STEP, 65, -65])
     assert step.rate_limited
 
 
@@ -190,9 +185,8 @@ def test_pipeline_ramp_continues_then_stops_when_reached() -> None:
     goals = pipeline_holding()
     goals.take(Command([0.1, 0.2]))
     goals.written(goals.next_goal(1.0, MAP, LIMITS, RATE, PERIOD).ticks, 1.0)
-    step = goals.next_goal(
-        1.01, MAP, LIMITS, RATE, PERIOD
-    )  # the ramp's next step: not a new command
+    # the ramp's next step: not a new command
+    step = goals.next_goal(1.01, MAP, LIMITS, RATE, PERIOD)
     np.testing.assert_array_equal(step.ticks, HELD + [130, -130, 65, -65])
     assert not step.rate_limited
     goals.written(step.ticks, 1.01)
@@ -204,8 +198,7 @@ def test_pipeline_clips_phi_and_drops_a_stale_target() -> None:
     goals.take(Command([-1.0, 10.0]))
     step = goals.next_goal(1.0, MAP, LIMITS, 0.0, PERIOD)
     assert step.clipped is not None and "outside [0, 3.4907]" in step.clipped
-    np.testing.assert_array_equal(
-        step.ticks, HELD + [2275, -2275, 0, 0]
-    )  # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
+    # ⌊(200° = 3.4907 rad)·2048/π⌋ = 2275
+    np.testing.assert_array_equal(step.ticks, HELD + [2275, -2275, 0, 0])
     goals.drop_target()
     assert goals.next_goal(1.01, MAP, LIMITS, 0.0, PERIOD) is None

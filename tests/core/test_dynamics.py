@@ -257,9 +257,8 @@ def test_inertia_and_gravity_match_an_independent_quadrature_oracle(
     w = jnp.asarray(0.059 * w / 2)
 
     def oracle(q):
-        J_rods = jax.vmap(lambda si: jax.jacfwd(kin.rod_positions, argnums=1)(p, q, si))(
-            s
-        )  # (24, 2 rods, 2, 3)
+        # (24, 2 rods, 2, 3)
+        J_rods = jax.vmap(lambda si: jax.jacfwd(kin.rod_positions, argnums=1)(p, q, si))(s)
         p_rods = jax.vmap(lambda si: kin.rod_positions(p, q, si))(s)
         lin = p.rho_r * p.area
         M = jnp.einsum("k,i,kiaj,kial->jl", w, lin, J_rods, J_rods)
@@ -292,9 +291,8 @@ def test_inertia_and_gravity_match_an_independent_quadrature_oracle(
     # the payload matters: it changes M and G by its own order of magnitude
     straight = jnp.zeros(3)
     dM = np.asarray(dyn.mass_matrix(p, straight) - dyn.mass_matrix(params_for("fpu"), straight))
-    assert dM[1, 1] == pytest.approx(
-        0.2 * 0.059**2, rel=1e-12
-    )  # |dp_pl / dsigma_sh|^2 = l^2 at kappa = 0
+    # |dp_pl / dsigma_sh|^2 = l^2 at kappa = 0
+    assert dM[1, 1] == pytest.approx(0.2 * 0.059**2, rel=1e-12)
 
 
 def test_actuation_jacobian_matches_differences_and_is_integrable(model) -> None:
@@ -382,9 +380,8 @@ def test_exp2023_dynamic_shift_rule(fpu: HsaParams, model) -> None:
         np.testing.assert_array_equal(
             model.fd(shift, q, qd, phi), model.fd(fpu, q.at[0].set(shifted), qd, phi)
         )
-        np.testing.assert_array_equal(
-            model.varphi(shift, q, phi), model.varphi(fpu, q, phi)
-        )  # varphi stays exact
+        # varphi stays exact
+        np.testing.assert_array_equal(model.varphi(shift, q, phi), model.varphi(fpu, q, phi))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -484,9 +481,8 @@ def test_closed_form_3x3_solve_agrees_with_lapack_on_the_mass_matrix(material: s
             rtol=1e-10,
             atol=1e-12 * np.max(np.abs(expected)),
         )
-    A = np.array(
-        [[2.0, -1.0, 0.5], [0.3, 4.0, 1.0], [-1.0, 0.2, 3.0]]
-    )  # a general, non-symmetric matrix
+    # a general, non-symmetric matrix
+    A = np.array([[2.0, -1.0, 0.5], [0.3, 4.0, 1.0], [-1.0, 0.2, 3.0]])
     np.testing.assert_allclose(
         np.asarray(dyn.solve3(jnp.asarray(A), jnp.array([1.0, 2.0, 3.0]))),
         np.linalg.solve(A, [1.0, 2.0, 3.0]),

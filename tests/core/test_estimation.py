@@ -48,9 +48,8 @@ def feed(estimator, stamps, values):
 
 def cubic(t):
     """A cubic test signal (3 components) and its exact derivative."""
-    coeffs = np.array(
-        [[0.3, -1.2, 4.0, -7.5], [-0.1, 0.4, 2.0, 3.0], [1.0, 0.0, -5.0, 20.0]]
-    )  # a0 + a1 t + ...
+    # a0 + a1 t + ...
+    coeffs = np.array([[0.3, -1.2, 4.0, -7.5], [-0.1, 0.4, 2.0, 3.0], [1.0, 0.0, -5.0, 20.0]])
     powers = np.asarray(t)[..., None] ** np.arange(4)
     d_powers = np.arange(4) * np.asarray(t)[..., None] ** np.maximum(np.arange(4) - 1, 0)
     return powers @ coeffs.T, d_powers @ coeffs.T
@@ -58,9 +57,8 @@ def cubic(t):
 
 def test_precomputed_coefficients_match_spec():
     est = SavitzkyGolayDifferentiator()
-    np.testing.assert_allclose(
-        est.coefficients, SPEC_COEFFICIENTS, rtol=5.1e-10, atol=1e-13
-    )  # 10 printed digits
+    # 10 printed digits
+    np.testing.assert_allclose(est.coefficients, SPEC_COEFFICIENTS, rtol=5.1e-10, atol=1e-13)
     tau = np.arange(20) - 19.0
     assert abs(est.coefficients.sum()) < 1e-12
     assert abs(est.coefficients @ tau - 1.0) < 1e-12

@@ -75,8 +75,8 @@ def test_figures_are_written(tmp_path) -> None:
         "x_path",
         "x_actuation",
         "x_configuration",
-        "x_collocated",
-    ]  # contour: no steps
+        "x_collocated",  # contour: no steps
+    ]
     assert [p.name for p in paths] == [f"{s}.{fmt}" for s in stems for fmt in ("pdf", "png")]
     assert all(p.read_bytes()[:4] == (b"%PDF" if p.suffix == ".pdf" else b"\x89PNG") for p in paths)
 
@@ -89,9 +89,8 @@ def test_disturbance_none_is_the_model_and_default_is_the_declared_mismatch() ->
             np.asarray(getattr(same, key)), np.asarray(getattr(model, key))
         )
     plant = DisturbanceModel().plant_params(model)
-    np.testing.assert_allclose(
-        plant.S_a_hat, 1.05 * 2 * 5.66472469
-    )  # virtual rod = 2 x physical (model.md §5.3)
+    # virtual rod = 2 x physical (model.md §5.3)
+    np.testing.assert_allclose(plant.S_a_hat, 1.05 * 2 * 5.66472469)
     np.testing.assert_allclose(plant.C_eps, 0.97 * 0.00984819)
     np.testing.assert_allclose(plant.sigma_a_eq, [1.005, 1.005])
     sheared = DisturbanceModel.shear_mismatch().plant_params(model)
@@ -102,9 +101,8 @@ def test_disturbance_none_is_the_model_and_default_is_the_declared_mismatch() ->
 
 def test_noise_is_seeded() -> None:
     dist = DisturbanceModel()
-    assert dist.servo_max_speed == pytest.approx(
-        55 * 2 * math.pi / 60
-    )  # MX-28 no-load speed at 12 V
+    # MX-28 no-load speed at 12 V
+    assert dist.servo_max_speed == pytest.approx(55 * 2 * math.pi / 60)
     noise = np.array([dist.measure(dist.rng(), np.zeros(3)) for _ in range(3)])
     assert np.all(noise == noise[0])  # same seed, same sample
 
@@ -120,9 +118,8 @@ def epu_run():
 def test_closed_loop_tracks_the_steps(epu_run) -> None:
     log, m = epu_run.log, epu_run.metrics
     assert abs(len(log) - 400) <= 1 and m.control_rate == pytest.approx(40.0)  # 10 s at 40 Hz
-    np.testing.assert_allclose(
-        log.chiee_des[-1, :2], [-0.01137064, 0.13488599]
-    )  # EPU step 2 (experiments.md §2)
+    # EPU step 2 (experiments.md §2)
+    np.testing.assert_allclose(log.chiee_des[-1, :2], [-0.01137064, 0.13488599])
     step = m.steps[1]
     assert step.response_time < 1.5  # the paper's EPU P-satI-D responds in ~0.5 s
     # noise-free plant position at the end of the step: within 0.5 mm of the target

@@ -93,8 +93,8 @@ def test_typed_builds_the_dataclass_from_parameters_and_names_them_on_refusal() 
         "hold_timeout": 0.25,
         "driver_timeout": 0.0,
         "stamp_clock": False,
-        "rate": 40.0,
-    }  # parameters the class does not take are left alone
+        "rate": 40.0,  # parameters the class does not take are left alone
+    }
     assert typed(SupervisorConfig, good) == SupervisorConfig(0.1, 0.25, 0.0, False)
     with pytest.raises(ParameterValidationError) as error:
         typed(SupervisorConfig, {**good, "hold_timeout": 0.05})

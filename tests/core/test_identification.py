@@ -180,9 +180,8 @@ def test_stiffness_check_reproduces_the_spec_margins():
 def test_settled_samples_of_a_simulated_staircase_are_its_static_equilibria(base):
     """Holds of a dynamic staircase (RK4, servo steps) give one sample each, at the static
     equilibrium of its level."""
-    levels = np.linspace(
-        0.0, float(base.phi_max[0]), 6
-    )  # 6 levels: the batch shape make_records compiles
+    # 6 levels: the batch shape make_records compiles
+    levels = np.linspace(0.0, float(base.phi_max[0]), 6)
     phi = np.repeat(np.stack([levels, levels * 0.5], axis=1), int(HOLD * RATE), axis=0)
     xs = np.asarray(simulation.simulate(base, np.zeros(6), phi, 1.0 / (RATE * 4), 4))
     chiee = np.asarray(jax.vmap(lambda q: kinematics.end_effector_pose(base, q))(xs[1:, :3]))
@@ -211,9 +210,8 @@ def test_linear_solver_uncertainty_rank_and_zero_rows():
         fit = ident.solve_linear(A, b, ("a", "b"))
         hits += np.all((fit.ci_low < truth) & (truth < fit.ci_high))
         assert fit.n_rows == 200 and fit.dof == 198
-    assert (
-        0.85 < hits / 200 < 0.99
-    )  # 95 % intervals cover the truth about 95 % of the time (both at once ~90 %)
+    # 95 % intervals cover the truth about 95 % of the time (both at once ~90 %)
+    assert 0.85 < hits / 200 < 0.99
     with pytest.raises(ident.IdentificationError, match="rank deficient"):
         ident.solve_linear(np.column_stack([A[:, 1], 2 * A[:, 1]]), A @ truth, ("a", "b"))
 
@@ -240,14 +238,12 @@ def test_written_parameter_file_loads_with_the_identified_values_and_keeps_the_r
         header="identified in a test",
     )
     text = out.read_text()
-    assert (
-        text.startswith("# identified in a test") and "# damping, hand-tuned" in text
-    )  # comments kept
+    # comments kept
+    assert text.startswith("# identified in a test") and "# damping, hand-tuned" in text
     loaded = load_params(out)
     for key, value in result.values.items():
-        expected = (
-            value if key == "C_eps" else 2.0 * value
-        )  # the loader doubles per-rod stiffnesses
+        # the loader doubles per-rod stiffnesses
+        expected = value if key == "C_eps" else 2.0 * value
         np.testing.assert_allclose(
             np.asarray(getattr(loaded, key)), [expected, expected], rtol=1e-15
         )

@@ -30,8 +30,8 @@ print(json.dumps(len(jax.devices())))
         (
             "early",
             {"XLA_FLAGS": "--xla_force_host_platform_device_count=3"},
-            3,
-        ),  # the user's own count wins
+            3,  # the user's own count wins
+        ),
         ("early", {"JAX_NUM_CPU_DEVICES": "1"}, 1),
     ],
 )

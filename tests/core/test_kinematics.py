@@ -27,8 +27,8 @@ AT_ZERO = {
     "S": (1.0, -1 / 3),
     "C": (0.5, -1 / 12),
     "T": (1 / 6, -1 / 60),
-    "c": (1.0, -1 / 6),
-}  # f(0), f''(0)
+    "c": (1.0, -1 / 6),  # f(0), f''(0)
+}
 
 
 @pytest.mark.parametrize("name", CLOSED)
@@ -231,8 +231,8 @@ def _workspace_samples(n: int, seed: int) -> np.ndarray:
         0.0,
         1e-9,
         -1e-9,
-        0.1 / 0.059,
-    ]  # exactly straight, nearly straight, and at the series threshold
+        0.1 / 0.059,  # exactly straight, nearly straight, and at the series threshold
+    ]
     return q
 
 
@@ -328,6 +328,5 @@ def test_rod_strains_and_twist_elongation(fpu: HsaParams) -> None:
         kin.rod_strains(p, jnp.zeros(3))[:, 2], [1.045 - 0.0, 1.045], rtol=1e-15
     )
     eps = kin.twist_elongation(fpu, jnp.array([math.pi, 0.0]))
-    assert (
-        float(eps[0]) == pytest.approx(0.524, abs=5e-4) and float(eps[1]) == 0.0
-    )  # FPU example of §6.4
+    # FPU example of §6.4
+    assert float(eps[0]) == pytest.approx(0.524, abs=5e-4) and float(eps[1]) == 0.0

@@ -104,9 +104,8 @@ def test_progress_line_from_the_sequencer_status_and_the_controller() -> None:
 def test_json_schema_describes_the_payload_with_one_type_per_field() -> None:
     schema = live.json_schema("hsa_live.Tracking", live.tracking_sample([0.0, 0.1], [0.0, 0.1]))
     assert schema["title"] == "hsa_live.Tracking" and schema["type"] == "object"
-    assert (
-        schema["properties"]["p_ee"]["properties"]["x"]["type"] == "number"
-    )  # a string: Foxglove-family viewers
+    # a string: Foxglove-family viewers
+    assert schema["properties"]["p_ee"]["properties"]["x"]["type"] == "number"
     actuation = live.json_schema(
         "a", live.actuation_sample([0, 0], [0, 0], [0, 0], [0, 0], [1, 1], False)
     )

@@ -45,9 +45,8 @@ def test_time_starts_only_when_every_subscription_knows_every_publisher() -> Non
     barrier.report(
         Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}, heard={"/clock": 1})
     )
-    barrier.report(
-        Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1})
-    )  # the writer knows the reader
+    # the writer knows the reader
+    barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1}))
     assert barrier.start_problem() == "/kin: subscription to '/ee' matched 0 of 1 publishers"
     barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 1}))
     assert barrier.start_problem() is None
@@ -59,14 +58,13 @@ def test_time_starts_only_when_every_subscription_knows_every_publisher() -> Non
 def test_the_simulators_own_publishers_must_reach_every_participant_subscription() -> None:
     barrier = Barrier(["/kin", "/rec"])
     barrier.report(Report("/kin", 0, heard={"/pose": 1, "/clock": 1}))
-    barrier.report(
-        Report("/rec", 0, taken={"/pose": 0}, heard={"/clock": 1})
-    )  # takers: from taken as well
+    # takers: from taken as well
+    barrier.report(Report("/rec", 0, taken={"/pose": 0}, heard={"/clock": 1}))
     barrier.own_matched = {
         "/pose": 1,
         "/clock": 2,
-        "/diagnostics": 0,
-    }  # nobody subscribes to /diagnostics
+        "/diagnostics": 0,  # nobody subscribes to /diagnostics
+    }
     assert barrier.start_problem() == "simulator: '/pose' matched 1 of 2 participant subscriptions"
     barrier.own_matched = {"/pose": 2, "/clock": 1, "/diagnostics": 0}
     assert barrier.start_problem() == "simulator: '/clock' matched 1 of 2 participant subscriptions"
@@ -123,9 +121,8 @@ def test_the_lead_clock_is_needed_only_with_a_clock_acking_participant_and_waits
     None
 ):
     barrier = graph()
-    assert (
-        not barrier.needs_lead() and barrier.lead_problem(10 * MS) is None
-    )  # nobody logs in simulated time
+    # nobody logs in simulated time
+    assert not barrier.needs_lead() and barrier.lead_problem(10 * MS) is None
     barrier.report(Report("/rec", 0, taken={"/pose": 0}, clock_acks=True))
     assert barrier.needs_lead()
     assert barrier.lead_problem(10 * MS) == "clock of ['/rec'] not yet at 10000000 ns"

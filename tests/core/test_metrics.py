@@ -26,9 +26,8 @@ def step_run(targets, response, period=10.0, dt=DT, t0=123.0):
     k = np.minimum((np.arange(n) * dt // period).astype(int), len(targets) - 1)
     targets = np.asarray(targets, dtype=float)
     p_des = targets[k]
-    start = np.vstack([targets[:1] + [0.0, -0.01], targets[:-1]])[
-        k
-    ]  # the first step starts 10 mm away
+    # the first step starts 10 mm away
+    start = np.vstack([targets[:1] + [0.0, -0.01], targets[:-1]])[k]
     tau = dt * np.arange(n) - k * period
     p_ee = p_des + (start - p_des) * response(tau)[:, None]
     return t, p_des, p_ee
@@ -55,9 +54,8 @@ def test_first_order_response_time_is_tau_ln10():
     for s in run.steps:
         assert s.response_time == pytest.approx(expected)
         assert s.overshoot == 0.0 and s.overshoot_percent == 0.0
-        assert s.steady_state_error < s.initial_error * math.exp(
-            -8.0 / tau
-        )  # e0·exp(−8 s/τ) bounds the last 2 s
+        # e0·exp(−8 s/τ) bounds the last 2 s
+        assert s.steady_state_error < s.initial_error * math.exp(-8.0 / tau)
     assert run.response_time_mean == pytest.approx(expected) and run.n_not_reached == 0
 
 
@@ -95,9 +93,8 @@ def test_overshoot_of_underdamped_second_order_response():
     across = np.array([-0.8, 0.6]) * 0.002 * np.sin(7.0 * t)[:, None]
     run = evaluate_run(t, p_des, p_ee + across)
     step = run.steps[1]
-    expected_fraction = math.exp(
-        -zeta * math.pi / math.sqrt(1 - zeta**2)
-    )  # peak overshoot of a 2nd-order system
+    # peak overshoot of a 2nd-order system
+    expected_fraction = math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))
     assert step.step_size == pytest.approx(0.02)
     assert step.overshoot_percent == pytest.approx(100 * expected_fraction, rel=1e-3)
     assert step.overshoot == pytest.approx(0.02 * expected_fraction, rel=1e-3)

@@ -76,9 +76,8 @@ def test_planar_to_world_of_rest_pose_matches_hand_construction():
 
 def test_measured_base_orientation_option():
     cfg = MocapConfig(use_base_orientation=True)
-    tilt = np.array(
-        [0.0, math.sin(0.1), 0.0, math.cos(0.1)]
-    )  # whole robot yawed by 0.2 rad about world Y
+    # whole robot yawed by 0.2 rad about world Y
+    tilt = np.array([0.0, math.sin(0.1), 0.0, math.cos(0.1)])
     chiee = [0.01, 0.12, -0.2]
     position, quaternion = planar_to_world(chiee, BASE, cfg, base_quaternion=tilt)
     back = world_to_planar(BASE, position, quaternion, cfg, base_quaternion=tilt)
@@ -128,6 +127,5 @@ def test_validity_helpers():
     assert box.problem([0.0, 0.12, 0.1]) is None
     assert "y" in box.problem([0.0, 0.5, 0.0])
     assert "theta" in box.problem([0.0, 0.12, 2.0])
-    assert "rest pose" in rest_pose_problem(
-        [0.0, -0.110, 0.0]
-    )  # a flipped world axis is caught at start-up
+    # a flipped world axis is caught at start-up
+    assert "rest pose" in rest_pose_problem([0.0, -0.110, 0.0])

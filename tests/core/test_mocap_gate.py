@@ -23,8 +23,8 @@ PERIOD = 5_000_000  # [ns] 200 Hz
 REST_WORLD = (
     0.0,
     0.0035 + 0.110 + 0.007,
-    0.0,
-)  # hand-built: base at the origin, robot straight (test_mocap.py)
+    0.0,  # hand-built: base at the origin, robot straight (test_mocap.py)
+)
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
@@ -93,13 +93,11 @@ def test_non_unit_quaternion(gate):
 
 
 def test_stale_by_stamp_against_the_clock(gate):
-    assert (
-        gate.check(sample(T0 + PERIOD), T0 + PERIOD + 501_000_000).reason == "stale"
-    )  # max_age 0.5 s
+    # max_age 0.5 s
+    assert gate.check(sample(T0 + PERIOD), T0 + PERIOD + 501_000_000).reason == "stale"
     assert gate.check(sample(T0 + PERIOD), T0 + PERIOD + 499_000_000).reason is None
-    assert (
-        MocapGate(GateConfig(max_age=0.0)).check(sample(T0), T0 + 10**10).reason is None
-    )  # 0 disables
+    # 0 disables
+    assert MocapGate(GateConfig(max_age=0.0)).check(sample(T0), T0 + 10**10).reason is None
 
 
 def test_future_bound_is_small_and_independent_of_max_age(gate):
@@ -118,17 +116,15 @@ def test_future_stamp_followed_by_the_genuine_stream():
     genuine = [T0 + k * PERIOD for k in range(100)]
     assert stream(g, genuine[:10]) == [None] * 10
     assert g.check(sample(genuine[9] + 400_000_000), genuine[9] + 1_000_000).reason == "future"
-    assert (
-        stream(g, genuine[10:91]) == [None] * 81
-    )  # every genuine sample accepted, from the first one
+    # every genuine sample accepted, from the first one
+    assert stream(g, genuine[10:91]) == [None] * 81
 
 
 def test_future_stamp_inside_the_bound_holds_back_at_most_two_periods():
     g = MocapGate(GateConfig())
     assert stream(g, [T0]) == [None]
-    bad = (
-        T0 + PERIOD + 9_000_000
-    )  # 9 ms ahead of the clock at arrival: accepted (inside max_future)
+    # 9 ms ahead of the clock at arrival: accepted (inside max_future)
+    bad = T0 + PERIOD + 9_000_000
     assert g.check(sample(bad), T0 + PERIOD).reason is None
     reasons = stream(g, [T0 + k * PERIOD for k in range(1, 8)])
     assert reasons[:2] == ["out_of_order", "out_of_order"] and reasons[2:] == [None] * 5
@@ -187,8 +183,8 @@ def test_base_samples_get_the_stamp_checks_and_never_move_the_base(stamp, reason
     shifted = (
         0.0,
         0.0,
-        0.005,
-    )  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted (issue 22)
+        0.005,  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted (issue 22)
+    )
     assert [
         g.base_sample(sample(stamp + k, shifted), now).reason
         for k in range(10 if reason == "stale" else 1)
@@ -211,9 +207,8 @@ def test_a_stale_base_is_never_used_and_a_fresh_one_restores_the_stream():
     assert set(reasons[cut:]) == {"base_stale"}
     assert g.base_mode(stamps[-1] + 1_000_000) is BaseMode.STALE
     now = stamps[-1] + PERIOD
-    assert (
-        g.base_sample(sample(now - 1_000_000, (0.0, 0.0, 0.0)), now).reason is None
-    )  # the base is back
+    # the base is back
+    assert g.base_sample(sample(now - 1_000_000, (0.0, 0.0, 0.0)), now).reason is None
     assert g.base_mode(now) is BaseMode.LIVE
     assert g.check(sample(now), now + 1_000_000).reason is None
 
@@ -223,9 +218,8 @@ def test_a_base_pose_processed_late_is_judged_by_its_stamp():
     would be combined with is stamped more than base_timeout after it: that base is stale for it."""
     g = based(base_timeout=0.25)
     now = T0 + 400_000_000
-    assert (
-        g.base_sample(sample(T0 + 100_000_000, (0.0, 0.0, 0.0)), now).reason is None
-    )  # 0.3 s in a queue
+    # 0.3 s in a queue
+    assert g.base_sample(sample(T0 + 100_000_000, (0.0, 0.0, 0.0)), now).reason is None
     assert g.check(sample(T0 + 340_000_000), now).reason is None  # 0.24 s after the base's stamp
     verdict = g.check(sample(T0 + 360_000_000), now + 1_000_000)  # 0.26 s after it
     assert verdict.reason == "base_stale" and "0.26 s old" in verdict.text
@@ -234,9 +228,8 @@ def test_a_base_pose_processed_late_is_judged_by_its_stamp():
 def test_clock_going_back_drops_the_base_too():
     g = based()
     restart = T0 - 10 * 10**9
-    assert (
-        g.check(sample(restart), restart).reason == "no_base"
-    )  # the old time line's base is not used
+    # the old time line's base is not used
+    assert g.check(sample(restart), restart).reason == "no_base"
     assert g.time_resets == 1 and g.base_mode(restart) is BaseMode.WAITING
     assert g.base_sample(sample(restart, (0.0, 0.0, 0.0)), restart).reason is None
     assert g.check(sample(restart + PERIOD), restart + PERIOD).reason is None
@@ -276,16 +269,13 @@ def test_workspace_box(gate):
 def test_jump_scaled_by_the_time_since_the_last_accepted_sample(gate):
     # 4 m/s: 2 cm per 5 ms period
     assert gate.check(at([0.03, 0.110, 0.0], T0 + PERIOD), T0 + PERIOD).reason == "jump"
-    assert (
-        gate.check(at([0.0, 0.110, 0.3], T0 + PERIOD), T0 + PERIOD).reason == "jump"
-    )  # 40 rad/s: 0.2 rad
+    # 40 rad/s: 0.2 rad
+    assert gate.check(at([0.0, 0.110, 0.3], T0 + PERIOD), T0 + PERIOD).reason == "jump"
     assert gate.check(at([0.015, 0.110, 0.0], T0 + PERIOD), T0 + PERIOD).reason is None
-    assert (
-        gate.check(at([0.065, 0.110, 0.0], T0 + 3 * PERIOD), T0 + 3 * PERIOD).reason == "jump"
-    )  # 5 cm in 10 ms
-    assert (
-        gate.check(at([0.065, 0.110, 0.0], T0 + 4 * PERIOD), T0 + 4 * PERIOD).reason is None
-    )  # in 15 ms
+    # 5 cm in 10 ms
+    assert gate.check(at([0.065, 0.110, 0.0], T0 + 3 * PERIOD), T0 + 3 * PERIOD).reason == "jump"
+    # in 15 ms
+    assert gate.check(at([0.065, 0.110, 0.0], T0 + 4 * PERIOD), T0 + 4 * PERIOD).reason is None
 
 
 def test_rejected_samples_leave_the_references_unchanged(gate):

@@ -16,8 +16,8 @@ from hsa_core.task.trajectories import STEP_LISTS
 
 FPU_STEPS, EPU_STEPS = (
     STEP_LISTS["fpu"],
-    STEP_LISTS["epu"],
-)  # experiments.md §2 (2023-09-25 and 2023-10-19)
+    STEP_LISTS["epu"],  # experiments.md §2 (2023-09-25 and 2023-10-19)
+)
 FPU_PHI_MAX, EPU_PHI_MAX = np.radians(200.0), np.radians(270.0)
 SPEC_RTOL = 5e-8  # the spec prints 8 significant digits: rounding error <= 5e-8 relative
 

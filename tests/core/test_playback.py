@@ -62,9 +62,8 @@ def test_a_message_is_published_only_after_its_instant_is_finished() -> None:
     barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))  # it ran
     assert playback.step(T0, {"/ee": 1}, now=0.002).action == "publish"
     barrier.own["/ee"] = 1
-    assert (
-        playback.step(T0, {"/ee": 1}, now=0.003).action == "publish"
-    )  # a second message of the same log time
+    # a second message of the same log time
+    assert playback.step(T0, {"/ee": 1}, now=0.003).action == "publish"
 
 
 def test_the_clock_moves_only_when_every_published_message_was_taken() -> None:
@@ -87,18 +86,17 @@ def test_a_timer_due_before_the_next_message_gets_its_own_instant() -> None:
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
     assert (step.action, step.t_ns) == (
         "clock",
-        T0 + 25 * MS,
-    )  # the timer's instant, not the message's
+        T0 + 25 * MS,  # the timer's instant, not the message's
+    )
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.01)
     assert step.action == "wait" and "timers due" in step.reason
-    barrier.report(
-        kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS)
-    )  # the timer ran at its instant
+    # the timer ran at its instant
+    barrier.report(kinematics(clock_ns=T0 + 25 * MS, due=T0 + 50 * MS))
     step = playback.step(T0 + 40 * MS, {"/ee": 1}, now=0.0)
     assert (step.action, step.t_ns) == (
         "clock",
-        T0 + 40 * MS,
-    )  # the message, before the next due (50 ms)
+        T0 + 40 * MS,  # the message, before the next due (50 ms)
+    )
 
 
 def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> None:
@@ -120,8 +118,8 @@ def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> Non
     step = playback.step(T0 + 40 * MS, {"/ee": 2}, now=0.3)
     assert (step.action, step.t_ns) == (
         "clock",
-        T0 + 40 * MS,
-    )  # no timer due: the player's messages wait anyway
+        T0 + 40 * MS,  # no timer due: the player's messages wait anyway
+    )
 
 
 def test_timer_dues_before_the_first_message_are_not_stepped_through() -> None:
@@ -170,18 +168,16 @@ def test_each_instant_has_its_own_timeout_and_the_start_ten_times_as_long() -> N
     barrier = Barrier(["/kin"])
     playback = LockstepPlayback(barrier, timeout=1.0)
     assert playback.step(T0, {}, now=0.0).action == "wait"
-    assert (
-        playback.step(T0, {}, now=9.9).action == "wait"
-    )  # start-up (nodes compiling) may take 10 timeouts
+    # start-up (nodes compiling) may take 10 timeouts
+    assert playback.step(T0, {}, now=9.9).action == "wait"
     step = playback.step(T0, {}, now=10.1)
     assert step.action == "fail" and "before simulated time started" in step.reason
     barrier, playback = started(timeout=1.0)
     for k in range(5):  # five instants, each finished 0.9 s after its clock: no failure
         barrier.report(kinematics(clock_ns=T0 + (k - 1) * MS, due=T0 + k * MS))
         assert playback.step(T0 + k * MS, {"/ee": 1}, now=0.9 * k).action == "clock"
-    assert (
-        playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"
-    )  # instant 4 waits 0.9 s: a resend
+    # instant 4 waits 0.9 s: a resend
+    assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.5).action == "clock"
     assert playback.step(T0 + 5 * MS, {"/ee": 1}, now=4.7).action == "fail"  # its timer never runs
 
 

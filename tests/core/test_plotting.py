@@ -108,8 +108,8 @@ def test_contour_runs_get_no_step_figure(tmp_path: Path) -> None:
             "psatid + EE integral",
             {},
             "P-satI-D + EE integral",
-            "FPU, sim",
-        ),  # the offline experiment's spelling
+            "FPU, sim",  # the offline experiment's spelling
+        ),
     ],
 )
 def test_titles_name_law_material_setup_and_rmse(
@@ -311,9 +311,8 @@ def test_overlay_draws_each_distinct_reference_in_its_runs_colour() -> None:
     logs = [*same, other]
     labels = [plotting.RunLabel.of(log) for log in logs]
     fig = plotting.overlay_end_effector_figure(same, labels[:2])
-    assert [line.get_color() for line in lines(fig.axes[0], "reference")] == [
-        "k"
-    ]  # shared: drawn once, black
+    # shared: drawn once, black
+    assert [line.get_color() for line in lines(fig.axes[0], "reference")] == ["k"]
     fig = plotting.overlay_end_effector_figure(logs, labels)
     for k, ax in enumerate(fig.axes[:2]):
         refs = lines(ax, "reference")

@@ -100,9 +100,8 @@ def test_a_replay_takes_the_run_s_conditions_and_real_step_instants() -> None:
     assert t[1:4] == pytest.approx([9.87, 19.55, 29.95], abs=0.0101) and t[-1] == pytest.approx(
         99.54, abs=0.0101
     )
-    np.testing.assert_allclose(
-        config.reference.p_des, step_reference("fpu").p_des
-    )  # the 09-25 list, experiments.md §2
+    # the 09-25 list, experiments.md §2
+    np.testing.assert_allclose(config.reference.p_des, step_reference("fpu").p_des)
     pid = replay_config(reference.load_run("20230925_092200"))
     assert pid.gains == PidGains(10.0, 110.0, 0.25) and pid.sigma_a_eq == pytest.approx(
         (1.02776, 1.02776), abs=5e-6
@@ -130,9 +129,8 @@ def test_the_september_profile_reaches_the_run() -> None:
     first = result.ticks[
         next(i for i, tick in enumerate(result.ticks) if np.isfinite(tick.phi).all())
     ]
-    assert (
-        first.t_ns >= 16 * 36_000_000
-    )  # the 16th tick feeds the 16th sample; the first state goes to the next
+    # the 16th tick feeds the 16th sample; the first state goes to the next
+    assert first.t_ns >= 16 * 36_000_000
     # P-satI-D: e_int += tanh(γ e)·dt, |tanh| ≤ 1, γ = 100 saturates it on a step: per-tick change
     # up to dt, not 36 ms
     step = np.abs(np.diff(np.array([tick.e_int for tick in result.ticks]), axis=0)).max()

@@ -89,10 +89,11 @@ def test_step_instants_are_where_the_reference_changes(bag: str) -> None:
 
 def test_the_epu_reference_drift_is_no_step() -> None:
     t = np.arange(6) * 0.01
+    # [m]
     p_des = (
         np.array([[0.0, 0.0], [0.0, 0.01], [0.0, 0.02], [5.0, 0.02], [5.0, 0.03], [5.0, 0.03]])
         * 1e-3
-    )  # [m]
+    )
     assert list(reference.step_instants(t, p_des)) == [0.03]
 
 

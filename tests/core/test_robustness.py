@@ -54,13 +54,11 @@ def test_a_settled_run_is_neither_unstable_nor_cycling() -> None:
 def test_an_oscillation_in_the_last_two_seconds_is_a_limit_cycle() -> None:
     xy = reference_xy()
     t = np.arange(N) * PERIOD_MS * 1e-3
-    xy[:, 0] += (
-        1.5e-3 * np.sin(2 * np.pi * 11.0 * t) * (t > 18.0)
-    )  # 3 mm peak to peak, only at the very end
+    # 3 mm peak to peak, only at the very end
+    xy[:, 0] += 1.5e-3 * np.sin(2 * np.pi * 11.0 * t) * (t > 18.0)
     assert robustness.classify(spec(), log_of(xy)) == (False, True)
-    xy[:, 0] = reference_xy()[:, 0] + 0.9e-3 * np.sin(
-        2 * np.pi * 11.0 * t
-    )  # 1.8 mm: below the threshold
+    # 1.8 mm: below the threshold
+    xy[:, 0] = reference_xy()[:, 0] + 0.9e-3 * np.sin(2 * np.pi * 11.0 * t)
     assert robustness.classify(spec(), log_of(xy)) == (False, False)
 
 

@@ -136,9 +136,8 @@ def test_reservation_skips_a_domain_a_user_run_holds(
     """A user run on domain d in 1..101 holds d's lock, so a run that reserves its domain does not
     land on it."""
     span = rosenv.DOMAIN_MAX - rosenv.DOMAIN_MIN + 1
-    first_choice = (
-        rosenv.DOMAIN_MIN + os.getpid() % span
-    )  # where reserve_domain_id starts in this process
+    # where reserve_domain_id starts in this process
+    first_choice = rosenv.DOMAIN_MIN + os.getpid() % span
     user = subprocess.Popen(
         [sys.executable, "-c", HOLD],
         env=user_env(str(first_choice), tmp_path),
@@ -148,9 +147,8 @@ def test_reservation_skips_a_domain_a_user_run_holds(
     try:
         assert user.stdout.readline() == f"{first_choice}\n"
         monkeypatch.setattr(rosenv, "_LOCK_DIR", tmp_path / "hsa_ros_domains")
-        monkeypatch.setattr(
-            rosenv, "_domain_lock", None
-        )  # keeps this session's own lock handle alive
+        # keeps this session's own lock handle alive
+        monkeypatch.setattr(rosenv, "_domain_lock", None)
         assert (
             rosenv.reserve_domain_id()
             == rosenv.DOMAIN_MIN + (first_choice - rosenv.DOMAIN_MIN + 1) % span

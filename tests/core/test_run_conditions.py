@@ -61,9 +61,8 @@ def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:
     run = load_run("20231019_143126")
     args = graph_arguments(load_profile("lab"), run=run)
     assert args["material"] == "epu" and args["controller"] == "psatid"
-    assert (
-        args["velocity_estimator"] == "savitzky_golay_20" and args["integrator_dt"] == "0.025"
-    )  # oct2023
+    # oct2023
+    assert args["velocity_estimator"] == "savitzky_golay_20" and args["integrator_dt"] == "0.025"
     assert args["command_latency"] == "0.006"
     sigma = run.conditions.sigma_a_eq
     assert args["sigma_a_eq"] == f"[{sigma[0]!r}, {sigma[1]!r}]"
@@ -77,18 +76,16 @@ def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:
 
 def test_the_tick_estimator_differentiates_a_cubic_after_sixteen_ticks() -> None:
     estimator = TickEstimator(0.036)
-    t = np.arange(20) * 0.036 + np.array(
-        [0.0, 0.004] * 10
-    )  # the newest sample's stamp wanders with the mocap grid
+    # the newest sample's stamp wanders with the mocap grid
+    t = np.arange(20) * 0.036 + np.array([0.0, 0.004] * 10)
     coeffs = np.array([0.1, -0.5, 2.0, 0.3])  # x = c0 + c1 t + c2 t^2 + c3 t^3 in every coordinate
     results = []
     for k, tk in enumerate(t):
         x = np.polyval(coeffs[::-1], tk) * np.ones(6)
         results.append(estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]))
         if k == 3:
-            assert (
-                estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]) is None
-            )  # same stamp
+            # same stamp
+            assert estimator.update(int(round(tk * 1e9)) + 5_000_000_000, x[:3], x[3:]) is None
     assert all(r is None for r in results[:15]) and all(r is not None for r in results[15:])
     slope = coeffs[1] + 2 * coeffs[2] * t[-1] + 3 * coeffs[3] * t[-1] ** 2
     np.testing.assert_allclose(np.concatenate(results[-1]), slope, rtol=1e-7)

@@ -14,9 +14,8 @@ TREES = [
     *(REPO / d for d in ("tests", "tools", "launch_scripts", "benchmarks")),
 ]
 """Where our sources are (out/, build/ and .venv/ hold none)."""
-DELIBERATE = {
-    REPO / "tests" / "ros" / "peers" / "plan_burst_peer.py"
-}  # measures rclpy's default on request
+# measures rclpy's default on request
+DELIBERATE = {REPO / "tests" / "ros" / "peers" / "plan_burst_peer.py"}
 
 
 def plan_clients(path: Path) -> list[ast.Call]:

@@ -30,8 +30,8 @@ TWISTED = [
     1000 + 200,
     3000 - 200,
     -500 + 200,
-    5000 - 200,
-]  # 200 ticks = 0.307 rad of twist on every motor
+    5000 - 200,  # 200 ticks = 0.307 rad of twist on every motor
+]
 
 
 def describe(bits: int) -> str:
@@ -143,14 +143,12 @@ def test_command_verdicts() -> None:
 
 def test_watchdog_arms_with_the_first_command_and_holds() -> None:
     sup = running()
-    assert (
-        sup.check_watchdog(100.0, 0.5, "hold").event is WatchdogEvent.NONE
-    )  # no command yet: nothing expires
+    # no command yet: nothing expires
+    assert sup.check_watchdog(100.0, 0.5, "hold").event is WatchdogEvent.NONE
     sup.commands.taken(2.0)
     assert sup.commands.state is Watchdog.WAITING
-    assert (
-        sup.check_watchdog(2.5, 0.5, "hold").event is WatchdogEvent.NONE
-    )  # age == timeout: not older
+    # age == timeout: not older
+    assert sup.check_watchdog(2.5, 0.5, "hold").event is WatchdogEvent.NONE
     assert sup.commands.state is Watchdog.FRESH
     first = sup.check_watchdog(2.75, 0.5, "hold")
     assert first.event is WatchdogEvent.HOLD and first.stale and not first.torque_off
@@ -367,9 +365,8 @@ def test_hardware_error_turns_torque_off_until_asked_again() -> None:
     assert sup.hardware.problem() == (
         "hardware error {22: 'bits 4'}: call reboot (or reboot_<id>), or power-cycle the servo"
     )
-    assert (
-        sup.hardware_errors(frozenset({22, 23}), {22: 4}) is Alert.NONE
-    )  # same errors: nothing new
+    # same errors: nothing new
+    assert sup.hardware_errors(frozenset({22, 23}), {22: 4}) is Alert.NONE
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset({22}), None) == sup.hardware.problem()
     assert sup.hardware_errors(frozenset(), {}) is Alert.CLEARED
     assert sup.hardware.problem() is None
@@ -398,9 +395,8 @@ def test_start_up_check_refuses_a_twisted_pose_unless_held() -> None:
 def test_start_up_check_runs_once_per_configure() -> None:
     sup = configured()
     assert sup.torque_on_problem(AT_NEUTRAL, frozenset(), None) is None
-    assert (
-        sup.torque_on_problem(TWISTED, frozenset(), None) is None
-    )  # later: only the sane range applies
+    # later: only the sane range applies
+    assert sup.torque_on_problem(TWISTED, frozenset(), None) is None
     sup.configured(neutral_known=True)
     sup.positions.calibrate(MAP)
     assert sup.torque_on_problem(TWISTED, frozenset(), None) is not None

@@ -64,8 +64,8 @@ def test_samples_between_instants_are_run_without_clock_and_an_instant_comes_eve
     s = step(sim, 0.0, world_ns=45 * MS, sample_ns=50 * MS)
     assert (s.action, s.t_ns) == (
         "instant",
-        50 * MS,
-    )  # 50 ms of simulated time since the last instant
+        50 * MS,  # 50 ms of simulated time since the last instant
+    )
     barrier.own["/mocap"] = 10
     s = step(sim, 0.1, world_ns=50 * MS, sample_ns=55 * MS)
     assert s.action == "wait" and "has taken 0 of 10 messages on '/mocap'" in s.reason
@@ -91,8 +91,8 @@ def test_at_a_due_timer_the_clock_moves_and_the_instant_ends_once_timers_ran_and
     assert (s.action, s.t_ns, s.reason) == (
         "clock",
         25 * MS,
-        BUS_BUSY,
-    )  # resent: /clock is best effort
+        BUS_BUSY,  # resent: /clock is best effort
+    )
     s = step(sim, 0.07, world_ns=25 * MS, sample_ns=26 * MS)
     assert (s.action, s.t_ns) == ("finish", 25 * MS)
     assert step(sim, 0.07, world_ns=25 * MS, sample_ns=26 * MS).action == "run"
@@ -108,9 +108,8 @@ def test_with_a_recorder_the_lead_clock_reaches_it_before_clock_moves() -> None:
     assert step(sim, 0.0, sample_ns=26 * MS).action == "instant"
     s = step(sim, 0.0, world_ns=25 * MS, sample_ns=26 * MS)
     assert (s.action, s.t_ns) == ("lead", 25 * MS)
-    s = step(
-        sim, 0.1, world_ns=25 * MS, sample_ns=26 * MS
-    )  # no /clock (not even resent) before the recorder is there
+    # no /clock (not even resent) before the recorder is there
+    s = step(sim, 0.1, world_ns=25 * MS, sample_ns=26 * MS)
     assert (s.action, s.reason) == ("wait", f"clock of ['/rec'] not yet at {25 * MS} ns")
     barrier.report(Report("/rec", 25 * MS, taken={"/mocap": 0}, clock_acks=True))
     s = step(sim, 0.2, world_ns=25 * MS, sample_ns=26 * MS)

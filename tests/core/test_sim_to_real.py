@@ -12,6 +12,7 @@ import pytest
 from hsa_core.analysis import sim_to_real
 from hsa_core.analysis.sim_to_real import StepRun
 
+# [m]
 SETPOINTS = (
     np.array(
         [
@@ -29,10 +30,9 @@ SETPOINTS = (
         ]
     )
     * 1e-3
-)  # [m]
-INSTANTS = np.array(
-    [9.87, 19.55, 29.96, 39.91, 49.51, 59.88, 69.93, 79.45, 89.90, 99.55]
-)  # [s], not every 10 s
+)
+# [s], not every 10 s
+INSTANTS = np.array([9.87, 19.55, 29.96, 39.91, 49.51, 59.88, 69.93, 79.45, 89.90, 99.55])
 
 
 def step_run(
@@ -100,12 +100,10 @@ def test_end_error_and_peak_to_peak_of_the_last_two_seconds() -> None:
 def test_response_time_is_the_first_sample_below_ten_percent() -> None:
     # e = e0 exp(−t/τ) < 0.1 e0 from t = τ ln 10 on: the first 10 ms sample after it
     fast, slow = step_run(tau=0.2), step_run(tau=0.3)
-    np.testing.assert_allclose(
-        sim_to_real.response_times(fast), 0.47, atol=1e-9
-    )  # 0.2 ln 10 = 0.4605
-    np.testing.assert_allclose(
-        sim_to_real.response_times(slow), 0.70, atol=1e-9
-    )  # 0.3 ln 10 = 0.6908
+    # 0.2 ln 10 = 0.4605
+    np.testing.assert_allclose(sim_to_real.response_times(fast), 0.47, atol=1e-9)
+    # 0.3 ln 10 = 0.6908
+    np.testing.assert_allclose(sim_to_real.response_times(slow), 0.70, atol=1e-9)
     assert sim_to_real.compare(slow, fast).response_time_difference == pytest.approx(0.23 / 0.47)
 
 
@@ -113,12 +111,10 @@ def test_rise_time_is_ten_to_ninety_percent_of_the_way() -> None:
     # progress 1 − exp(−t/τ): 10 % at τ ln(10/9), 90 % at τ ln 10; each at the first 10 ms sample
     # after it
     fast, slow = step_run(tau=0.2), step_run(tau=0.3)
-    np.testing.assert_allclose(
-        sim_to_real.rise_times(fast), 0.47 - 0.03, atol=1e-9
-    )  # 0.0211 → 0.03, 0.4605 → 0.47
-    np.testing.assert_allclose(
-        sim_to_real.rise_times(slow), 0.70 - 0.04, atol=1e-9
-    )  # 0.0316 → 0.04, 0.6908 → 0.70
+    # 0.0211 → 0.03, 0.4605 → 0.47
+    np.testing.assert_allclose(sim_to_real.rise_times(fast), 0.47 - 0.03, atol=1e-9)
+    # 0.0316 → 0.04, 0.6908 → 0.70
+    np.testing.assert_allclose(sim_to_real.rise_times(slow), 0.70 - 0.04, atol=1e-9)
     assert sim_to_real.compare(slow, fast).rise_time_difference == pytest.approx(0.22 / 0.44)
 
 
@@ -178,21 +174,17 @@ def test_deviation_per_step_and_the_side_by_side_table() -> None:
     assert table.steps == sim_to_real.STEPS
     np.testing.assert_allclose(table.start[0], INSTANTS, atol=1e-9)
     np.testing.assert_allclose(table.start[1], INSTANTS, atol=1e-9)
-    np.testing.assert_allclose(
-        table.end_error[0], 0.005, rtol=1e-6
-    )  # the offset, once the response has settled
+    # the offset, once the response has settled
+    np.testing.assert_allclose(table.end_error[0], 0.005, rtol=1e-6)
     np.testing.assert_allclose(table.end_error[1], 0.0, atol=1e-12)
-    np.testing.assert_allclose(
-        table.rise_time[1], 0.2 * math.log(9.0), atol=0.011
-    )  # first order: τ ln 9
+    # first order: τ ln 9
+    np.testing.assert_allclose(table.rise_time[1], 0.2 * math.log(9.0), atol=0.011)
     rows = table.rows()
     assert [r["step"] for r in rows] == list(range(1, 11))
     assert rows[0]["deviation"] == pytest.approx(0.005)
     assert rows[0]["peak_to_peak"]["run"] == pytest.approx([0.0, 0.0], abs=1e-6)
     d = np.diff(SETPOINTS, axis=0) / np.linalg.norm(np.diff(SETPOINTS, axis=0), axis=1)[:, None]
-    np.testing.assert_allclose(
-        table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9
-    )  # settles there
-    np.testing.assert_array_equal(
-        table.overshoot[1], 0.0
-    )  # a first-order response never passes its target
+    # settles there
+    np.testing.assert_allclose(table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9)
+    # a first-order response never passes its target
+    np.testing.assert_array_equal(table.overshoot[1], 0.0)

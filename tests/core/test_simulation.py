@@ -33,9 +33,8 @@ def test_S1_steady_state(model, kappa_rule: str, q_expected, chiee_expected) -> 
     assert np.abs(x[3:]).max() < 1e-12
     assert_printed(x[:3], q_expected, rtol=1e-7, name="q")
     assert_printed(model.fk(p, jnp.asarray(x[:3])), chiee_expected, rtol=1e-7, name="chiee")
-    assert (
-        np.abs(np.asarray(model.residual(p, jnp.asarray(x[:3]), phi))).max() < 1e-10
-    )  # the static root
+    # the static root
+    assert np.abs(np.asarray(model.residual(p, jnp.asarray(x[:3]), phi))).max() < 1e-10
 
 
 def test_rollouts_settle_cleanly_near_zero_curvature(model) -> None:
@@ -116,9 +115,8 @@ def test_energy_is_conserved_without_damping_and_dissipated_with_it(
 ) -> None:
     p = fpu.replace(m_pl=payload, CoG_pl=[0.003, -0.0255], chiee_off=[0.0, 0.025, 0.0])
     undamped = p.replace(zeta_b=[0.0, 0.0], zeta_sh=[0.0, 0.0], zeta_a=[0.0, 0.0])
-    x0 = jnp.array(
-        [12.0, 0.02, 0.15, 30.0, -0.5, 1.0]
-    )  # far from equilibrium, crossing kappa = 0 repeatedly
+    # far from equilibrium, crossing kappa = 0 repeatedly
+    x0 = jnp.array([12.0, 0.02, 0.15, 30.0, -0.5, 1.0])
     xs = _rollout(undamped, x0, jnp.zeros(2), 1e-4)  # 0.5 s
     assert np.any(np.asarray(xs[:, 0]) < 0.0) and np.any(np.asarray(xs[:, 0]) > 0.0)
     E = np.asarray(_energy(p, xs))

@@ -68,9 +68,8 @@ def test_a_state_with_an_old_stamp_is_stale_even_if_it_just_arrived() -> None:
     t = 1000 * MS
     s = _tracking(t)
     s.driver_heartbeat(t + 2000 * MS)
-    assert (
-        s.state(t + 10 * MS, t + 2000 * MS) is None
-    )  # newer than the newest, but stamped ~2 s ago
+    # newer than the newest, but stamped ~2 s ago
+    assert s.state(t + 10 * MS, t + 2000 * MS) is None
     decision = s.tick(t + 2000 * MS)
     assert decision.action is not Action.STEP and decision.age_s == pytest.approx(1.99)
 
@@ -131,9 +130,8 @@ def test_driver_torque_off_sends_nothing_until_it_is_on_again() -> None:
     assert s.tick(t + 400 * MS).mode is Mode.DRIVER_LOST  # silence outranks the torque report
     s.driver_heartbeat(t + 400 * MS)
     assert s.driver_torque(True) is True
-    assert (
-        s.tick(t + 400 * MS).mode is Mode.STALE
-    )  # state 300 ms old: nothing held across the torque-off
+    # state 300 ms old: nothing held across the torque-off
+    assert s.tick(t + 400 * MS).mode is Mode.STALE
     assert s.state(t + 400 * MS, t + 400 * MS) is None
     assert s.tick(t + 400 * MS).mode is Mode.TRACKING
     s.driver_torque(False)
@@ -148,9 +146,8 @@ def test_estop_has_priority_and_drops_the_hold() -> None:
     assert (s.tick(t).mode, s.tick(t).action) == (Mode.ESTOP, Action.NONE)
     assert s.set_estop(False) is False
     s.driver_heartbeat(t + 150 * MS)
-    assert (
-        s.tick(t + 150 * MS).mode is Mode.STALE
-    )  # stale after the E-stop: no command from before it is re-sent
+    # stale after the E-stop: no command from before it is re-sent
+    assert s.tick(t + 150 * MS).mode is Mode.STALE
     assert s.state(t + 150 * MS, t + 150 * MS) is None
     assert s.tick(t + 150 * MS).mode is Mode.TRACKING
 

@@ -54,9 +54,8 @@ def test_fpu_step_list_as_in_experiments():
     np.testing.assert_array_equal(ref.p_des[0], [0.0, 0.120])
     np.testing.assert_array_equal(ref.p_des[1], [0.00479247, 0.12781018])
     np.testing.assert_array_equal(ref.p_des[2], [-0.035, 0.122])
-    np.testing.assert_array_equal(
-        ref.p_des[4], [0.00823294, 0.114643]
-    )  # 09-25 list, not the 09-26 variant
+    # 09-25 list, not the 09-26 variant
+    np.testing.assert_array_equal(ref.p_des[4], [0.00823294, 0.114643])
     np.testing.assert_array_equal(ref.p_des[9], [0.0073023, 0.11479653])
     np.testing.assert_array_equal(ref.p_des[10], [0.00567301, 0.1271345])
 
@@ -101,9 +100,8 @@ def test_contour_of_circle_lies_on_r_max_around_centroid(circle_png):
     # boundary pixels lie within a pixel of the radius; the centroid is truncated to whole pixels (≤
     # 1 px more)
     assert np.all(np.abs(dist - r_max) <= 2.0 * r_max / radius_px)
-    assert np.max(np.abs(ref.p_des - centroid)) == pytest.approx(
-        r_max
-    )  # normalised by the max abs coordinate
+    # normalised by the max abs coordinate
+    assert np.max(np.abs(ref.p_des - centroid)) == pytest.approx(r_max)
     assert 2 * math.pi * radius_px * 0.7 < len(ref) < 2 * math.pi * radius_px * 1.1
     assert ref.t[1] == pytest.approx(1 / 8.0) and ref.duration == pytest.approx(len(ref) / 8.0)
 
@@ -168,9 +166,8 @@ def test_crop_to_centred_square(tmp_path):
         path, k=1, threshold=128, invert=False, crop_square=True, r_max=0.01
     )
     d = cropped.p_des - [0.0, 0.1285]
-    assert (
-        np.max(np.abs(d)) == pytest.approx(0.01) and len(cropped) == 4 * 79
-    )  # only the central square remains
+    # only the central square remains
+    assert np.max(np.abs(d)) == pytest.approx(0.01) and len(cropped) == 4 * 79
 
 
 def test_clear_errors(tmp_path, circle_png):
@@ -186,9 +183,8 @@ def test_clear_errors(tmp_path, circle_png):
     for r_max in (0.0, -0.01, R_MAX_SAFE + 1e-4):
         with pytest.raises(ValueError, match="safe range"):
             contour_reference(circle_png, r_max=r_max)
-    assert (
-        len(contour_reference(circle_png, r_max=0.04, max_radius=0.05)) > 0
-    )  # deliberate override
+    # deliberate override
+    assert len(contour_reference(circle_png, r_max=0.04, max_radius=0.05)) > 0
     with pytest.raises(ValueError):
         contour_reference(circle_png, k=0)
     with pytest.raises(ValueError):

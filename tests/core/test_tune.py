@@ -48,13 +48,13 @@ def test_an_oscillating_gain_set_scores_worse_than_a_calm_one() -> None:
         disturbance.plant_params(load_params("fpu")), 1, 0.0, seed=0
     )
     noises = np.asarray(inputs.noise)[None]
-    calm = CollocatedGains(
-        kp=0.01, ki=0.01, kd=0.02, gamma=100.0
-    )  # mostly the setpoint's feedforward phi_ss
+    # mostly the setpoint's feedforward phi_ss
+    calm = CollocatedGains(kp=0.01, ki=0.01, kd=0.02, gamma=100.0)
     wild = CollocatedGains(kp=3.0, ki=0.05, kd=0.02, gamma=100.0)  # ten times the paper's kp
+    # padded to 3, the extra run dropped
     calm_score, wild_score = tune.evaluate_population(
         ControllerKind.PSATID, [calm, wild], spec, inputs, constants, plants, noises, batch=3
-    )  # padded to 3, the extra run dropped
+    )
     assert calm_score.rmse_mm.shape == wild_score.rmse_mm.shape == (1,)
     assert calm_score.terms["bad"] == 0.0 and wild_score.terms["bad"] == 1.0
     assert wild_score.objective > calm_score.objective + tune.WEIGHTS["bad"]

@@ -115,9 +115,8 @@ def test_states_with_absurd_magnitudes_are_refused(params) -> None:
     assert state_problem(bounds, q, q_dot, chiee, [math.nan] * 3, True).startswith(
         "non-finite rates"
     )
-    assert (
-        state_problem(bounds, q, [math.nan] * 3, chiee, [math.nan] * 3, False) is None
-    )  # rates NaN by contract
+    # rates NaN by contract
+    assert state_problem(bounds, q, [math.nan] * 3, chiee, [math.nan] * 3, False) is None
 
 
 def test_delay_gate_drops_samples_held_in_a_queue_and_accepts_a_new_latency() -> None:
@@ -130,9 +129,8 @@ def test_delay_gate_drops_samples_held_in_a_queue_and_accepts_a_new_latency() ->
     for k in range(5):  # samples stamped before a 2 s stall, delivered after it
         assert gate.late(t + k * ms, t + 2000 * ms + k * 10_000)
     assert not gate.late(t + 2000 * ms, t + 2003 * ms)  # the stream after the stall
-    offset = (
-        500 * ms
-    )  # a permanent latency step (e.g. a clock stepped at the source) is accepted after `history`
+    # a permanent latency step (e.g. a clock stepped at the source) is accepted after `history`
+    offset = 500 * ms
     late = [
         gate.late(t + 2000 * ms + k * 5 * ms, t + 2003 * ms + k * 5 * ms + offset)
         for k in range(1, 300)
@@ -141,9 +139,8 @@ def test_delay_gate_drops_samples_held_in_a_queue_and_accepts_a_new_latency() ->
     assert not DelayGate(0.0, 10).late(0, 10**12)  # disabled
 
 
-@pytest.mark.parametrize(
-    "spacing_ms", [0.5, 4.0]
-)  # how fast the stalled node works through its backlog
+# how fast the stalled node works through its backlog
+@pytest.mark.parametrize("spacing_ms", [0.5, 4.0])
 def test_delay_gate_drops_a_whole_backlog_longer_than_its_history(spacing_ms) -> None:
     """Issue 22: a 2 s stall of a node with a deep input queue (400 samples queued, history 200);
     the old gate let the backlog become its own reference after 200 late samples and passed states
@@ -186,8 +183,8 @@ def test_integrators_stay_finite_and_bounded_by_design(params, kind: ControllerK
         1e300,
         -1e300,
         0.0,
-        0.0,
-    ]  # whatever put it there, the next tick brings it back into bounds
+        0.0,  # whatever put it there, the next tick brings it back into bounds
+    ]
     phi, info = c.step(q, np.zeros(3), chiee, np.zeros(3))
     assert np.all(np.isfinite(phi)) and np.all(np.abs(c.state.e_int) <= control.INTEGRAL_LIMIT)
     np.testing.assert_array_equal(info.e_int, c.state.e_int)

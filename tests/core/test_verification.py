@@ -75,12 +75,10 @@ def test_model_against_itself_has_zero_error(model, phi):
     # mocap noise
     assert res.rmse["x"] < 1e-7 and res.rmse["y"] < 1e-7
     assert all(res.nrmse[c] < 1e-5 for c in verification.CHANNELS), res.nrmse
-    np.testing.assert_allclose(
-        res.measured[:, 3:], q, rtol=0, atol=1e-12
-    )  # IK of the poses = the plant's q
-    assert (
-        np.ptp(res.measured[:, 0]) > 0.02
-    )  # the GBN excites the workspace (so the zero error means something)
+    # IK of the poses = the plant's q
+    np.testing.assert_allclose(res.measured[:, 3:], q, rtol=0, atol=1e-12)
+    # the GBN excites the workspace (so the zero error means something)
+    assert np.ptp(res.measured[:, 0]) > 0.02
 
 
 def test_perturbed_plants_give_the_expected_ordered_error(model, phi):
@@ -103,17 +101,15 @@ def test_perturbed_plants_give_the_expected_ordered_error(model, phi):
         assert res.rmse["y"] == pytest.approx(expected_y, rel=0.03)
         rmse.append([res.rmse[c] for c in verification.CHANNELS])
     rmse = np.array(rmse)
-    assert np.all(rmse[0] > 0.0) and np.all(
-        np.diff(rmse, axis=0) > 0.0
-    )  # larger mismatch, larger error everywhere
+    # larger mismatch, larger error everywhere
+    assert np.all(rmse[0] > 0.0) and np.all(np.diff(rmse, axis=0) > 0.0)
 
 
 def test_a_delayed_input_shows_as_lag(model, phi):
     grid, phi_grid = phi
     chiee, _ = record(model, phi_grid)
-    delayed = np.concatenate(
-        [np.repeat(phi_grid[:1], 4, axis=0), phi_grid[:-4]]
-    )  # the replay input lags by 20 ms
+    # the replay input lags by 20 ms
+    delayed = np.concatenate([np.repeat(phi_grid[:1], 4, axis=0), phi_grid[:-4]])
     res = verification.verify(model, grid, chiee, delayed, max_lag=0.05)
     assert res.lag == pytest.approx(0.020, abs=1e-12)
     assert res.rmse_lagged["x"] < 0.05 * res.rmse["x"]

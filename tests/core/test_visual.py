@@ -80,18 +80,16 @@ def test_backbone_follows_the_model_and_ends_at_the_fk_end_effector(
     )
     backbone = np.asarray(g.backbone)
     assert backbone.shape == (N + 3, 2)
-    np.testing.assert_allclose(
-        backbone[0], [0.0, 0.0], atol=1e-15
-    )  # base origin (top of the motor plate)
+    # base origin (top of the motor plate)
+    np.testing.assert_allclose(backbone[0], [0.0, 0.0], atol=1e-15)
     np.testing.assert_allclose(backbone[1], [0.0, l_pc], atol=1e-15)
     s = np.linspace(0.0, l, N)
     # closed forms lose digits to cancellation for small κ: 1e-11 m is far below anything visible
     np.testing.assert_allclose(backbone[1 : N + 1], backbone_closed_form(params, xi, s), atol=1e-11)
     theta = xi[0] * l
     chiee = np.asarray(FK(params, q))
-    np.testing.assert_allclose(
-        backbone[-1], chiee[:2], atol=1e-14
-    )  # the drawn EE is the FK end-effector
+    # the drawn EE is the FK end-effector
+    np.testing.assert_allclose(backbone[-1], chiee[:2], atol=1e-14)
     np.testing.assert_allclose(np.asarray(g.end_effector), chiee, atol=1e-14)
     np.testing.assert_allclose(
         backbone[-2], backbone[N] + rotation(theta) @ [0.0, l_dc + h_p], atol=1e-14
@@ -126,24 +124,21 @@ def test_rods_sit_at_their_offsets_with_the_lengths_their_strains_imply(
     half = kappa * l / (N - 1) / 2
     chord_factor = math.sin(half) / half if half != 0.0 else 1.0
     for i, roff in enumerate(np.asarray(params.roff)):
-        np.testing.assert_allclose(
-            rods[i, 0], [roff, 0.0], atol=1e-15
-        )  # proximal cap on the motor plate
+        # proximal cap on the motor plate
+        np.testing.assert_allclose(rods[i, 0], [roff, 0.0], atol=1e-15)
         np.testing.assert_allclose(rods[i, 1], [roff, l_pc], atol=1e-15)
         for k in range(N):  # centreline = backbone + R(κ s) [roff, 0] (model.md §6.2)
             local = rotation(-kappa * s[k]) @ (rods[i, k + 1] - backbone[k + 1])
             np.testing.assert_allclose(local, [roff, 0.0], atol=1e-14)
-        axial = (
-            ax + roff * kappa
-        )  # rod axial strain (model.md §6.4); speed |dp_i/ds| = |[σ_sh, σ_a,i]|
+        # rod axial strain (model.md §6.4); speed |dp_i/ds| = |[σ_sh, σ_a,i]|
+        axial = ax + roff * kappa
         np.testing.assert_allclose(
             polyline_length(rods[i, 1 : N + 1]),
             l * math.hypot(sh, axial) * chord_factor,
             rtol=1e-11,
         )
-        np.testing.assert_allclose(
-            np.linalg.norm(rods[i, -1] - rods[i, -2]), l_dc, rtol=1e-12
-        )  # distal cap
+        # distal cap
+        np.testing.assert_allclose(np.linalg.norm(rods[i, -1] - rods[i, -2]), l_dc, rtol=1e-12)
         np.testing.assert_allclose(
             rods[i, -1] - rods[i, -2], rotation(kappa * l) @ [0.0, l_dc], atol=1e-15
         )

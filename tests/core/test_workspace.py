@@ -86,9 +86,8 @@ def test_planner_region_holds_every_equilibrium_and_rejects_far_targets(fpu, wma
         assert region.inside(p) or region.distance(p) < 2e-5
     rest_y = dense.chiee[0, 0, 1]
     assert not planner.in_reach_region([0.0, rest_y - REACH_MARGIN - 1e-3])  # above the rest pose
-    assert planner.in_reach_region(
-        [0.0, rest_y - REACH_MARGIN + 1e-3]
-    )  # within the margin: the solver decides
+    # within the margin: the solver decides
+    assert planner.in_reach_region([0.0, rest_y - REACH_MARGIN + 1e-3])
 
 
 def test_workspace_figure_and_data(fpu, wmap, tmp_path):

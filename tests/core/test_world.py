@@ -61,9 +61,8 @@ def test_a_goal_takes_effect_after_the_actuation_latency_then_moves_at_the_speed
     w.advance_to(22 * MS)
     np.testing.assert_allclose(np.abs(w.position - NEUTRAL), 10e-3 * SPEED, rtol=1e-12)
     np.testing.assert_allclose(np.abs(w.velocity), SPEED, rtol=1e-9)
-    np.testing.assert_allclose(
-        w.twists(), 10e-3 * SPEED / TICKS_PER_RAD, rtol=1e-12
-    )  # both rods twist forward
+    # both rods twist forward
+    np.testing.assert_allclose(w.twists(), 10e-3 * SPEED / TICKS_PER_RAD, rtol=1e-12)
     np.testing.assert_array_equal(w.present_ticks(), np.rint(w.position))
 
 
@@ -146,9 +145,8 @@ def test_the_world_runs_its_pure_interval(model) -> None:
             x, position, goal if k >= 2 else jnp.asarray(NEUTRAL, dtype=float), np.ones(4, bool)
         )
     np.testing.assert_array_equal(np.asarray(position), w.position)
-    np.testing.assert_allclose(
-        np.asarray(x), np.asarray(w.x), rtol=1e-13, atol=1e-15
-    )  # jit boundaries: last bits
+    # jit boundaries: last bits
+    np.testing.assert_allclose(np.asarray(x), np.asarray(w.x), rtol=1e-13, atol=1e-15)
     assert (
         w.params.servo_speed
         == servo_speed(DisturbanceModel().servo_max_speed)
@@ -167,8 +165,8 @@ def test_goal_offsets_traced_are_the_driver_s_goal_ticks() -> None:
         [0.0, 0.0],
         [1.0, 2.5],
         [3.4, 0.3],
-        [1024 / TICKS_PER_RAD, 7 / TICKS_PER_RAD],
-    ]  # incl. whole-tick angles
+        [1024 / TICKS_PER_RAD, 7 / TICKS_PER_RAD],  # incl. whole-tick angles
+    ]
     for phi in phis:
         want = motor_map.goal_ticks(phi) - np.asarray(NEUTRAL)
         np.testing.assert_array_equal(motor_map.goal_offsets(phi), want)

@@ -14,9 +14,8 @@ from hsa_sim_node.mx28_emulator import MX28Emulator, ServoModel
 
 IDS = (21, 22, 23, 24)
 BAUD = 4_000_000
-FAST_SERVO = ServoModel(
-    time_constant_s=0.01, max_speed_ticks_per_s=50_000.0
-)  # keeps motion tests short
+# keeps motion tests short
+FAST_SERVO = ServoModel(time_constant_s=0.01, max_speed_ticks_per_s=50_000.0)
 
 
 @pytest.fixture

@@ -72,9 +72,8 @@ def test_sync_write_then_sync_read_follows_the_servo_model(bus, emulator, wait_f
     first = bus.read_positions()
     after = emulator.stats()
     assert (after.sync_writes - before.sync_writes, after.sync_reads - before.sync_reads) == (1, 1)
-    assert (
-        after.packets_received - before.packets_received == 2
-    )  # one instruction each way, no per-servo traffic
+    # one instruction each way, no per-servo traffic
+    assert after.packets_received - before.packets_received == 2
     assert first.ticks != goals and first.alerts == frozenset()
     assert wait_for(lambda: bus.read_positions().ticks == goals)
     assert emulator.goal_ticks() == goals
@@ -116,13 +115,11 @@ def test_disable_torque_is_fast_and_reports_what_it_could_not_confirm(bus, emula
     emulator.set_responsive(22, False)
     started = time.perf_counter()
     unconfirmed = bus.disable_torque()
-    assert (
-        time.perf_counter() - started < 0.2
-    )  # one sync write plus a read-back; the silent servo costs one timeout
+    # one sync write plus a read-back; the silent servo costs one timeout
+    assert time.perf_counter() - started < 0.2
     assert unconfirmed == {22}
-    assert not any(
-        emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids
-    )  # 22 still heard the sync write
+    # 22 still heard the sync write
+    assert not any(emulator.torque_enabled(dxl_id) for dxl_id in emulator.ids)
     bus.close()
     assert bus.disable_torque() == set(emulator.ids)  # no port: nothing confirmed, nothing raised
 
@@ -174,23 +171,20 @@ def test_wait_answering_waits_for_a_booting_servo_and_gives_up_at_the_timeout(
     # on a busy machine)
     assert caught.value.comm_result == COMM_RX_TIMEOUT and 0.3 <= time.monotonic() - began < 10.0
     wake = threading.Timer(0.2, emulator.set_responsive, (23, True))
-    began = (
-        time.monotonic()
-    )  # before the timer starts: it cannot wake the servo sooner than 0.2 s after this
+    # before the timer starts: it cannot wake the servo sooner than 0.2 s after this
+    began = time.monotonic()
     wake.start()
     bus.wait_answering((22, 23), timeout=30.0)
-    assert (
-        0.2 <= time.monotonic() - began < 10.0
-    )  # returned once the servo answered, not at the 30 s timeout
+    # returned once the servo answered, not at the 30 s timeout
+    assert 0.2 <= time.monotonic() - began < 10.0
     wake.join()
 
 
 def test_unplug_gives_port_errors_until_replug_and_reconnect(bus, emulator, wait_for) -> None:
     bus.configure(torque_on=True)
     bus.write_goals({21: 2500})
-    assert wait_for(
-        lambda: emulator.present_ticks()[21] == 2500
-    )  # bytes still in flight would be lost by unplug
+    # bytes still in flight would be lost by unplug
+    assert wait_for(lambda: emulator.present_ticks()[21] == 2500)
     emulator.unplug()
     with pytest.raises(PortError, match="unplugged"):
         bus.read_positions()
@@ -202,9 +196,8 @@ def test_unplug_gives_port_errors_until_replug_and_reconnect(bus, emulator, wait
     assert not bus.is_open
     emulator.replug()
     bus.reconnect()
-    assert (
-        bus.read_positions().ticks[21] == 2500
-    )  # the servos kept their state: only the cable was out
+    # the servos kept their state: only the cable was out
+    assert bus.read_positions().ticks[21] == 2500
     bus.write_goals({21: 2600})
 
 

@@ -52,8 +52,8 @@ ADDR_MODE, ADDR_TORQUE, ADDR_WATCHDOG, ADDR_GOAL, ADDR_PRESENT = 11, 64, 98, 116
         ("FFFFFD000107000284000400", "1D15"),  # READ Present Position
         (
             "FFFFFD00FE11008374000400019600000002AA000000",
-            "8287",
-        ),  # SYNC WRITE Goal Position of ID 1 and 2
+            "8287",  # SYNC WRITE Goal Position of ID 1 and 2
+        ),
     ],
 )
 def test_crc_matches_the_manual_examples(packet_hex: str, crc_hex: str) -> None:
@@ -143,18 +143,18 @@ def test_write_rules_follow_the_control_table(sdk) -> None:
     assert ph.write1ByteTxRx(port, 21, ADDR_MODE, 2) == (COMM_SUCCESS, ERR_DATA_RANGE)  # no mode 2
     assert ph.write2ByteTxRx(port, 21, ADDR_GOAL, 100) == (
         COMM_SUCCESS,
-        ERR_DATA_LENGTH,
-    )  # half of a 4-byte item
+        ERR_DATA_LENGTH,  # half of a 4-byte item
+    )
     assert ph.write4ByteTxRx(port, 21, ADDR_PRESENT, 100) == (COMM_SUCCESS, ERR_ACCESS)  # read-only
     assert ph.write1ByteTxRx(port, 21, 14, 1) == (COMM_SUCCESS, ERR_ACCESS)  # undefined address
     assert ph.write4ByteTxRx(port, 21, ADDR_GOAL, 5000) == (
         COMM_SUCCESS,
-        ERR_DATA_LIMIT,
-    )  # position mode: 0..4095
+        ERR_DATA_LIMIT,  # position mode: 0..4095
+    )
     assert ph.readTxRx(port, 21, 200, 4)[1:] == (
         COMM_SUCCESS,
-        ERR_ACCESS,
-    )  # beyond the emulated table
+        ERR_ACCESS,  # beyond the emulated table
+    )
 
 
 def test_goal_moves_the_shaft_only_with_torque_on(sdk, emulator, wait_for) -> None:
@@ -162,9 +162,8 @@ def test_goal_moves_the_shaft_only_with_torque_on(sdk, emulator, wait_for) -> No
     assert ph.write4ByteTxRx(port, 21, ADDR_GOAL, 3000) == (COMM_SUCCESS, 0)
     time.sleep(0.05)
     assert emulator.present_ticks()[21] == 2048
-    assert (
-        emulator.goal_ticks()[21] == 3000
-    )  # stored: a real servo jumps to it when torque comes on
+    # stored: a real servo jumps to it when torque comes on
+    assert emulator.goal_ticks()[21] == 3000
     assert ph.write1ByteTxRx(port, 21, ADDR_TORQUE, 1) == (COMM_SUCCESS, 0)
     assert wait_for(lambda: ph.read4ByteTxRx(port, 21, ADDR_PRESENT)[0] == 3000)
     assert ph.read1ByteTxRx(port, 21, 122)[0] == 0  # Moving cleared once there
@@ -179,13 +178,12 @@ def test_extended_position_mode_goes_multi_turn_and_clear_resets_the_count(
     assert ph.write4ByteTxRx(port, 22, ADDR_GOAL, -9000) == (COMM_SUCCESS, 0)
     assert ph.write4ByteTxRx(port, 22, ADDR_GOAL, 2_000_000) == (
         COMM_SUCCESS,
-        ERR_DATA_RANGE,
-    )  # beyond ±256 rev
+        ERR_DATA_RANGE,  # beyond ±256 rev
+    )
     assert wait_for(lambda: emulator.present_ticks()[22] == -9000)
     value, result, _ = ph.read4ByteTxRx(port, 22, ADDR_PRESENT)
-    assert (
-        result == COMM_SUCCESS and value == (-9000) & 0xFFFFFFFF
-    )  # the SDK returns the raw unsigned word
+    # the SDK returns the raw unsigned word
+    assert result == COMM_SUCCESS and value == (-9000) & 0xFFFFFFFF
     assert ph.clearMultiTurn(port, 22) == (COMM_SUCCESS, 0)
     assert emulator.present_ticks()[22] == -9000 % 4096
     assert emulator.goal_ticks()[22] == -9000 % 4096  # the goal moves with it, so nothing turns
@@ -235,9 +233,8 @@ def test_bus_watchdog_stops_the_servo_and_locks_goals(sdk, emulator) -> None:
     ph.write1ByteTxRx(port, 24, ADDR_MODE, 4)
     ph.write1ByteTxRx(port, 24, ADDR_TORQUE, 1)
     assert ph.write1ByteTxRx(port, 24, ADDR_WATCHDOG, 3) == (COMM_SUCCESS, 0)  # 60 ms
-    ph.write4ByteTxRx(
-        port, 24, ADDR_GOAL, 2048 + 4096 * 20
-    )  # far away: still moving when the bus goes quiet
+    # far away: still moving when the bus goes quiet
+    ph.write4ByteTxRx(port, 24, ADDR_GOAL, 2048 + 4096 * 20)
     time.sleep(0.12)
     assert emulator.peek(24, ADDR_WATCHDOG) == -1
     stopped = emulator.present_ticks()[24]
@@ -267,9 +264,8 @@ def test_external_drive_api(tmp_path) -> None:
         assert (emu.torque_enabled(1), emu.torque_enabled(2)) == (True, False)
         emu.set_present_ticks(1, -6999.6, velocity_ticks_per_s=300.0)
         assert ph.read4ByteTxRx(port, 1, ADDR_PRESENT)[0] == (-7000) & 0xFFFFFFFF
-        assert (
-            ph.read1ByteTxRx(port, 1, 122)[0] == 1
-        )  # 300 ticks/s ≈ 19 units of 0.229 rpm > threshold 10
+        # 300 ticks/s ≈ 19 units of 0.229 rpm > threshold 10
+        assert ph.read1ByteTxRx(port, 1, 122)[0] == 1
         port.closePort()
 
 
@@ -324,9 +320,8 @@ def test_write_log_stamps_every_applied_write_and_skips_refused_ones(sdk, emulat
     port, ph = sdk
     before = time.monotonic()
     assert ph.write1ByteTxRx(port, 21, ADDR_TORQUE, 1) == (COMM_SUCCESS, 0)
-    assert (
-        ph.write1ByteTxRx(port, 21, ADDR_MODE, 4)[1] == ERR_ACCESS
-    )  # EEPROM locked: refused, not logged
+    # EEPROM locked: refused, not logged
+    assert ph.write1ByteTxRx(port, 21, ADDR_MODE, 4)[1] == ERR_ACCESS
     writer = GroupSyncWrite(port, ph, ADDR_GOAL, 4)
     for dxl_id, goal in ((21, 3000), (22, 100), (23, -5)):  # 23 is in position mode: -5 refused
         writer.addParam(dxl_id, list(goal.to_bytes(4, "little", signed=True)))

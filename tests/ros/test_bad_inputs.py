@@ -112,9 +112,8 @@ def test_bad_measurements_never_reach_the_controller(graph, ros_node) -> None:
     assert np.hypot(*(jumped - OFFSET_CHIEE)[:2]) == pytest.approx(
         0.1
     ) and not mocap.WorkspaceBox().problem(jumped)
-    near = mocap.planar_to_world(
-        OFFSET_CHIEE + [0.0005, 0.0, 0.0], (0.0, 0.0, 0.0)
-    )  # plausible, but a wrong stamp
+    # plausible, but a wrong stamp
+    near = mocap.planar_to_world(OFFSET_CHIEE + [0.0005, 0.0, 0.0], (0.0, 0.0, 0.0))
     mocap_faults: dict[str, tuple[str, Callable[[int], PoseStamped]]] = {
         "NaN position": (
             "non_finite",
@@ -190,9 +189,8 @@ def test_bad_measurements_never_reach_the_controller(graph, ros_node) -> None:
 
     # nothing bad downstream: every state and every controller tick saw the streamed pose with
     # increasing stamps
-    bridge_states = [
-        m for m in states.since(n_states) if m.chiee.y != 0.15
-    ]  # the test's own direct states aside
+    # the test's own direct states aside
+    bridge_states = [m for m in states.since(n_states) if m.chiee.y != 0.15]
     stamps = [Time.from_msg(m.header.stamp).nanoseconds for m in bridge_states]
     assert len(bridge_states) > 100 and all(b > a for a, b in zip(stamps, stamps[1:])), (
         "stamps must increase"

@@ -59,9 +59,8 @@ STATE, INFO = "/hsa/state", "/hsa/controller_info"
 START_NS = 1_750_000_000 * 10**9
 SPAN = 2.0
 INFINITE = QosTime(9223372036, 854775807)
-DEEP = QoSProfile(
-    depth=500, reliability=ReliabilityPolicy.BEST_EFFORT
-)  # the test process must not drop samples
+# the test process must not drop samples
+DEEP = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 def offer(reliability: QosReliability) -> Qos:
@@ -127,9 +126,8 @@ def bag(tmp_path_factory) -> Path:
     ends = [
         f["starting_time"]["nanoseconds_since_epoch"] + f["duration"]["nanoseconds"] for f in files
     ]
-    assert (
-        len(ends) >= 2 and ends[0] - ends[-1] > 0.5e9
-    )  # the first file holds later messages than the last
+    # the first file holds later messages than the last
+    assert len(ends) >= 2 and ends[0] - ends[-1] > 0.5e9
     return path
 
 
@@ -197,9 +195,8 @@ def test_timing_and_order_across_files(ros_node: Node, bag: Path, play) -> None:
     assert len(state) >= 0.97 * 400 and [i for _, i in state] == sorted(i for _, i in state)
     errors = [interarrival_errors(state, 0.005), interarrival_errors(info, 0.025)]
     assert all(np.median(err) <= 5e-3 for err in errors), [np.median(err) for err in errors]
-    pooled_p99 = np.percentile(
-        np.concatenate(errors), 99
-    )  # over ~480 gaps: robust to a single scheduling hiccup
+    # over ~480 gaps: robust to a single scheduling hiccup
+    pooled_p99 = np.percentile(np.concatenate(errors), 99)
     assert pooled_p99 <= 50e-3, pooled_p99
     # every message on its schedule (a file-order player would be a second off for half of them)
     times = sorted([(a, i * 0.005) for a, i in state] + [(a, i * 0.025) for a, i in info])
@@ -215,9 +212,8 @@ def test_rate_factor_two_topic_selection_and_remap(ros_node: Node, bag: Path, pl
     info = rx.got[INFO]
     assert [i for _, i in info] == list(range(80))
     assert info[-1][0] - info[0][0] == pytest.approx(79 * 0.025 / 2, abs=0.03)  # half the span
-    assert (
-        len(rx.got[STATE]) >= 0.97 * 400 and not rx.got["other"]
-    )  # all on /replay/state, none on /hsa/state
+    # all on /replay/state, none on /hsa/state
+    assert len(rx.got[STATE]) >= 0.97 * 400 and not rx.got["other"]
 
 
 def test_loop_with_start_offset_and_clock_never_goes_back(ros_node: Node, bag: Path, play) -> None:
@@ -226,18 +222,16 @@ def test_loop_with_start_offset_and_clock_never_goes_back(ros_node: Node, bag: P
     assert "in 3 pass(es)" in out
     indices = [i for _, i in rx.got[INFO]]
     assert indices == list(range(60, 80)) * 3  # t >= 1.5 s, three passes
-    loop_span = (SPAN - 0.005 - 1.5) + (SPAN - 0.005) / (
-        480 - 1
-    )  # played span + mean message period
+    # played span + mean message period
+    loop_span = (SPAN - 0.005 - 1.5) + (SPAN - 0.005) / (480 - 1)
     schedule = np.array([k // 20 * loop_span + (i - 60) * 0.025 for k, i in enumerate(indices)])
     lag = np.array([a for a, _ in rx.got[INFO]]) - schedule
     assert np.ptp(lag) < 0.3  # each pass follows the previous one by loop_span: no pause, no burst
     clock = np.array(rx.clock)
     assert clock.size > 100 and np.all(np.diff(clock) >= 0)
     assert clock[0] == pytest.approx(START_NS + 1.5e9, abs=2e7)
-    assert clock[-1] - clock[0] == pytest.approx(
-        (2 * loop_span + 0.475) * 1e9, abs=0.05e9
-    )  # to the last message
+    # to the last message
+    assert clock[-1] - clock[0] == pytest.approx((2 * loop_span + 0.475) * 1e9, abs=0.05e9)
 
 
 def test_wait_topics_awaits_only_the_named_subscribers(ros_node: Node, bag: Path) -> None:
@@ -369,9 +363,8 @@ def test_lockstep_records_every_message_at_its_log_time(
     with Bag(bag) as original, Bag(tmp_path / "lockstep") as recorded:
         played = sorted((t, topic, data) for topic, t, data in original.messages([STATE, INFO]))
         got = sorted((t, topic, data) for topic, t, data in recorded.messages([STATE, INFO]))
-    assert (
-        got == played
-    )  # every message (the 200 Hz stream is best effort), each logged at its recorded log time
+    # every message (the 200 Hz stream is best effort), each logged at its recorded log time
+    assert got == played
     # /clock, as a participant sees it: in order, only log times, from the first to the last (a
     # depth-1 reliable writer may replace a value a busy reader has not taken yet, so not
     # necessarily every one)
@@ -439,9 +432,8 @@ def test_a_closed_terminal_stops_the_player_like_ctrl_c(bag: Path, sig: signal.S
     """SIGHUP (terminal or ssh session closed) and SIGQUIT (Ctrl-\\) stop the player cleanly, exit
     0, as every node; before, SIGHUP killed it and SIGQUIT dumped core."""
     exe = find_executable("hsa_bag", "bag_player")
-    proc = start_process(
-        [exe, str(bag), "--topics", INFO, "--rate", "0.05"]
-    )  # 80 messages over minutes
+    # 80 messages over minutes
+    proc = start_process([exe, str(bag), "--topics", INFO, "--rate", "0.05"])
     try:
         wait_for_line(proc, "playing ")
         proc.send_signal(sig)

@@ -108,9 +108,8 @@ def test_records_standard_custom_latched_and_late_topics(
     latched = ros_node.create_publisher(Setpoint, "/hsa/setpoint", qos.LATCHED)
     setpoint = Setpoint(trajectory_length=11, trajectory_index=3)
     setpoint.chiee_des.x = 0.01
-    latched.publish(
-        setpoint
-    )  # before the recorder exists: only transient-local delivery can record it
+    # before the recorder exists: only transient-local delivery can record it
+    latched.publish(setpoint)
     state = ros_node.create_publisher(PlanarState, "/hsa/state", qos.SENSOR)
     joints = ros_node.create_publisher(JointState, "/hsa/motor_states", qos.SENSOR)
     chatter = ros_node.create_publisher(String, "/chatter", 10)
@@ -139,9 +138,8 @@ def test_records_standard_custom_latched_and_late_topics(
         late.publish(String(data=f"late {i}"))
     best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
     weak = ros_node.create_publisher(String, "/chatter", best_effort)
-    wait_matched(
-        weak
-    )  # incompatible with the reliable subscription: matches once the recorder re-subscribes
+    # incompatible with the reliable subscription: matches once the recorder re-subscribes
+    wait_matched(weak)
     for i in range(5):
         weak.publish(String(data=f"weak {i}"))
     time.sleep(1.0)
@@ -159,9 +157,8 @@ def test_records_standard_custom_latched_and_late_topics(
     assert len(states) >= 95  # best effort on loopback: practically all
     assert [m.window_samples for m in states] == sorted(m.window_samples for m in states)
     assert all(m.q.kappa_be == pytest.approx(0.1 * m.window_samples) for m in states)
-    assert all(
-        before <= t <= after + 2 * 10**9 for t, _ in got["/hsa/state"]
-    )  # receive time, node clock
+    # receive time, node clock
+    assert all(before <= t <= after + 2 * 10**9 for t, _ in got["/hsa/state"])
     assert [m.position[0] for _, m in got["/hsa/motor_states"]] == [
         float(i) for i in range(0, 100, 5)
     ]
@@ -255,9 +252,8 @@ def test_sigkill_leaves_bag_readable_up_to_the_last_flush(
     thread, sent = counter_stream(pub, rate, 3.0)
     thread.start()
     time.sleep(2.6)
-    sent_before_last_flush = len(sent) - round(
-        (flush_period + 1.0) * rate
-    )  # 1 s slack for a loaded machine
+    # 1 s slack for a loaded machine
+    sent_before_last_flush = len(sent) - round((flush_period + 1.0) * rate)
     os.killpg(proc.pid, signal.SIGKILL)
     assert proc.wait(timeout=30) == -signal.SIGKILL
     thread.join()

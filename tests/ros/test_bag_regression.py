@@ -54,8 +54,8 @@ MOCAP_OFFER = Qos(
     INFINITE,
     QosLiveliness.AUTOMATIC,
     INFINITE,
-    False,
-)  # as a sensor-data publisher offers it
+    False,  # as a sensor-data publisher offers it
+)
 
 
 def kinematics(namespace: str) -> subprocess.Popen:
@@ -217,16 +217,13 @@ def test_replayed_mocap_regenerates_every_recorded_state(processes, tmp_path: Pa
             (t, deserialize_message(d, PlanarPoseStamped))
             for _, t, d in recorded.messages(["/hsa/ee_pose"])
         ]
-    assert [t for t, _ in poses] == [
-        T0_NS + i * PERIOD_NS for i in range(N)
-    ]  # every sample, at its instant
+    # every sample, at its instant
+    assert [t for t, _ in poses] == [T0_NS + i * PERIOD_NS for i in range(N)]
     states = states_of(first, "/hsa/state")
-    assert [key(s) for _, s in states] == [
-        T0_NS + i * PERIOD_NS for i in range(N)
-    ]  # a state per sample, in order
-    assert all(
-        t == key(s) for t, s in states
-    )  # computed within the instant of its sample (simulated time)
+    # a state per sample, in order
+    assert [key(s) for _, s in states] == [T0_NS + i * PERIOD_NS for i in range(N)]
+    # computed within the instant of its sample (simulated time)
+    assert all(t == key(s) for t, s in states)
     assert all(np.isfinite(content(s)[:6]).all() for _, s in states)
     assert sum(s.velocity_valid for _, s in states) >= 0.9 * N
 
@@ -239,12 +236,11 @@ def test_replayed_mocap_regenerates_every_recorded_state(processes, tmp_path: Pa
         "--topics",
         "/hsa/ee_pose",
         "--remap",
-        "/hsa/ee_pose:=/replay/ee_pose",
-    )  # run 2: replay of the recorded mocap only
+        "/hsa/ee_pose:=/replay/ee_pose",  # run 2: replay of the recorded mocap only
+    )
     again = states_of(second, "/replay/state")
-    assert [t for t, _ in again] == [
-        t for t, _ in states
-    ]  # every recorded state regenerated, at the same instant
+    # every recorded state regenerated, at the same instant
+    assert [t for t, _ in again] == [t for t, _ in states]
     for (_, original), (_, regenerated) in zip(
         states, again
     ):  # same samples, same order: bit-identical

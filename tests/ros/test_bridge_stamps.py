@@ -142,9 +142,8 @@ def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -
 
         def in_frame(frame_id: str):  # noqa: ANN202 - a MocapStream injection
             def make(stamp: int) -> PoseStamped:
-                msg = pose_msg(
-                    stamp + 1, *stream.world
-                )  # 1 ns after a genuine sample: only the frame is wrong
+                # 1 ns after a genuine sample: only the frame is wrong
+                msg = pose_msg(stamp + 1, *stream.world)
                 msg.header.frame_id = frame_id
                 wrong.append(stamp + 1)
                 return msg
@@ -183,8 +182,9 @@ def test_malformed_cdr_prints_nothing_and_the_stream_goes_on(bridge, ros_node) -
         good[:30],
         b"\x00\x01\x00\x00" + b"\xff" * 40,
         b"\x00\x01",
+        # truncated, garbage, short, huge string
         good[:12] + struct.pack("<I", 0x7FFFFFFF) + good[16:],
-    ]  # truncated, garbage, short, huge string
+    ]
     try:
         lines = len(bridge.lines)
         for k in range(100):

@@ -99,9 +99,8 @@ def test_every_node_of_every_graph_resolves_to_the_install_space(
                 assert exe.is_relative_to(install) and os.access(exe, os.X_OK), (
                     f"{graph.name}: {proc.name}: {exe}"
                 )
-                assert exe.parent.name == exe.parent.parent.parent.name, (
-                    exe
-                )  # install/<pkg>/lib/<pkg>/<exe>
+                # install/<pkg>/lib/<pkg>/<exe>
+                assert exe.parent.name == exe.parent.parent.parent.name, exe
 
 
 def node_names(proc: Process) -> list[str]:
@@ -162,9 +161,8 @@ def run_graph(
         took = time.monotonic() - started
         starts = [line for line in lines if line.startswith("[launch] starting ")]
         assert len(starts) == len(procs) and all(f" {install}/" in line for line in starts), starts
-        wait_until(
-            lambda: launcher.poll() is not None, timeout=linger
-        )  # a graph that ends by itself may do so
+        # a graph that ends by itself may do so
+        wait_until(lambda: launcher.poll() is not None, timeout=linger)
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGINT)
         assert launcher.wait(timeout=120.0) == 0, "".join(lines)[-4000:]

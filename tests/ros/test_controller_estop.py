@@ -54,9 +54,8 @@ def _first_command_after(cmds: Recorder, t: float, timeout: float = 5.0) -> Plan
 
 def test_estop_stops_commands_resets_integrators_and_resumes_fresh(controller, ros_node) -> None:
     estop = ros_node.create_publisher(Bool, f"{NS}/estop", qos.LATCHED)
-    estop.publish(
-        Bool(data=True)
-    )  # before the controller matched this publisher: it must still get it (latched)
+    # before the controller matched this publisher: it must still get it (latched)
+    estop.publish(Bool(data=True))
     cmds = Recorder(ros_node, PlanarActuation, f"{NS}/phi_cmd")
     infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
     diagnostics = DiagnosticsLog(ros_node)

@@ -161,9 +161,8 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         time.sleep(1.0)
         assert len(cmds) == 0, "no command may be sent before a ready state arrives"
         feeder.running.set()
-        deadline = (
-            time.monotonic() + 15.0
-        )  # the first command needs a full estimator window of states
+        # the first command needs a full estimator window of states
+        deadline = time.monotonic() + 15.0
         while len(cmds) == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert len(cmds) > 0, "no phi_cmd once ready states arrive"

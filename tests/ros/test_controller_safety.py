@@ -48,9 +48,8 @@ pytestmark = pytest.mark.ros
 NS = "/cs"
 CONTROL = "controller_node: control loop"
 TRACKING = ControllerInfo.STATE_TRACKING
-RETRY = [
-    "torque_retry_period:=1.0"
-]  # a failed torque-on is tried again after 1 s: a window the test can see
+# a failed torque-on is tried again after 1 s: a window the test can see
+RETRY = ["torque_retry_period:=1.0"]
 POISON = {
     "q_des 1e308": lambda m: setattr(m.q_des, "kappa_be", 1e308),
     "q_des 1e9": lambda m: [setattr(m.q_des, f, 1e9) for f in ("kappa_be", "sigma_sh", "sigma_ax")],
@@ -177,13 +176,11 @@ def test_states_with_old_stamps_are_not_tracked_on(controller, ros_node) -> None
     cmds = Recorder(ros_node, PlanarActuation, f"{NS}/phi_cmd")
     diagnostics = DiagnosticsLog(ros_node)
     ros_node.create_publisher(Setpoint, f"{NS}/setpoint", qos.LATCHED).publish(setpoint())
-    time.sleep(
-        1.0
-    )  # whatever the previous test left: no state for 1 s, the controller stops sending
+    # whatever the previous test left: no state for 1 s, the controller stops sending
+    time.sleep(1.0)
     n_infos, n_cmds = len(infos), len(cmds)
-    stale = StateFeeder(
-        ros_node, f"{NS}/state", age_s=2.0
-    )  # 200 Hz, each newer than the last, each 2 s old
+    # 200 Hz, each newer than the last, each 2 s old
+    stale = StateFeeder(ros_node, f"{NS}/state", age_s=2.0)
     try:
         time.sleep(1.5)
         report = diagnostics.wait(CONTROL, lambda s, v: float(v["time_since_last_state [s]"]) > 1.5)
@@ -217,9 +214,8 @@ def driven(
     watching it."""
     emulator = make_emulator(tmp_path_factory.mktemp("driven"))
     drivers = [DriverProcess(emulator.port, RETRY)]
-    controller = NodeProcess(
-        "controller_node", ["-p", "diagnostics_period:=0.2"]
-    )  # driver watched (default)
+    # driver watched (default)
+    controller = NodeProcess("controller_node", ["-p", "diagnostics_period:=0.2"])
     try:
         controller.wait_ready()
         drivers[-1].wait_ready()
@@ -255,16 +251,14 @@ def test_a_failed_torque_on_is_retried_and_the_controller_does_not_track_meanwhi
 
     ros_node.create_publisher(Setpoint, "/setpoint", qos.LATCHED).publish(setpoint())
     feeder = StateFeeder(ros_node, "/state")
-    clock_offset = (
-        time.time() - time.monotonic()
-    )  # ROS time (system clock) - the emulator's CLOCK_MONOTONIC
+    # ROS time (system clock) - the emulator's CLOCK_MONOTONIC
+    clock_offset = time.time() - time.monotonic()
     try:
         assert wait_until(lambda: sum(m.state == TRACKING for m in infos.since()) > 20, 30.0), (
             controller.output()
         )
-        transition(
-            Transition.TRANSITION_DEACTIVATE
-        )  # torque off, the bus quiet: the next status is the activation's
+        # torque off, the bus quiet: the next status is the activation's
+        transition(Transition.TRANSITION_DEACTIVATE)
         deactivated = time.monotonic()
         assert torque(emulator) == {False}
         emulator.corrupt_next_statuses(1)
@@ -321,9 +315,8 @@ def _outage(emulator, drivers: list[DriverProcess], controller: NodeProcess, ros
     cmds = Recorder(ros_node, PlanarActuation, "/phi_cmd")
     diagnostics = DiagnosticsLog(ros_node)
     ros_node.create_publisher(Setpoint, "/setpoint", qos.LATCHED).publish(setpoint())
-    feeder = StateFeeder(
-        ros_node, "/state"
-    )  # 2.2 mm off the setpoint: e_int grows steadily while tracking
+    # 2.2 mm off the setpoint: e_int grows steadily while tracking
+    feeder = StateFeeder(ros_node, "/state")
     try:
         assert wait_until(lambda: sum(m.state == TRACKING for m in infos.since()) > 40, 30.0), (
             controller.output()

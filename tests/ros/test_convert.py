@@ -55,9 +55,8 @@ def test_stamp_msg_splits_seconds_and_nanoseconds() -> None:
         1,
         0,
     )
-    assert (
-        convert.stamp_msg(np.int64(999)).nanosec == 999
-    )  # NumPy integers from array maths are accepted
+    # NumPy integers from array maths are accepted
+    assert convert.stamp_msg(np.int64(999)).nanosec == 999
 
 
 @pytest.mark.parametrize("ns", [0, 1, 999_999_999, 1_000_000_000, 1_704_067_200_123_456_789])
@@ -114,9 +113,8 @@ def test_planar_pose_round_trip_and_first_three_entries() -> None:
     msg = convert.planar_pose_msg(np.array([0.01, 0.12, -0.3]))
     assert (msg.x, msg.y, msg.theta) == (0.01, 0.12, -0.3)
     np.testing.assert_array_equal(convert.planar_pose(msg), [0.01, 0.12, -0.3])
-    tail = convert.planar_pose_msg(
-        (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)[3:]
-    )  # the χ̇_ee half of a [q̇, χ̇_ee] estimate
+    # the χ̇_ee half of a [q̇, χ̇_ee] estimate
+    tail = convert.planar_pose_msg((1.0, 2.0, 3.0, 4.0, 5.0, 6.0)[3:])
     assert (tail.x, tail.y, tail.theta) == (4.0, 5.0, 6.0)
 
 

@@ -69,6 +69,7 @@ class Graph:
     """The launcher process with its output read by a thread: ready times per node."""
 
     def __init__(self, bag: Path) -> None:
+        # 1 Hz of real time is what this test asserts
         self.proc = start_process(
             [
                 sys.executable,
@@ -78,7 +79,7 @@ class Graph:
                 f"bag_dir:={bag}",
                 "clock:=wall",
             ]
-        )  # 1 Hz of real time is what this test asserts
+        )
         self.ready: dict[str, float] = {}  # node -> time.monotonic() when its `ready` line was read
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -144,9 +145,8 @@ def test_every_node_reports_on_diagnostics(graph, ros_node) -> None:
     )
     assert controller["estop"] == "False" and float(controller["tick rate [Hz]"]) > 20.0, controller
     diagnostics.wait("setpoint_sequencer: sequence", lambda s, v: int(v["published"]) >= 1)
-    time.sleep(
-        3.0
-    )  # a few seconds of closed-loop running: how often did the loaded graph starve the controller?
+    # a few seconds of closed-loop running: how often did the loaded graph starve the controller?
+    time.sleep(3.0)
     controller = diagnostics.statuses("controller_node: control loop")[-1][1]
     nodes = sorted({name.split(":")[0] for name in diagnostics.names()})
     fault(

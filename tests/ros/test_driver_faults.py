@@ -541,9 +541,8 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
         events["reboot_22 request"], events["reboot_22 answer"] = sent, answered
         assert answer.success and "set_torque(true)" in answer.message, answer.message
         assert emulator.hardware_errors()[22] == 0 and dh.torque(emulator) == {False}
-        assert (
-            emulator.peek(22, ADDR_MODE) == 4 and emulator.peek(22, ADDR_RETURN_DELAY) == 0
-        )  # extended position
+        # extended position
+        assert emulator.peek(22, ADDR_MODE) == 4 and emulator.peek(22, ADDR_RETURN_DELAY) == 0
         asked = time.monotonic()
         answer = services.set_torque(True)
         assert answer.success and dh.torque(emulator) == {True}, answer.message

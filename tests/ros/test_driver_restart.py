@@ -87,9 +87,8 @@ def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(
     # φ = 2.06 rad).
     held = killed + restarted
     assert wait_until(
-        lambda: (
-            len(dh.goal_writes(emulator, held + 1e-3)) >= 8
-        ),  # the command reached the new driver
+        # the command reached the new driver
+        lambda: len(dh.goal_writes(emulator, held + 1e-3)) >= 8,
         step=lambda: pub.publish(dh.command(TWIST, TWIST)),
         timeout=20.0,
     ), second.output()
@@ -111,8 +110,8 @@ def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(
         reached[phi] = wait_until(
             lambda: emulator.goal_ticks() == expected,  # noqa: B023 (within the iteration)
             step=lambda: pub.publish(dh.command(phi, phi)),
-            timeout=10.0,
-        )  # noqa: B023
+            timeout=10.0,  # noqa: B023
+        )
     beyond = outside_limits(emulator)
     assert not beyond, f"{len(beyond)} goals beyond the absolute limits, e.g. {beyond[:4]}"
     assert all(reached.values()), (reached, emulator.goal_ticks(), second.output())

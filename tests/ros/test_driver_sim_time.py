@@ -97,9 +97,8 @@ def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
         assert wait_until(lambda: clock.subscribers() >= 1, timeout=30.0), (
             "the driver does not subscribe to /clock"
         )
-        time.sleep(
-            1.0
-        )  # the bus appears well after the driver got simulated time (reconnect_period is 0.2 s)
+        # the bus appears well after the driver got simulated time (reconnect_period is 0.2 s)
+        time.sleep(1.0)
         emulator = make_emulator(tmp_path)
         assert wait_until(lambda: torque(emulator) == {True}, timeout=30.0), driver.output()
         assert clock.ns == START_NS

@@ -61,9 +61,8 @@ def command(phi1: float, phi2: float, source: Time | None = None) -> PlanarActua
 def test_phi_cmd_gives_spec_goal_ticks_state_comes_back_and_sigint_turns_torque_off(
     driver, emulator, ros_node, tmp_path
 ) -> None:
-    stored = (
-        tmp_path / "home" / "neutral.yaml"
-    )  # absent: the driver stores the present positions there
+    # absent: the driver stores the present positions there
+    stored = tmp_path / "home" / "neutral.yaml"
     proc = driver("neutral_source:=file", f"neutral_file:={stored}")
     assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0), (
         "torque was not enabled at activation"
@@ -274,11 +273,11 @@ def test_bad_parameters_exit_2_naming_the_parameter(driver) -> None:
     cases = {
         "baudrate": ("baudrate:=1234567",),
         "neutral_file": ("neutral_source:=file",),  # validator; cross-check
+        # the model's material
         "params_file": ("material:=epu", f"params_file:={CONFIG_DIR / 'fpu.yaml'}"),
-    }  # the model's material
-    procs = {
-        name: driver(*overrides, ready=False) for name, overrides in cases.items()
-    }  # started together: faster
+    }
+    # started together: faster
+    procs = {name: driver(*overrides, ready=False) for name, overrides in cases.items()}
     outputs = {name: proc.communicate(timeout=60.0)[0] for name, proc in procs.items()}
     for name, proc in procs.items():
         assert proc.returncode == 2, outputs[name]

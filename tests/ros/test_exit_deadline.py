@@ -48,9 +48,8 @@ def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None
     try:
         wait_for_line(proc, "ready")
         proc.send_signal(signal.SIGINT)
-        output, _ = proc.communicate(
-            timeout=40
-        )  # the runner's limit is 6 s; the stuck call alone lasts 60 s
+        # the runner's limit is 6 s; the stuck call alone lasts 60 s
+        output, _ = proc.communicate(timeout=40)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -186,9 +186,8 @@ def test_hangup_and_a_killed_launcher_turn_torque_off_and_end_the_graph_and_its_
             else:
                 graph.hang_up()
                 if case == "group_sighup":
-                    os.killpg(
-                        graph.launcher.pid, signal.SIGHUP
-                    )  # as the shell forwards its SIGHUP to its jobs
+                    # as the shell forwards its SIGHUP to its jobs
+                    os.killpg(graph.launcher.pid, signal.SIGHUP)
             assert wait_until(graph.ended, 30.0), (
                 f"{case}: still running {[p for p in graph.pids if alive(p)]}"
             )

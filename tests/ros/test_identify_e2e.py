@@ -53,8 +53,8 @@ FINAL_HOLD = 0.5  # s of phi = 0 after the staircase (too short to count as a ho
 EXCITATION = {
     "elong": ("elongation", 2),
     "bend_rod1": ("rod1", 3),
-    "bend_rod2": ("rod2", 3),
-}  # mode, n_levels
+    "bend_rod2": ("rod2", 3),  # mode, n_levels
+}
 TOPICS = "[/hsa/ee_pose, /hsa/phi_present, /hsa/phi_cmd, /hsa/excitation_info]"
 MOCAP_PERIOD = 0.005  # s
 RTOL = {
@@ -187,9 +187,8 @@ def test_the_records_start_at_simulated_time_zero_and_levels_change_on_schedule(
         t, phi = _commands(bag)
         level = np.max(phi, axis=1)
         changes = t[1:][np.abs(np.diff(level)) > 1e-9]
-        expected = [k * HOLD for k in range(1, n_levels + 1)] + [
-            (n_levels + 1) * HOLD
-        ]  # up the stairs, back to 0
+        # up the stairs, back to 0
+        expected = [k * HOLD for k in range(1, n_levels + 1)] + [(n_levels + 1) * HOLD]
         np.testing.assert_allclose(changes, expected, rtol=0, atol=1e-9)
         np.testing.assert_allclose(
             level[(t >= n_levels * HOLD) & (t < (n_levels + 1) * HOLD)], phi_max, rtol=1e-12

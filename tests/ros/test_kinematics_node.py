@@ -46,10 +46,8 @@ SIGMA_A_EQ = [0.97, 1.01]  # calibrated rest strains given to the node in /hsa
 COMMON = ("qos_overrides./hsa/ee_pose.subscription.depth:=100", "diagnostics_period:=0.2")
 RECEIVE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
 STATUS = "kinematics_node: estimator"
-Q0, RATE = (
-    np.array([-2.0, 0.02, 0.05]),
-    np.array([8.0, -0.1, 0.2]),
-)  # q ramp [1/m, -, -] and its rate per second
+# q ramp [1/m, -, -] and its rate per second
+Q0, RATE = np.array([-2.0, 0.02, 0.05]), np.array([8.0, -0.1, 0.2])
 
 
 def _start(params: Sequence[str], remaps: Sequence[str] = ("__ns:=/hsa",)) -> subprocess.Popen:
@@ -183,12 +181,11 @@ def test_rejected_samples_produce_no_state(nodes, ros_node) -> None:
     states, diagnostics, pub, baseline, slot = _primed(ros_node, chiee)
     good = [_planar_msg(t, c) for t, c in zip(slot, chiee)]
     bad = [
-        _planar_msg(
-            slot[25], [math.nan, 0.11, 0.0]
-        ),  # non-finite (its stamp is reused by the next good sample)
+        # non-finite (its stamp is reused by the next good sample)
+        _planar_msg(slot[25], [math.nan, 0.11, 0.0]),
         _planar_msg(slot[24], chiee[24] + 0.001),  # duplicate stamp
-        _planar_msg(slot[24] - 1_000_000, chiee[24]),
-    ]  # out of order
+        _planar_msg(slot[24] - 1_000_000, chiee[24]),  # out of order
+    ]
     stream(pub, [*good[:25], *bad, *good[25:]])
 
     assert wait_until(lambda: len(states) == 40, 10.0), f"{len(states)} of 40 states arrived"
@@ -197,9 +194,10 @@ def test_rejected_samples_produce_no_state(nodes, ros_node) -> None:
         assert [state.chiee.x, state.chiee.y, state.chiee.theta] == chiee[k].tolist()
         assert state.velocity_valid == (k >= 19)
     _, values = status(diagnostics, lambda s, v: delta(v, baseline, "received") == 43, name=STATUS)
+    # priming gap
     assert (
         delta(values, baseline, "rejected") == 3 and delta(values, baseline, "window_restarts") == 1
-    )  # priming gap
+    )
     for reason in ("non-finite stamp or sample", "duplicate stamp", "out-of-order stamp"):
         assert (
             int(values[f"rejected: {reason}"]) - int(baseline.get(f"rejected: {reason}", 0)) == 1
@@ -253,6 +251,6 @@ def test_chain_from_mocap_to_state(nodes, ros_node) -> None:
 def test_bad_start_parameters_exit_2_naming_the_parameter() -> None:
     bad = {
         "sigma_a_eq": "sigma_a_eq:=[1.0]",  # one value for two rods (validator)
-        "window": "window:=4",
-    }  # too short for a cubic (order 3 needs window >= 5)
+        "window": "window:=4",  # too short for a cubic (order 3 needs window >= 5)
+    }
     assert_refused_at_start({name: _start([param]) for name, param in bad.items()})

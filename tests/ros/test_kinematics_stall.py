@@ -39,8 +39,8 @@ NS = "/kstall"
 STALL, STALLS = 1.0, 3  # [s], count of SIGSTOP stalls
 DEEP_STALL, DEEP_STALLS = (
     2.0,
-    3,
-)  # [s] SIGSTOPs of the node with a deep input queue: 400 samples of backlog each
+    3,  # [s] SIGSTOPs of the node with a deep input queue: 400 samples of backlog each
+)
 
 
 class PoseFeeder:
@@ -50,9 +50,8 @@ class PoseFeeder:
         self.node = node
         self.pub = node.create_publisher(PlanarPoseStamped, topic, qos.SENSOR)
         self._stop = threading.Event()
-        self.held = (
-            threading.Event()
-        )  # set: hold the stream; on clear, the first sample out is the held-back one
+        # set: hold the stream; on clear, the first sample out is the held-back one
+        self.held = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._thread.start()
 

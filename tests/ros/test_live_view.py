@@ -272,9 +272,8 @@ class Session:
     def __init__(self) -> None:
         self.server_info: dict = {}
         self.channels: dict[str, dict] = {}
-        self.received: dict[str, list[tuple[float, int, bytes]]] = defaultdict(
-            list
-        )  # (arrival, log time, payload)
+        # (arrival, log time, payload)
+        self.received: dict[str, list[tuple[float, int, bytes]]] = defaultdict(list)
 
 
 async def watch(
@@ -410,9 +409,8 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
         if c.status == psutil.CONN_LISTEN
     ]
     assert listening and all(a.ip == "127.0.0.1" for a in listening), listening  # loopback only
-    assert (
-        asyncio.run(handshake(port, [OLD_SUBPROTOCOL])) == 400
-    )  # viewers offering only the old name
+    # viewers offering only the old name
+    assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL])) == 400
     assert asyncio.run(handshake(port, [OLD_SUBPROTOCOL, SUBPROTOCOL])) == SUBPROTOCOL
     graph = Graph(ros_node)
     graph.wait_subscribed()
@@ -476,9 +474,8 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
         )
         ghost_backbone = goal.lines[0].points[-1]
         np.testing.assert_allclose([ghost_backbone.x, ghost_backbone.y], goal_xy, atol=1e-12)
-        assert goal.lines[0].color.a == pytest.approx(
-            0.5
-        )  # translucent ghost of q^d, alpha updated at run time
+        # translucent ghost of q^d, alpha updated at run time
+        assert goal.lines[0].color.a == pytest.approx(0.5)
 
     print(
         f"{len(session.received['/live/tracking'])} of {len(graph.published['info'])} ticks; "
@@ -538,9 +535,8 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
     phi_present = {t for _, t, _ in session.received["/live/phi_present"]}
     assert sum("phi_cmd" not in m for m in actuation.values()) >= 1  # a no-command tick was seen
     assert phi_present <= set(graph.published["phi_present"])
-    assert len(phi_present) >= 0.5 * len(
-        graph.published["phi_present"]
-    )  # best effort at 100 Hz, loaded machine
+    # best effort at 100 Hz, loaded machine
+    assert len(phi_present) >= 0.5 * len(graph.published["phi_present"])
 
     # diagnostics and progress: every progress_period (1 s), the probe's WARN and "step 3/11"
     diagnostics = [json.loads(p) for _, _, p in session.received["/live/diagnostics"]]
@@ -569,9 +565,8 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
     checking = time.monotonic() - checking
     assert set(report["channels"]) == set(EXPECTED)
     failed = {t: c["error"] for t, c in report["channels"].items() if not c["ok"]}
-    assert not failed, (
-        failed
-    )  # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
+    # e.g. "Failed to parse channel schema: Unsupported type ["number","null"] for …"
+    assert not failed, failed
     paths = {(p["panel"], p["path"]): p for p in report["paths"]}
     plot_paths = {
         (k, p["value"]) for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]
@@ -619,9 +614,8 @@ def test_a_taken_port_is_refused_in_one_line(live_node) -> None:
 def test_live_node_starts_with_its_graphs_parameters(graph: str) -> None:
     """live:=true adds live_node to the sim and real graphs; it starts on their command line and
     serves on loopback."""
-    assert "live_node" not in [
-        p.name for p in LaunchFile(LAUNCH / graph, {}).processes()
-    ]  # off by default
+    # off by default
+    assert "live_node" not in [p.name for p in LaunchFile(LAUNCH / graph, {}).processes()]
     proc = next(
         p
         for p in LaunchFile(LAUNCH / graph, {"live": "true", "live_port": "0"}).processes()
@@ -715,15 +709,14 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
     assert last and last[0] is not None and min(e for e in last if e is not None) < 0.5 * last[0], (
         last
     )
-    final = [
-        e for e in last[-20:] if e is not None
-    ]  # the simulated robot moved towards the last target (load-proof)
+    # the simulated robot moved towards the last target (load-proof)
+    final = [e for e in last[-20:] if e is not None]
     scenes = session.received["/live/scene"]
     span = (scenes[-1][0] - scenes[0][0]) if len(scenes) > 1 else 0.0
     assert span > 5.0 and len(scenes) <= 25.0 * span + 4, (
         len(scenes),
-        span,
-    )  # wall rate ≤ 25 Hz (+ setpoints)
+        span,  # wall rate ≤ 25 Hz (+ setpoints)
+    )
     layout = json.loads(
         (Path(package_share("hsa_live")) / "config" / "foxglove_layout.json").read_text()
     )
@@ -801,8 +794,8 @@ def test_under_simulated_time_the_view_runs_on_the_wall_clock(ros_node: Node) ->
         assert stop_process(proc) == 0
     assert 5.0 * fast <= scenes_while_fast <= 25.0 * fast + 2, (
         scenes_while_fast,
-        fast,
-    )  # not 25 per simulated s
+        fast,  # not 25 per simulated s
+    )
     assert len(progress_standing) >= 2 and len(standing) >= 2, (
         len(progress_standing),
         len(standing),

@@ -32,12 +32,10 @@ pytestmark = pytest.mark.ros
 NS = "/malformed"
 STATE, SETPOINT = f"{NS}/state", f"{NS}/setpoint"
 N_BAD, N_GOOD = 20, 10  # per topic
-RELIABLE = QoSProfile(
-    depth=100
-)  # the recorder then takes every message (the controller's best-effort reader too)
-LATCHED = QoSProfile(
-    depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL
-)  # the controller's setpoint reader
+# the recorder then takes every message (the controller's best-effort reader too)
+RELIABLE = QoSProfile(depth=100)
+# the controller's setpoint reader
+LATCHED = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def malformed(good: bytes, k: int) -> bytes:
@@ -78,9 +76,8 @@ def test_malformed_messages_are_left_out_of_the_bag_and_print_no_error_blocks(
         recorder.wait_ready()
         controller.wait_ready()
         assert wait_until(lambda: all(p.get_subscription_count() == 2 for p in pubs.values()), 30.0)
-        time.sleep(
-            1.0
-        )  # the recorder subscribes on discovery: give both subscriptions time to match back
+        # the recorder subscribes on discovery: give both subscriptions time to match back
+        time.sleep(1.0)
         for k in range(N_BAD):
             for (
                 topic,
@@ -108,9 +105,8 @@ def test_malformed_messages_are_left_out_of_the_bag_and_print_no_error_blocks(
     printed = controller.output()
     assert "rcutils_set_error_state" not in printed and "being overwritten" not in printed, printed
     assert 1 <= len(controller.log("middleware error")) <= 2, printed  # throttled: one line per 5 s
-    assert controller.log("rejected an undecodable setpoint"), (
-        printed
-    )  # taken raw: refused and counted, no crash
+    # taken raw: refused and counted, no crash
+    assert controller.log("rejected an undecodable setpoint"), printed
     summary = recorder.log("wrote ")
     assert (
         summary

@@ -149,9 +149,8 @@ def test_markers_follow_the_state_and_setpoint_at_the_rate_limit(
         time.sleep(max(0.0, start + i * PERIOD_NS * 1e-9 - time.monotonic()))
         states.publish(state(i))
     time.sleep(0.5)
-    elapsed = (
-        time.monotonic() - start
-    )  # ≥ 3.5 s; longer when a loaded machine slows the stream down
+    # ≥ 3.5 s; longer when a loaded machine slows the stream down
+    elapsed = time.monotonic() - start
     streamed = [a for a in received[1:] if to_ns(a.markers[0].header.stamp) >= T0_NS]
     # rate limit 20 Hz on the node clock: at most one array per 50 ms of the stream (+1 for the
     # first state)
@@ -173,9 +172,8 @@ def test_markers_follow_the_state_and_setpoint_at_the_rate_limit(
             for key, m in markers.items()
             if key[0] in ("backbone", "rods", "ghost")
         )
-        assert all(
-            abs(m.color.a - 0.3) < 1e-6 for k, m in markers.items() if k[0] == "ghost"
-        )  # translucent
+        # translucent
+        assert all(abs(m.color.a - 0.3) < 1e-6 for k, m in markers.items() if k[0] == "ghost")
         sphere, cube = markers[("setpoint", 0)], markers[("platform", 0)]
         assert sphere.type == Marker.SPHERE and cube.type == Marker.CUBE
         np.testing.assert_allclose(

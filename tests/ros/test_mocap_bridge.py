@@ -235,9 +235,8 @@ def test_known_poses_come_out_exactly_with_the_input_stamps(bridges, ros_node) -
         np.testing.assert_allclose(_planar(msg), known[stamp_ns(msg)], rtol=0.0, atol=1e-9)
 
     rates = [float(v["output_rate_hz"]) for _, v in statuses(diagnostics)]
-    assert max(rates) > 100.0, (
-        f"output rates {rates}"
-    )  # 200 Hz nominally; generous on a busy machine
+    # 200 Hz nominally; generous on a busy machine
+    assert max(rates) > 100.0, f"output rates {rates}"
     rest_status, _ = status(diagnostics, name="mocap_bridge: rest pose", after_ns=t0)
     assert rest_status.level == DiagnosticStatus.OK, rest_status.message
     stale, values = status(
@@ -259,9 +258,8 @@ def test_invalid_samples_are_dropped_and_counted(bridges, ros_node) -> None:
     last_good = chiee[19]
     position, quaternion = _world(last_good)
     bad = {
-        "jump": pose_msg(
-            slot[20], *_world(last_good + [0.03, 0.0, 0.0])
-        ),  # 3 cm in 5 ms (limit 2 cm)
+        # 3 cm in 5 ms (limit 2 cm)
+        "jump": pose_msg(slot[20], *_world(last_good + [0.03, 0.0, 0.0])),
         "non_finite": pose_msg(slot[21], (math.nan, *position[1:]), quaternion),
         "quaternion": pose_msg(slot[22], position, 1.1 * quaternion),
         "duplicate": pose_msg(slot[19], *_world(last_good + [0.001, 0.0, 0.0])),
@@ -421,8 +419,8 @@ def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node
     base, base_quaternion = _tilted_base()
     shifted = (
         *base[:2],
-        base[2] + 0.005,
-    )  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted
+        base[2] + 0.005,  # 5 mm in the plane: moved the EE estimate by 6.4 mm when accepted
+    )
     rest = mocap.planar_to_world(
         mocap.REST_POSE, base, mocap.MocapConfig(use_base_orientation=True), base_quaternion
     )
@@ -460,8 +458,8 @@ def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node
     rejected = {reason: delta(values, before, f"rejected_{reason}") for reason in bad}
     assert all(n >= 50 for n in rejected.values()), (
         rejected,
-        values,
-    )  # best effort: a loaded machine may lose some
+        values,  # best effort: a loaded machine may lose some
+    )
     assert delta(values, before, "accepted") + sum(rejected.values()) == delta(
         values, before, "received"
     ), values
@@ -477,9 +475,8 @@ def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node
     )[1]
     received.clear()
     last_base = stream_frames(ros_node, [frame(True)])[-1]
-    silent = stream_frames(
-        ros_node, [frame(False)] * 120
-    )  # 0.6 s of platform poses without a base pose
+    # 0.6 s of platform poses without a base pose
+    silent = stream_frames(ros_node, [frame(False)] * 120)
     stale, values = status(
         diagnostics,
         lambda s, v: s.level == DiagnosticStatus.ERROR,
@@ -524,6 +521,7 @@ def test_base_poses_are_checked_and_a_stale_base_is_never_used(bridges, ros_node
 def test_bad_start_parameters_exit_2_naming_the_parameter() -> None:
     bad = {
         "max_jump": "max_jump:=-1.0",  # outside the declared range (rclpy refuses)
+        # not a unit quaternion (validator)
         "base_quaternion": "base_quaternion:=[0.0, 0.0, 0.0, 0.5]",
-    }  # not a unit quaternion (validator)
+    }
     assert_refused_at_start({name: start_bridge([param]) for name, param in bad.items()})

@@ -31,9 +31,8 @@ def test_generated_classes_have_documented_fields() -> None:
     cmd = PlanarActuation(phi=np.array([0.5, 1.0]))
     assert cmd.phi.dtype == np.float64
     with pytest.raises(AssertionError):
-        PlanarActuation(
-            phi=np.array([0.5, 1.0, 2.0])
-        )  # fixed size enforced (ROS_PYTHON_CHECK_FIELDS=1 in tests)
+        # fixed size enforced (ROS_PYTHON_CHECK_FIELDS=1 in tests)
+        PlanarActuation(phi=np.array([0.5, 1.0, 2.0]))
     assert Setpoint().phi_ss.shape == (2,)
     assert CalibrateRestStrain.Response().sigma_a_eq.shape == (2,)
     assert PlanSetpoint.Response.STATUS_PHI_OUT_OF_RANGE == 2

@@ -23,8 +23,8 @@ pytestmark = pytest.mark.ros
 N = 200
 REACHABLE_Y, UNREACHABLE_Y = (
     0.125,
-    0.05,
-)  # [m] down the backbone: 5 cm is above the 11 cm robot's reach
+    0.05,  # [m] down the backbone: 5 cm is above the 11 cm robot's reach
+)
 
 
 @pytest.fixture(scope="module")

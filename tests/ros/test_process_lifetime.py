@@ -28,14 +28,12 @@ def test_tie_to_parent_answers_by_launcher_and_nohup() -> None:
     env = {k: v for k, v in os.environ.items() if k != parent_death.PARENT_ENV}
     ended = subprocess.Popen(["true"])
     ended.wait()
-    assert (
-        tie({**env, parent_death.PARENT_ENV: str(ended.pid)}) == "ORPHANED"
-    )  # the launcher ended before the node
+    # the launcher ended before the node
+    assert tie({**env, parent_death.PARENT_ENV: str(ended.pid)}) == "ORPHANED"
     assert tie({**env, parent_death.PARENT_ENV: str(os.getpid())}) == "TIED"
     assert tie(env) == "TIED"  # ros2 launch, ros2 run, a shell
-    assert (
-        tie(env, "import signal; signal.signal(signal.SIGHUP, signal.SIG_IGN); ") == "DETACHED"
-    )  # nohup
+    # nohup
+    assert tie(env, "import signal; signal.signal(signal.SIGHUP, signal.SIG_IGN); ") == "DETACHED"
 
 
 def test_a_tied_process_gets_sigterm_when_its_parent_is_killed(tmp_path) -> None:
@@ -114,8 +112,8 @@ def test_remove_unused_removes_only_what_no_live_process_uses(tmp_path) -> None:
         time.sleep(0.6)
         young = [
             "fastrtps_2222222222222222",
-            "fastrtps_2222222222222222_el",
-        ]  # unlocked but just created
+            "fastrtps_2222222222222222_el",  # unlocked but just created
+        ]
         for name in young:
             (directory / name).touch()
         removed = set(fastdds_shm.remove_unused(grace=0.5, directory=directory))

@@ -137,15 +137,12 @@ def state_vector(s: PlanarState) -> np.ndarray:
 
 def test_every_recorded_state_is_replayed_and_regenerated_identical(runs: Messages) -> None:
     original, replayed, again = runs["sim/hsa/state"], runs["/replay/state"], runs["/hsa/state"]
-    assert len(original) >= 100 * STEPS * STEP_PERIOD, len(
-        original
-    )  # the sim run's states (200 Hz mocap)
-    assert [t for t, _ in replayed] == [
-        t for t, _ in original
-    ]  # every one played, recorded at its log time
-    assert [stamp(m) for _, m in again] == [
-        stamp(m) for _, m in original
-    ]  # every one regenerated, in order
+    # the sim run's states (200 Hz mocap)
+    assert len(original) >= 100 * STEPS * STEP_PERIOD, len(original)
+    # every one played, recorded at its log time
+    assert [t for t, _ in replayed] == [t for t, _ in original]
+    # every one regenerated, in order
+    assert [stamp(m) for _, m in again] == [stamp(m) for _, m in original]
     for (_, recorded), (_, regenerated) in zip(
         original, again
     ):  # same samples, same order: bit-identical
@@ -161,16 +158,13 @@ def test_every_controller_tick_is_regenerated_identical(runs: Messages) -> None:
     original, replayed = runs["sim/hsa/controller_info"], runs["/replay/controller_info"]
     again = runs["/hsa/controller_info"]
     tracking = [m for _, m in original if m.state == ControllerInfo.STATE_TRACKING]
-    assert len(tracking) >= 35 * STEPS * STEP_PERIOD, len(
-        tracking
-    )  # the 40 Hz ticks of the sim run
-    assert [t for t, _ in original] == [
-        stamp(m) for _, m in original
-    ]  # each tick logged at its own instant
+    # the 40 Hz ticks of the sim run
+    assert len(tracking) >= 35 * STEPS * STEP_PERIOD, len(tracking)
+    # each tick logged at its own instant
+    assert [t for t, _ in original] == [stamp(m) for _, m in original]
     assert [stamp(m) for _, m in replayed] == [stamp(m) for _, m in original]
-    assert [(t, stamp(m)) for t, m in again] == [
-        (stamp(m), stamp(m)) for _, m in original
-    ]  # every tick, at its time
+    # every tick, at its time
+    assert [(t, stamp(m)) for t, m in again] == [(stamp(m), stamp(m)) for _, m in original]
     for (_, recorded), (_, regenerated) in zip(original, again):
         assert regenerated.state == recorded.state and regenerated.controller == recorded.controller
         assert regenerated.state_stamp == recorded.state_stamp
@@ -179,7 +173,6 @@ def test_every_controller_tick_is_regenerated_identical(runs: Messages) -> None:
             np.testing.assert_array_equal(
                 getattr(regenerated, field), getattr(recorded, field), err_msg=field
             )
-        regenerated.compute_time = (
-            recorded.compute_time
-        )  # the tick's wall-clock CPU time: not simulated
+        # the tick's wall-clock CPU time: not simulated
+        regenerated.compute_time = recorded.compute_time
         assert regenerated == recorded

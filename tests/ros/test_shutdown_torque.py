@@ -96,8 +96,9 @@ def test_sigint_sigterm_and_an_uncaught_exception_turn_torque_off_within_100_ms(
         drivers += [
             DriverProcess(emulators["sigint"].port, name="driver_sigint"),
             DriverProcess(emulators["sigterm"].port, name="driver_sigterm"),
+            # start in parallel
             faulty_driver("driver_exception", emulators["exception"].port, fault_file),
-        ]  # start in parallel
+        ]
         for driver in drivers:
             driver.wait_ready(90.0)
         for emulator in emulators.values():
@@ -168,8 +169,8 @@ def test_sim_graph_ctrl_c_turns_torque_off_within_100_ms(tmp_path, ros_node) -> 
             "record:=false",
             "clock:=wall",
         ],
-        cwd=tmp_path,
-    )  # a real-time measurement
+        cwd=tmp_path,  # a real-time measurement
+    )
     lines: list[str] = []
     try:
         lines += wait_for_line(launcher, "torque on", timeout=240.0)

@@ -130,23 +130,20 @@ def test_the_bag_holds_every_message_in_simulated_time(sim_run) -> None:
             stamps[topic] = np.array(found)
             log_times[topic] = np.array(logged)
     poses = stamps["/mocap/platform/pose"]
-    np.testing.assert_array_equal(
-        poses, np.arange(len(poses)) * 5 * MS
-    )  # every sample from t = 0, none twice
+    # every sample from t = 0, none twice
+    np.testing.assert_array_equal(poses, np.arange(len(poses)) * 5 * MS)
     assert (
         counts["/mocap/base/pose"] == counts["/hsa/ee_pose"] == counts["/hsa/state"] == len(poses)
     )
     reads = stamps["/hsa/phi_present"]
-    np.testing.assert_array_equal(
-        np.diff(reads), 25 * MS
-    )  # the driver's cycle (40 Hz in lockstep), none missed
+    # the driver's cycle (40 Hz in lockstep), none missed
+    np.testing.assert_array_equal(np.diff(reads), 25 * MS)
     assert counts["/hsa/motor_states"] == len(reads)
     ticks = stamps["/hsa/controller_info"]
     np.testing.assert_array_equal(np.diff(ticks), 25 * MS)  # 40 Hz, none missed
     assert counts["/hsa/phi_cmd"] == len(ticks)
-    assert (
-        latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS
-    )  # logged in simulated time
+    # logged in simulated time
+    assert latest_log_time <= max(poses[-1], reads[-1], ticks[-1]) + 10 * MS
     for timed in (
         "/hsa/phi_present",
         "/hsa/controller_info",

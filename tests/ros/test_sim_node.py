@@ -28,6 +28,7 @@ REST_FPU = (0.0, 0.11014, 0.0)  # χ_ee of the FPU model at rest (model.md §3)
 def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """One sim_node for the module (JAX compilation is the slow part); yields its emulated port."""
     port = tmp_path_factory.mktemp("sim") / "ttyDXL"
+    # hsa_core's persistent JAX cache speeds reruns
     proc = start_process(
         [
             find_executable("hsa_sim_node", "sim_node"),
@@ -37,7 +38,7 @@ def sim(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
             "-p",
             f"base_position:={list(BASE)}",
         ]
-    )  # hsa_core's persistent JAX cache speeds reruns
+    )
     wait_for_line(proc, "ready", timeout=180.0)
     yield port
     stop_process(proc)

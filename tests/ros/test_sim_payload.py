@@ -23,8 +23,9 @@ BASE = (0.0, 0.0, 0.0)
 REST_FPU = (0.0, 0.11014, 0.0)  # χ_ee of the FPU model at rest (model.md §3)
 LOAD_AT, MASS = (
     4.0,
+    # [s of simulated time], [kg] (a mass of hsa_identification/config/campaign_example.yaml)
     0.437,
-)  # [s of simulated time], [kg] (a mass of hsa_identification/config/campaign_example.yaml)
+)
 MARGIN = (
     0.25  # [s] around the load instant: the test's estimate of the world's origin on the node clock
 )

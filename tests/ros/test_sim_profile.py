@@ -70,9 +70,8 @@ def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
     reference = step_reference(np.asarray(step_reference("fpu").p_des[:STEPS]), period=STEP_PERIOD)
     offline = run_experiment(profile_config(PROFILE, "fpu", "psatid", reference=reference))
     log = runlog_from_bag(bag).trimmed(STEPS * STEP_PERIOD)
-    assert (
-        len(log) == len(offline.log) == 112
-    )  # ticks every 36 ms in 4 s, the first one after 16 tick samples
+    # ticks every 36 ms in 4 s, the first one after 16 tick samples
+    assert len(log) == len(offline.log) == 112
     np.testing.assert_allclose(log.t, offline.log.t, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(log.phi_sat, offline.log.phi_sat, rtol=0.0, atol=1e-9)
     np.testing.assert_allclose(log.chiee, offline.log.chiee, rtol=0.0, atol=1e-12)

@@ -64,8 +64,8 @@ REFERENCE = {
     "ls": (0, (4, 2)),
     "lw": 1.1,
     "zorder": 4,
-    "gid": "reference",
-}  # dashed, on top
+    "gid": "reference",  # dashed, on top
+}
 SETPOINT = {**REFERENCE, "drawstyle": "steps-post"}  # setpoints hold from one tick to the next
 LIMIT = {"color": "0.35", "ls": "-.", "lw": 0.9, "zorder": 1}
 LAW_NAMES = {"psatid": "P-satI-D", "psatid_gc": "P-satI-D + GC", "pid": "PID"}
@@ -109,9 +109,8 @@ class RunLabel:
         unless given."""
         meta = log.meta
         law = law_name(meta.get("controller", ""), meta.get("ee_integral", "").lower() == "true")
-        setup = meta.get("setup") or (
-            "sim" if "bag" not in meta else ""
-        )  # offline experiments are simulations
+        # offline experiments are simulations
+        setup = meta.get("setup") or ("sim" if "bag" not in meta else "")
         if rmse is None:
             rmse = tracking_rmse(log.chiee_des[:, :2], log.chiee[:, :2])
         return cls(law, meta.get("material", "").upper(), setup, float(rmse))
@@ -575,9 +574,8 @@ def overlay_path_figure(logs: Sequence[RunLog], labels: Sequence[RunLabel]) -> F
     points = np.concatenate(
         [np.concatenate([log.chiee[:, :2], log.chiee_des[:, :2]]) for log in logs]
     )
-    width, height = (
-        np.ptp(points, axis=0) + 1e-3
-    )  # m; the plane's height for the width, legend below
+    # m; the plane's height for the width, legend below
+    width, height = np.ptp(points, axis=0) + 1e-3
     fig_height = float(np.clip(5.5 * height / width, 2.0, 8.0)) + 0.8 + 0.22 * len(logs)
     fig, ax = subplots(figsize=(6.5, fig_height), layout="constrained")
     for i, (log, label) in enumerate(zip(logs, labels)):

@@ -83,9 +83,8 @@ def run_summary(spec: closed_loop.LoopSpec, log: closed_loop.TickLog) -> RunSumm
     t_host = (np.arange(n_eval) * spec.period_ms * closed_loop.MS) * 1e-9
     duration = n_eval * spec.period_ms * 1e-3
     t = jnp.asarray(t_host)
-    t_after = jnp.asarray(
-        np.append(t_host, duration)
-    )  # t of a step's end tick, the duration after the last
+    # t of a step's end tick, the duration after the last
+    t_after = jnp.asarray(np.append(t_host, duration))
     k = jnp.arange(n_eval)
     p_ee = log.chiee[index, :2]
     p_des = log.chiee_des[index, :2]

@@ -169,16 +169,14 @@ def run_law(
         spec, inputs, constants = closed_loop.prepare(config)
         plant_index = np.arange(len(plants.seeds))
     n = len(plant_index)
-    size = -(
-        -n // -(-n // batch)
-    )  # as few calls as at ``batch``, all of one size: n = 144 at 128 is 2 x 72
+    # as few calls as at ``batch``, all of one size: n = 144 at 128 is 2 x 72
+    size = -(-n // -(-n // batch))
     records: list[dict] = []
     worst: Worst | None = None
     for lo in range(0, n, size):
         real = min(size, n - lo)
-        pos = lo + np.minimum(
-            np.arange(size), real - 1
-        )  # a short last call repeats its last run: one shape
+        # a short last call repeats its last run: one shape
+        pos = lo + np.minimum(np.arange(size), real - 1)
         idx = plant_index[pos]
         noise = closed_loop.noise_batch(
             disturbance, spec, plants.seeds[plant_index[lo : lo + real]]
@@ -201,6 +199,7 @@ def run_law(
             lambda a: np.asarray(a)[:real], batch_metrics.evaluate(spec, logs)
         )
         for j, i in enumerate(idx[:real]):
+            # NaN metrics where not finite
             records.append(
                 {
                     "law": law,
@@ -216,7 +215,7 @@ def run_law(
                     "overshoot_mm": float(m.overshoot_mean[j] * 1e3),
                     "saturated": float(m.saturated_fraction[j]),
                 }
-            )  # NaN metrics where not finite
+            )
         scores = np.where(np.isfinite(m.rmse), m.rmse * 1e3, math.inf)
         j = int(np.argmax(scores))
         if worst is None or scores[j] > worst.score:

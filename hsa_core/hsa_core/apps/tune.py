@@ -110,9 +110,8 @@ def evaluate_population(
     parts: list[batch_metrics.RunSummary] = []
     for lo in range(0, len(pairs), batch):
         real = min(batch, len(pairs) - lo)
-        chunk = [
-            pairs[lo + j] for j in np.minimum(np.arange(batch), real - 1)
-        ]  # a short chunk repeats its last run
+        # a short chunk repeats its last run
+        chunk = [pairs[lo + j] for j in np.minimum(np.arange(batch), real - 1)]
         gains = jax.tree_util.tree_map(lambda *v: np.stack(v), *[population[g] for g, _ in chunk])
         plant = np.array([p for _, p in chunk])
         params = jax.tree_util.tree_map(lambda a: a[plant], plants.params)
@@ -130,8 +129,8 @@ def evaluate_population(
         "t_r_s": m.response_time_mean,
         "overshoot_mm": m.overshoot_mean * 1e3,
         "effort_rad": m.effort,
-        "bad": (m.unstable | m.limit_cycle).astype(float),
-    }  # NaN metrics: not finite
+        "bad": (m.unstable | m.limit_cycle).astype(float),  # NaN metrics: not finite
+    }
     out = []
     for g in range(len(population)):
         mine = slice(g * n_plants, (g + 1) * n_plants)
@@ -206,9 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         disturbance.plant_params(load_params(args.material)), args.plants, args.spread, args.seed
     )
     noises = closed_loop.noise_batch(disturbance, spec, plants.seeds)
-    batch = min(
-        args.batch, args.population * args.plants
-    )  # every call runs this many: one compiled shape
+    # every call runs this many: one compiled shape
+    batch = min(args.batch, args.population * args.plants)
     rng = np.random.default_rng(args.seed)
     mean = np.log10([getattr(paper, n) for n in TUNED[kind]])
     std = np.full(mean.shape, LOG_SPAN)

@@ -160,13 +160,11 @@ class ControlLoop:
         self._q_bounds = q_bounds(controller.params)
         self.counters, self.rejections = Counters(), Rejections()
         self.mode = Mode.WAITING_FOR_SETPOINT
-        self.last_outage_s = (
-            math.nan
-        )  # time without tracking before the latest return to tracking [s]
+        # time without tracking before the latest return to tracking [s]
+        self.last_outage_s = math.nan
         self.active_tag: Any = None  # tag of the active setpoint
-        self._intake: deque[tuple[int, Setpoint, Any]] = (
-            deque()
-        )  # received setpoints not yet checked, arrival order
+        # received setpoints not yet checked, arrival order
+        self._intake: deque[tuple[int, Setpoint, Any]] = deque()
         self._newest: tuple[int, Measurement] | None = (
             None  # stamp and values of the newest usable state
         )

@@ -243,9 +243,8 @@ class DelayGate:
         if max_lag < 0.0 or history < 1:
             raise ValueError(f"max_lag must be >= 0 and history >= 1, got {max_lag!r}, {history!r}")
         self.max_lag_ns = int(max_lag * 1e9)
-        self._latencies: deque[tuple[int, int]] = (
-            deque()
-        )  # (index, latency) with increasing latencies: running min
+        # (index, latency) with increasing latencies: running min
+        self._latencies: deque[tuple[int, int]] = deque()
         self._history = history
         self._index = 0  # timely samples seen
         self._level: tuple[int, int, int] | None = (

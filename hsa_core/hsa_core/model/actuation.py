@@ -40,12 +40,10 @@ from numpy.typing import ArrayLike
 
 TICKS_PER_RAD = 2048.0 / math.pi
 RAD_PER_TICK = math.pi / 2048.0
-MX28_NO_LOAD_SPEED = (
-    55.0 * 2.0 * math.pi / 60.0
-)  # rad/s: 55 rev/min at 12 V (ROBOTIS e-Manual, MX-28(2.0))
-DEFAULT_MAX_GOAL_RATE = (
-    2.0 * MX28_NO_LOAD_SPEED
-)  # rad/s ≈ 11.5: above any speed the servo can execute
+# rad/s: 55 rev/min at 12 V (ROBOTIS e-Manual, MX-28(2.0))
+MX28_NO_LOAD_SPEED = 55.0 * 2.0 * math.pi / 60.0
+# rad/s ≈ 11.5: above any speed the servo can execute
+DEFAULT_MAX_GOAL_RATE = 2.0 * MX28_NO_LOAD_SPEED
 _TRUNC_GUARD = 1e-6  # ticks
 
 
@@ -98,9 +96,8 @@ class ServoModel:
             return float(goal), 0.0
         sign = math.copysign(1.0, error)
         remaining = abs(error)
-        knee = (
-            self.max_speed_ticks_per_s * self.time_constant_s
-        )  # below this error the lag is slower than the cap
+        # below this error the lag is slower than the cap
+        knee = self.max_speed_ticks_per_s * self.time_constant_s
         if remaining > knee:
             t_capped = (remaining - knee) / self.max_speed_ticks_per_s
             if dt <= t_capped:
@@ -364,9 +361,8 @@ class GoalRateLimiter:
             if now == self._time
             else (self._time, self._goal)
         )
-        dt = min(
-            max(now - base_time, 0.0), period
-        )  # a clock that jumped back allows no motion at that instant
+        # a clock that jumped back allows no motion at that instant
+        dt = min(max(now - base_time, 0.0), period)
         return np.asarray(clamp(limit_goal_rate(base_goal, target, dt, max_rate)), dtype=np.int64)
 
     def written(self, goal: ArrayLike, now: float) -> None:

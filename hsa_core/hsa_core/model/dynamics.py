@@ -162,9 +162,8 @@ def _inertial_terms(
     Jacobian. G is the gradient of U_g = -sum_k m_k g^T p_k (§7.4).
     """
     J, J_dot = _point_jacobians(mp, xi, xi_dot)
-    JJ = jax.lax.optimization_barrier(
-        jnp.concatenate([J, J_dot])
-    )  # one kernel for all Jacobian entries
+    # one kernel for all Jacobian entries
+    JJ = jax.lax.optimization_barrier(jnp.concatenate([J, J_dot]))
     J, J_dot = JJ[:3], JJ[3:]
     M = jnp.sum(J[:, None] * J[None] * mp.m, axis=(2, 3, 4)) + jnp.zeros((3, 3)).at[0, 0].set(
         mp.inertia_kk
@@ -194,9 +193,8 @@ def _gravity_of(params: HsaParams, mp: MassPoints, xi: Array) -> Array:
     J_sh = F, J_ax = i F (so <J_ax, g> = cross(F, g)) and J_k = w F_k + i s e^{i kappa s} d
     (:func:`_point_jacobians`)."""
     s = mp.s
-    f = jax.lax.optimization_barrier(
-        arc_functions(xi[0] * s)
-    )  # computed once, not inside every consumer kernel
+    # computed once, not inside every consumer kernel
+    f = jax.lax.optimization_barrier(arc_functions(xi[0] * s))
     F, F_k = (s * f[0], s * f[3]), (s * s * f[1], s * s * f[4])
     e_d = _times((f[6], f[7]), (mp.d[:, :, 0], mp.d[:, :, 1]))  # e^{i kappa s} d, per layer
     wF_k = _times((xi[1], xi[2]), F_k)
@@ -238,18 +236,16 @@ def _inertial_forces(
     s, (m0, m1), (d0, d1) = mp.s, mp.m, mp.d
     S0, S1, S2, B0, B1, B2, cos, sin = arc_terms(xi[0] * s)
     mass = m0 + m1
-    moment = _times(
-        (cos, sin), (m0 * d0[:, 0] + m1 * d1[:, 0], m0 * d0[:, 1] + m1 * d1[:, 1])
-    )  # e^{i kappa s} sum m d
+    # e^{i kappa s} sum m d
+    moment = _times((cos, sin), (m0 * d0[:, 0] + m1 * d1[:, 0], m0 * d0[:, 1] + m1 * d1[:, 1]))
     second_moment = m0 * (d0[:, 0] ** 2 + d0[:, 1] ** 2) + m1 * (d1[:, 0] ** 2 + d1[:, 1] ** 2)
     F, F_k, F_kk = (s * S0, s * B0), (s * s * S1, s * s * B1), (s**3 * S2, s**3 * B2)
     w, w_dot, kappa_dot = (xi[1], xi[2]), (xi_dot[1], xi_dot[2]), xi_dot[0]
     wF_k, wdF_k, wF_kk = _times(w, F_k), _times(w_dot, F_k), _times(w, F_kk)
     i_moment = (-s * moment[1], s * moment[0])  # i s e^{i kappa s} sum m d
     J_k = (mass * wF_k[0] + i_moment[0], mass * wF_k[1] + i_moment[1])  # sum m J_k
-    common = tuple(
-        kappa_dot * (2.0 * a + kappa_dot * b) for a, b in zip(wdF_k, wF_kk)
-    )  # v without the offset term
+    # v without the offset term
+    common = tuple(kappa_dot * (2.0 * a + kappa_dot * b) for a, b in zip(wdF_k, wF_kk))
     offset = kappa_dot * kappa_dot * s * s
     v = (mass * common[0] - offset * moment[0], mass * common[1] - offset * moment[1])  # sum m v
     mF, g = (mass * F[0], mass * F[1]), (params.g[0], params.g[1])

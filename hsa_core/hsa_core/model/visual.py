@@ -77,9 +77,8 @@ def robot_geometry(
     lateral = jnp.stack(
         [jnp.stack([zero, zero]), jnp.stack([roff[0], zero]), jnp.stack([roff[1], zero])]
     )
-    active = points_in_base(
-        params, xi, arc_samples(params, n_points)[None, :], lateral[:, None, :]
-    )  # (3, n, 2)
+    # (3, n, 2)
+    active = points_in_base(params, xi, arc_samples(params, n_points)[None, :], lateral[:, None, :])
     w, h_p = params.platform_size[0], params.platform_size[1]
     l_dc = params.l_dc
     tip_local = jnp.stack(
@@ -97,9 +96,8 @@ def robot_geometry(
         ]
     )
     tip = points_in_base(params, xi, params.l, tip_local)
-    plate_top = jnp.stack(
-        [lateral[:, 0], jnp.zeros(3)], axis=-1
-    )  # motor-plate ends of the caps (θ₀ = 0)
+    # motor-plate ends of the caps (θ₀ = 0)
+    plate_top = jnp.stack([lateral[:, 0], jnp.zeros(3)], axis=-1)
     theta_tip = xi[0] * params.l
     return RobotGeometry(
         backbone=jnp.concatenate([plate_top[:1], active[0], tip[:2]]),

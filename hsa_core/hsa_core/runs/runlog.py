@@ -31,9 +31,8 @@ COLUMNS: dict[str, tuple[str, ...]] = {
     "e_int": ("1", "2"),
     "saturated": ("",),
 }
-OPTIONAL_COLUMNS: dict[str, tuple[str, ...]] = {
-    "phi_meas": ("1", "2")
-}  # absent (None) when not measured
+# absent (None) when not measured
+OPTIONAL_COLUMNS: dict[str, tuple[str, ...]] = {"phi_meas": ("1", "2")}
 
 _POSE_UNITS = ("m", "m", "rad")
 _Q_UNITS = ("rad/m", "-", "-")

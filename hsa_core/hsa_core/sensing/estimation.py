@@ -143,9 +143,8 @@ class SavitzkyGolayDifferentiator:
         # contiguous view.
         self._x = np.zeros((2 * window, dim))
         self._t = np.zeros(2 * window)
-        self._off_grid = [False] * (
-            window - 1
-        )  # per stamp interval in the window: deviates from the nominal period
+        # per stamp interval in the window: deviates from the nominal period
+        self._off_grid = [False] * (window - 1)
         self._ones = np.ones(dim)
         self.reset()
 

@@ -379,9 +379,8 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         jnp.zeros(6),
         jnp.asarray(-jnp.inf),
     )
-    c = jax.lax.fori_loop(
-        0, period, lambda i, cc: instant(cc, i), c
-    )  # the instants before the first tick
+    # the instants before the first tick
+    c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)
     _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
     return log
 
@@ -437,9 +436,8 @@ def batch_rollout(
         raise ValueError(f"the batched inputs must share one batch size, got {sorted(batch)}")
     n = batch.pop()
     devices = jax.devices()
-    index = np.minimum(
-        np.arange(n + (-n) % len(devices)), n - 1
-    )  # a whole number of runs per device
+    # a whole number of runs per device
+    index = np.minimum(np.arange(n + (-n) % len(devices)), n - 1)
     mesh = Mesh(np.array(devices), ("batch",))
     split, shared = (
         NamedSharding(mesh, PartitionSpec("batch")),

@@ -265,9 +265,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
-    motor_map = load_wiring().motor_map(
-        model
-    )  # the robot's wiring at its nominal neutral, as sim_node's servos
+    # the robot's wiring at its nominal neutral, as sim_node's servos
+    motor_map = load_wiring().motor_map(model)
     phi_max = motor_map.phi_max
     world = World(
         plant_params(model, config.payload),
@@ -283,9 +282,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         ee_integral=EeIntegralGains() if config.ee_integral else None,
     )
     loop = ControlLoop(controller, Supervisor(CONTROLLER_SUPERVISION))
-    at_ticks = (
-        config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
-    )  # the estimator runs at the ticks
+    # the estimator runs at the ticks
+    at_ticks = config.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
     tick_estimator = TickEstimator(period_ns * 1e-9)
     estimator = SavitzkyGolayDifferentiator(
         window=ESTIMATOR_WINDOW,

@@ -54,9 +54,8 @@ class Report:
     published: Mapping[str, int] = field(default_factory=dict)
     matched: Mapping[str, int] = field(default_factory=dict)
     taken: Mapping[str, int] = field(default_factory=dict)
-    heard: Mapping[str, int] = field(
-        default_factory=dict
-    )  # per subscribed topic (/clock too): publishers matched
+    # per subscribed topic (/clock too): publishers matched
+    heard: Mapping[str, int] = field(default_factory=dict)
     # it reports every clock move; an instant waits for its clock (a recorder's log times)
     clock_acks: bool = False
 
@@ -106,9 +105,8 @@ class Barrier:
         if unready:
             return f"participants not ready (publishers unmatched or services missing): {unready}"
         takers: dict[str, int] = {}  # participants subscribed per topic
-        writers: dict[str, int] = {
-            t: 1 for t in self.own_matched
-        }  # publishers per topic: the simulator's ...
+        # publishers per topic: the simulator's ...
+        writers: dict[str, int] = {t: 1 for t in self.own_matched}
         for r in self.reports.values():
             for topic in r.heard.keys() | r.taken.keys():
                 takers[topic] = takers.get(topic, 0) + 1

@@ -146,9 +146,10 @@ def interval_fn(
         step = jnp.clip((goal - position) * gain, -speed, speed)
         moved = jnp.where(torque, position + step, position)
         phi = params.to_rods @ (moved - params.neutral)
+        # no loop per interval: ~5 % of the batched loop's instant
         x = jax.lax.fori_loop(
             0, PLANT_SUBSTEPS, lambda _, xk: simulation.rk4(q_ddot, xk, phi, dt), x, unroll=True
-        )  # no loop per interval: ~5 % of the batched loop's instant
+        )
         return x, moved
 
     return interval
@@ -289,9 +290,10 @@ class World:
         """Take the mocap sample of the current instant if one is due (every 5 ms, from t = 0)."""
         t = self.t_ns
         if t % MOCAP_PERIOD_NS == 0:
+            # + noise
             chiee = np.asarray(
                 self._observe(self.x, self.disturbance.measure(self._rng, np.zeros(3)))
-            )  # + noise
+            )
             self._samples.append(MocapSample(t, t + self._sample_latency_ns, chiee))
 
     # ---------------------------------------------------------------- outputs

@@ -102,9 +102,8 @@ def _rows(params: HsaParams, chiee: Array) -> tuple[Array, Array]:
     zero = jnp.zeros(2)
 
     def one(pose: Array) -> tuple[Array, Array]:
-        q = kinematics.inverse_kinematics(
-            params, pose
-        )  # relative to the reference rest strains of params
+        # relative to the reference rest strains of params
+        q = kinematics.inverse_kinematics(params, pose)
 
         def residual(sigma: Array) -> Array:
             # q relative to sigma instead of params.sigma_a_eq: the same strains xi, another split

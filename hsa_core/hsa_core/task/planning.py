@@ -460,9 +460,8 @@ class Planner:
             p, res = _equilibrium_positions(exact, phis)
             return {"p": np.asarray(p), "res": np.asarray(res)}
 
-        found = resultcache.cached(
-            "reachability", (exact, phis), compute
-        )  # the same values, kept from a last start
+        # the same values, kept from a last start
+        found = resultcache.cached("reachability", (exact, phis), compute)
         p, res = found["p"], found["res"]
         if not np.all(np.isfinite(p)) or not np.all(res <= self.max_optimality_error):
             raise RuntimeError(

@@ -78,9 +78,8 @@ EPU_STEPS_20231019 = (
     (-0.00122529, 0.14039634),
 )
 STEP_LISTS = {"fpu": FPU_STEPS_20230925, "epu": EPU_STEPS_20231019}
-PENTAGRAM_RATIO = math.cos(math.radians(72.0)) / math.cos(
-    math.radians(36.0)
-)  # inner / outer radius
+# inner / outer radius
+PENTAGRAM_RATIO = math.cos(math.radians(72.0)) / math.cos(math.radians(36.0))
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,9 +25,8 @@ def main() -> None:
     assert client.wait_for_service(timeout_sec=60.0), f"no service {service}"
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    xs = [
-        -0.004 + 0.008 * k / (n - 1) for k in range(n)
-    ]  # distinct reachable targets: answers are matched by x
+    # distinct reachable targets: answers are matched by x
+    xs = [-0.004 + 0.008 * k / (n - 1) for k in range(n)]
     print("ready", flush=True)
     t0 = time.monotonic()
     futures = [client.call_async(PlanSetpoint.Request(x=x, y=y)) for x in xs]

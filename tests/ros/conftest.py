@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import rclpy
+import yaml
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
@@ -22,6 +23,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 
 from hsa_common import rosenv
 from hsa_common.launcher import find_executable
+from hsa_core.task.trajectories import step_reference
 
 PEERS = Path(__file__).parent / "peers"
 LAUNCHER = (sys.executable, "-m", "hsa_common.launcher")
@@ -31,6 +33,9 @@ GRAPH_STOP = ("--sigterm-timeout", "20")
 between SIGINT and SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside
 two busy processes a bridge, a planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM +
 5 s and were SIGKILLed (launcher exit 137)."""
+SIM_GRAPH = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
+SIM_STEPS, SIM_STEP_PERIOD = 3, 2.0
+"""The schedule of the session's sim run (sim_step_bag): the first FPU steps, s per setpoint."""
 
 
 def start_process(args: list[str], **popen: object) -> subprocess.Popen:
@@ -231,3 +236,49 @@ class ParameterClient:
         return (
             list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
         )
+
+
+@pytest.fixture(scope="session")
+def sim_step_bag(tmp_path_factory) -> Path:
+    """The bag of one sim graph run (launch_scripts/sim.launch.yaml, FPU, P-satI-D,
+    clock:=lockstep, default disturbance) on the first SIM_STEPS FPU steps of SIM_STEP_PERIOD s
+    each, run until the sequencer has played them (exit 0); the modules that check such a run
+    (sim in the loop, replay) share it."""
+    work = tmp_path_factory.mktemp("sim_steps")
+    bag = work / "bag"
+    config = work / "sequencer.yaml"
+    points = [float(v) for v in step_reference("fpu").p_des[:SIM_STEPS].ravel()]
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "/**": {
+                    "ros__parameters": {
+                        "trajectory": "steps",
+                        "points": points,
+                        "exit_on_finish": True,
+                        "finish_hold": 0.5,
+                    }
+                }
+            }
+        )
+    )
+    proc = start_process(
+        [
+            *LAUNCHER,
+            str(SIM_GRAPH),
+            *GRAPH_STOP,
+            "material:=fpu",
+            "controller:=psatid",
+            f"setpoint_rate:={1.0 / SIM_STEP_PERIOD}",
+            f"bag_dir:={bag}",
+            f"sequencer_config:={config}",
+            "clock:=lockstep",
+        ]
+    )
+    try:
+        output, _ = proc.communicate(timeout=900)
+    finally:
+        stop_process(proc)
+    assert proc.returncode == 0, output[-5000:]
+    assert "setpoint_sequencer exited with 0" in output, output[-5000:]
+    return bag

@@ -2,16 +2,17 @@
 run regenerates every recorded ``state`` and ``controller_info``, identical, and the launcher exits
 0 when the player is done.
 
-Run 1: the sim graph (launch_scripts/sim.launch.yaml, two short FPU steps, P-satI-D,
-clock:=lockstep) records a bag. Run 2: the replay graph (clock:=lockstep, its default) plays that
-bag's mocap and setpoints into fresh mocap_bridge, kinematics_node and controller_node processes and
-records the regenerated /hsa/* next to the replayed originals (/replay/*) with record:=true. The
-player owns /clock: each message goes out at the instant of its log time and the controller's 40 Hz
-timer runs at the instants it ran at in the sim run, each after the graph took everything before it.
-So nothing is lost and nothing depends on the machine's load: every state of the sim bag is replayed
-and regenerated bit-identical, within the instant its mocap sample is played at, and every
-controller_info tick is regenerated with the same stamps, setpoint, q^d and commands; only
-``compute_time`` (the tick's wall-clock CPU time) differs.
+Run 1: the sim graph (launch_scripts/sim.launch.yaml, three short FPU steps, P-satI-D,
+clock:=lockstep) records a bag: the session's sim run (tests/ros/conftest.py sim_step_bag), the one
+test_sim_in_the_loop checks against the offline experiment. Run 2: the replay graph
+(clock:=lockstep, its default) plays that bag's mocap and setpoints into fresh mocap_bridge,
+kinematics_node and controller_node processes and records the regenerated /hsa/* next to the
+replayed originals (/replay/*) with record:=true. The player owns /clock: each message goes out at
+the instant of its log time and the controller's 40 Hz timer runs at the instants it ran at in the
+sim run, each after the graph took everything before it. So nothing is lost and nothing depends on
+the machine's load: every state of the sim bag is replayed and regenerated bit-identical, within the
+instant its mocap sample is played at, and every controller_info tick is regenerated with the same
+stamps, setpoint, q^d and commands; only ``compute_time`` (the tick's wall-clock CPU time) differs.
 """
 
 from __future__ import annotations
@@ -20,19 +21,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import deserialize_message
 
 from hsa_bag.bagio import Bag
-from hsa_core.task.trajectories import step_reference
 from hsa_msgs.msg import ControllerInfo, PlanarState
-from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
+from tests.ros.conftest import (
+    GRAPH_STOP,
+    LAUNCHER,
+    SIM_STEP_PERIOD,
+    SIM_STEPS,
+    start_process,
+    stop_process,
+)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 LAUNCH = Path(__file__).parents[2] / "launch_scripts"
-STEPS, STEP_PERIOD = 2, 3.0  # setpoints, s each
+STEPS, STEP_PERIOD = SIM_STEPS, SIM_STEP_PERIOD  # setpoints, s each
 
 
 def launch(graph: str, *args: str, timeout: float = 600.0) -> str:
@@ -51,37 +57,13 @@ Messages = dict[str, list[tuple[int, object]]]
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> Messages:
+def runs(sim_step_bag: Path, tmp_path_factory) -> Messages:
     """Bag of a sim run, replayed through the replay graph: (log time, message) per topic of both
     bags."""
     work = tmp_path_factory.mktemp("replay")
-    config = work / "sequencer.yaml"
-    points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(
-        yaml.safe_dump(
-            {
-                "/**": {
-                    "ros__parameters": {
-                        "trajectory": "steps",
-                        "points": points,
-                        "exit_on_finish": True,
-                        "finish_hold": 0.5,
-                    }
-                }
-            }
-        )
-    )
-    launch(
-        "sim.launch.yaml",
-        "material:=fpu",
-        "controller:=psatid",
-        f"setpoint_rate:={1.0 / STEP_PERIOD}",
-        f"bag_dir:={work / 'sim'}",
-        f"sequencer_config:={config}",
-    )
     output = launch(
         "replay.launch.yaml",
-        f"bag:={work / 'sim'}",
+        f"bag:={sim_step_bag}",
         "record:=true",
         f"bag_dir:={work / 'replay'}",
         "markers:=false",
@@ -90,14 +72,14 @@ def runs(tmp_path_factory) -> Messages:
         output[-5000:]
     )
     types = {"state": PlanarState, "controller_info": ControllerInfo}
-    with Bag(work / "sim") as recorded:
+    with Bag(sim_step_bag) as recorded:
         found: Messages = {
             "sim/mocap/platform/pose": [
                 (t, deserialize_message(d, PoseStamped))
                 for _, t, d in recorded.messages(["/mocap/platform/pose"])
             ]
         }
-    for bag, prefix in ((work / "sim", "sim"), (work / "replay", "")):
+    for bag, prefix in ((sim_step_bag, "sim"), (work / "replay", "")):
         with Bag(bag) as recorded:
             for ns in ("/hsa", "/replay") if prefix == "" else ("/hsa",):
                 for name, cls in types.items():

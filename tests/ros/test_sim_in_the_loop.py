@@ -17,20 +17,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from hsa_bag.bagio import Bag
 from hsa_bag.bagrun import runlog_from_bag
 from hsa_core.analysis import metrics
 from hsa_core.sim.experiment import ExperimentConfig, run_experiment
 from hsa_core.task.trajectories import step_reference
-from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
+from tests.ros.conftest import SIM_STEP_PERIOD, SIM_STEPS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-GRAPH = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
-STEPS = 3
-STEP_PERIOD = 2.0  # s per setpoint (the paper: 10 s)
+STEPS = SIM_STEPS
+STEP_PERIOD = SIM_STEP_PERIOD  # s per setpoint (the paper: 10 s)
 MS = 1_000_000
 STAMPED = ("/mocap/platform/pose", "/hsa/phi_present", "/hsa/controller_info")
 TOPICS = (
@@ -44,46 +42,9 @@ TOPICS = (
 
 
 @pytest.fixture(scope="module")
-def sim_run(tmp_path_factory) -> Path:
-    """Run the graph until the sequencer has played the schedule; return the bag."""
-    work = tmp_path_factory.mktemp("sitl")
-    bag = work / "bag"
-    config = work / "sequencer.yaml"
-    points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(
-        yaml.safe_dump(
-            {
-                "/**": {
-                    "ros__parameters": {
-                        "trajectory": "steps",
-                        "points": points,
-                        "exit_on_finish": True,
-                        "finish_hold": 0.5,
-                    }
-                }
-            }
-        )
-    )
-    proc = start_process(
-        [
-            *LAUNCHER,
-            str(GRAPH),
-            *GRAPH_STOP,
-            "material:=fpu",
-            "controller:=psatid",
-            f"setpoint_rate:={1.0 / STEP_PERIOD}",
-            f"bag_dir:={bag}",
-            f"sequencer_config:={config}",
-            "clock:=lockstep",
-        ]
-    )
-    try:
-        output, _ = proc.communicate(timeout=900)
-    finally:
-        stop_process(proc)
-    assert proc.returncode == 0, output[-5000:]
-    assert "setpoint_sequencer exited with 0" in output, output[-5000:]
-    return bag
+def sim_run(sim_step_bag: Path) -> Path:
+    """The bag of the graph run until the sequencer has played the schedule (the session's)."""
+    return sim_step_bag
 
 
 @pytest.fixture(scope="module")

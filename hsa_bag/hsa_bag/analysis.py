@@ -81,9 +81,8 @@ def analyze(
     if duration is None:
         duration = None if contour else STEP_RUN_DURATION
     if duration is not None and not 0.0 < duration <= log.t[-1]:
-        duration = (
-            None  # nothing to trim: the last step then ends one tick period after the last tick
-        )
+        # nothing to trim: the last step then ends one tick period after the last tick
+        duration = None
     name = name or run_name(path)
     try:
         metrics = evaluate_run(

@@ -23,9 +23,8 @@ class Options:
     loops: int = 1  # passes; 0 = forever
     clock_hz: float = 0.0  # 0 = no /clock
     delay: float = 0.0  # s before the first message
-    wait_for_subscribers: float = (
-        0.0  # s to wait for a subscriber on every awaited topic; 0 = don't
-    )
+    # s to wait for a subscriber on every awaited topic; 0 = don't
+    wait_for_subscribers: float = 0.0
     wait_topics: tuple[
         str, ...
     ] = ()  # recorded names of the awaited topics; empty = every played topic

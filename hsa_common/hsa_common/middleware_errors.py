@@ -20,9 +20,8 @@ import time
 
 from rclpy.node import Node
 
-ERROR_STRING_LENGTH = (
-    1024  # RCUTILS_ERROR_MESSAGE_MAX_LENGTH: rcutils_error_string_t is a char[1024]
-)
+# RCUTILS_ERROR_MESSAGE_MAX_LENGTH: rcutils_error_string_t is a char[1024]
+ERROR_STRING_LENGTH = 1024
 LOG_PERIOD = 5.0  # [s] steady time between two WARN lines
 
 

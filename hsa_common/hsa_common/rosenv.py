@@ -31,9 +31,8 @@ USER_DOMAINS = (range(0, 102), range(215, 233))
 (32768-60999) for Fast DDS's ports 7400 + 250 * domain + ...; 232 is the last whose ports fit in 16
 bits (docs/launch.md)."""
 _LOCK_DIR = Path(tempfile.gettempdir()) / "hsa_ros_domains"
-_domain_lock: IO[str] | None = (
-    None  # held open for the life of the process that reserved the domain
-)
+# held open for the life of the process that reserved the domain
+_domain_lock: IO[str] | None = None
 
 
 class DomainIdError(ValueError):

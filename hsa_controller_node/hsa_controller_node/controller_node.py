@@ -101,9 +101,8 @@ class ControllerNode(Node):
             if VelocityEstimator(p["velocity_estimator"]) is VelocityEstimator.SMOOTHING_SPLINE_16
             else None
         )
-        self._newest: tuple[int, np.ndarray, np.ndarray] | None = (
-            None  # stamp, q, chiee: for the tick estimator
-        )
+        # stamp, q, chiee: for the tick estimator
+        self._newest: tuple[int, np.ndarray, np.ndarray] | None = None
         self._cmd_pub = self.create_publisher(
             PlanarActuation, "phi_cmd", qos.COMMAND, qos_overriding_options=qos.overridable()
         )

@@ -34,9 +34,8 @@ ADDR_PRESENT_POSITION = 132
 MX28_MODEL_NUMBER = 30
 POSITION_MODE = 3
 EXTENDED_POSITION_MODE = 4
-EXTENDED_GOAL_LIMIT = (
-    1_048_575  # ±256 rev: larger goals are refused by the servo, silently in a sync write
-)
+# ±256 rev: larger goals are refused by the servo, silently in a sync write
+EXTENDED_GOAL_LIMIT = 1_048_575
 TICKS_PER_REV = 4096
 VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0  # Present Velocity (128) unit: 0.229 rev/min
 ERRBIT_ALERT = 0x80
@@ -203,9 +202,8 @@ class DynamixelBus:
         self._ph = PacketHandler(2.0)
         self._port: _WaitingPortHandler | None = None
         self._lock = threading.RLock()
-        self._mode = (
-            EXTENDED_POSITION_MODE  # assumed until configure() sets it; only bounds goal checks
-        )
+        # assumed until configure() sets it; only bounds goal checks
+        self._mode = EXTENDED_POSITION_MODE
         self._min_timeout_ms = float(min_packet_timeout_ms)
 
     @property

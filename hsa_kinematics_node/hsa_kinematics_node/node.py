@@ -122,9 +122,8 @@ class KinematicsNode(Node):
         guard_updates(self, SPECS, self._update)
         self._received = self._published = self._restarts = 0
         self._rejected: Counter[str] = Counter()
-        self._origin_ns: int | None = (
-            None  # first stamp; estimator times are seconds since it (float precision)
-        )
+        # first stamp; estimator times are seconds since it (float precision)
+        self._origin_ns: int | None = None
         self._last_stamp_ns: int | None = None
         self._last_received_at: Time | None = None
         self._mode = "no data"

@@ -259,9 +259,8 @@ class MocapBridge(Node):
         self._counts = dict.fromkeys(("received", "published", *REASONS), 0)
         self._base_counts = dict.fromkeys(("received", "accepted", *BASE_REASONS), 0)
         self._last_rejection = self._last_base_rejection = ""
-        self._rest: str | None = (
-            None  # rest-check result: None = pending, "" = fine, else the problem
-        )
+        # rest-check result: None = pending, "" = fine, else the problem
+        self._rest: str | None = None
         self._level: bytes | None = None  # diagnostics level last reported
         self._base_level: bytes | None = None
         self._rates = RateMeter(self.get_clock().now().nanoseconds)

@@ -75,9 +75,8 @@ from hsa_sim_node.protocol import (  # noqa: E402,F401
 )
 from hsa_sim_node.servo import RegisterWrite, Servo, execute
 
-_STALE_INPUT_S = (
-    0.1  # an incomplete packet older than this is discarded (the wire went quiet mid-packet)
-)
+# an incomplete packet older than this is discarded (the wire went quiet mid-packet)
+_STALE_INPUT_S = 0.1
 _POLL_S = 0.1  # select timeout of the serving thread; it only bounds how long stale input lingers
 
 
@@ -138,9 +137,8 @@ class MX28Emulator:
             Servo(i, BAUD_RATE_CODES[baudrate], ticks.get(i, 2048), model, now) for i in ids
         ]
         self._journal = _Journal(write_log_size)
-        self._busy = (
-            False  # the serving thread is between reading bytes and finishing their packets
-        )
+        # the serving thread is between reading bytes and finishing their packets
+        self._busy = False
         self._drained = 0
         for servo in self._servos:
             servo.journal = self._journal

@@ -59,20 +59,17 @@ from hsa_sim_node.mx28_emulator import (
 )
 from hsa_sim_node.reports import emulator_report, torque_at_exit, world_report
 
-SHUTDOWN_GRACE = (
-    0.5  # s the emulated bus outlives a stop signal (the driver's torque-off lands first)
-)
-CLOCK_RESEND = (
-    0.05  # s of wall time after which an unanswered /clock is sent again (/clock is best effort)
-)
+# s the emulated bus outlives a stop signal (the driver's torque-off lands first)
+SHUTDOWN_GRACE = 0.5
+# s of wall time after which an unanswered /clock is sent again (/clock is best effort)
+CLOCK_RESEND = 0.05
 GIL_SWITCH_INTERVAL = 5e-4
 """[s] Python thread switch interval of this process (default 5 ms): the emulator's serving thread
 must answer within the Dynamixel SDK's wall-clock packet timeout (≈ 34 ms) while the main thread
 handles the barrier's reports; with the default, reads timed out on a busy machine
 (docs/simulation.md)."""
-MAX_INSTANTS_PER_PUMP = (
-    1000  # lockstep: give the executor a turn at least this often (acks, services)
-)
+# lockstep: give the executor a turn at least this often (acks, services)
+MAX_INSTANTS_PER_PUMP = 1000
 
 
 def _initial_ticks(value: list[int] | None) -> str | None:
@@ -203,9 +200,8 @@ SPECS = (
 class SimNode(Node):
     """Emulated servos plus the simulated world seen through the motion-capture system."""
 
-    lockstep_coordinator = (
-        True  # the runner must not make this node a participant of its own barrier
-    )
+    # the runner must not make this node a participant of its own barrier
+    lockstep_coordinator = True
 
     def __init__(self) -> None:
         super().__init__("sim_node")

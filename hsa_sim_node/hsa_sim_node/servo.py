@@ -95,9 +95,8 @@ class Servo:
         self.responsive = True
         self.updated = now
         self.last_instruction = now
-        self.journal: deque[RegisterWrite] | None = (
-            None  # the emulator's write log, if it keeps one
-        )
+        # the emulator's write log, if it keeps one
+        self.journal: deque[RegisterWrite] | None = None
 
     @property
     def dxl_id(self) -> int:

@@ -28,9 +28,8 @@ __all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 NO_LOAD_SPEED = 55.0 * 2.0 * math.pi / 60.0  # rad/s, MX-28 at 12 V
 DOCUMENTED_RATE = 2.0 * NO_LOAD_SPEED  # the documented default max_goal_rate
 FLOOD_S = 2.0
-SLACK_S = (
-    0.05  # s: pty delivery jitter between the driver's clock and the emulator's stamps, under load
-)
+# s: pty delivery jitter between the driver's clock and the emulator's stamps, under load
+SLACK_S = 0.05
 
 
 def flood(pub, make, seconds: float) -> int:

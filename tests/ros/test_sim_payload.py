@@ -26,9 +26,8 @@ LOAD_AT, MASS = (
     # [s of simulated time], [kg] (a mass of hsa_identification/config/campaign_example.yaml)
     0.437,
 )
-MARGIN = (
-    0.25  # [s] around the load instant: the test's estimate of the world's origin on the node clock
-)
+# [s] around the load instant: the test's estimate of the world's origin on the node clock
+MARGIN = 0.25
 
 
 def sim_node(*parameters: str):

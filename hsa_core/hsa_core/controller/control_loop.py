@@ -165,15 +165,13 @@ class ControlLoop:
         self.active_tag: Any = None  # tag of the active setpoint
         # received setpoints not yet checked, arrival order
         self._intake: deque[tuple[int, Setpoint, Any]] = deque()
-        self._newest: tuple[int, Measurement] | None = (
-            None  # stamp and values of the newest usable state
-        )
+        # stamp and values of the newest usable state
+        self._newest: tuple[int, Measurement] | None = None
         self._held: Command | None = None
         self._last_tick: int | None = None
         self._tracked_at: int | None = None  # newest tracking tick
-        self._lost_at: int | None = (
-            None  # last tracking tick before the current outage (None while tracking)
-        )
+        # last tracking tick before the current outage (None while tracking)
+        self._lost_at: int | None = None
         self._rate, self._window_compute = RateMeter(start_ns), []
 
     def receive_setpoint(self, stamp_ns: int, setpoint: Setpoint, tag: Any = None) -> None:

@@ -113,9 +113,8 @@ class Supervisor:
         self._arrival: int | None = None  # when it arrived
         self._heartbeat: int | None = None
         self.torque_off = False  # the driver reported its servos' torque off
-        self._commanded = (
-            False  # a command was sent since start or the last E-stop (a hold needs one)
-        )
+        # a command was sent since start or the last E-stop (a hold needs one)
+        self._commanded = False
 
     def setpoint_accepted(self) -> None:
         """A valid setpoint is active."""

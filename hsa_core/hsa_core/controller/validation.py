@@ -247,9 +247,8 @@ class DelayGate:
         self._latencies: deque[tuple[int, int]] = deque()
         self._history = history
         self._index = 0  # timely samples seen
-        self._level: tuple[int, int, int] | None = (
-            None  # late samples in a row: (count, lowest, highest latency)
-        )
+        # late samples in a row: (count, lowest, highest latency)
+        self._level: tuple[int, int, int] | None = None
 
     def late(self, stamp_ns: int, arrival_ns: int) -> bool:
         """Record one arrival; True if it is more than max_lag behind the reference (never when

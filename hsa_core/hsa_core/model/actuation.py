@@ -315,9 +315,8 @@ class GoalRateLimiter:
     "time since the last write" limit.
     """
 
-    _anchor_time: float = (
-        0.0  # t_a: the last instant before the current one at which a goal was written
-    )
+    # t_a: the last instant before the current one at which a goal was written
+    _anchor_time: float = 0.0
     _anchor_goal: np.ndarray | None = None  # the goal in force at the end of t_a
     _time: float = 0.0  # the instant of the latest write
     _goal: np.ndarray | None = None  # the latest goal written

@@ -81,9 +81,8 @@ class RunLog:
     phi_sat: np.ndarray
     e_int: np.ndarray
     saturated: np.ndarray
-    phi_meas: np.ndarray | None = (
-        None  # (N, 2) [rad] measured twist at each tick, NaN before the first measurement
-    )
+    # (N, 2) [rad] measured twist at each tick, NaN before the first measurement
+    phi_meas: np.ndarray | None = None
     meta: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

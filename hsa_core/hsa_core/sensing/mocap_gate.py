@@ -107,9 +107,8 @@ class GateConfig:
     max_speed: float = 4.0  # [m/s]
     max_angular_speed: float = 40.0  # [rad/s]
     workspace: mocap.WorkspaceBox = field(default_factory=mocap.WorkspaceBox)
-    base_timeout: float = (
-        0.25  # [s] longest silence of the measured base before platform samples are rejected
-    )
+    # [s] longest silence of the measured base before platform samples are rejected
+    base_timeout: float = 0.25
     gap_timeout: float = 0.015  # [s] platform silence reported as a gap (three 200 Hz periods)
     stale_timeout: float = 0.25  # [s] platform silence reported as stale
 
@@ -148,9 +147,8 @@ class MocapGate:
         self.config = config
         self.chain = chain
         self.base_position = base_position
-        self.base: tuple[tuple[float, ...], tuple[float, ...]] | None = (
-            None  # newest accepted measured base pose
-        )
+        # newest accepted measured base pose
+        self.base: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.base_stamp_ns: int | None = None
         self.base_at_ns: int | None = None  # clock time the newest accepted base sample arrived
         self.last_stamp_ns: int | None = None

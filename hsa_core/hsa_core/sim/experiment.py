@@ -116,27 +116,23 @@ class ExperimentConfig:
     disturbance: DisturbanceModel = field(default_factory=DisturbanceModel)
     start_delay: float = 0.0
     planner: str | None = None  # default planner of the material
-    gains: CollocatedGains | PidGains | None = (
-        None  # default: the paper's gains for the law and material
-    )
+    # default: the paper's gains for the law and material
+    gains: CollocatedGains | PidGains | None = None
     mocap_outages: tuple[
         tuple[float, float], ...
     ] = ()  # [s] world-time windows [start, end): samples stamped in
     # them never reach the estimator (a fault for the supervision; hsa_core.sim.closed_loop models
     # fault-free runs only)
-    sigma_a_eq: tuple[float, float] | None = (
-        None  # σ_a,eq per rod calibrated before the run (default: the
-    )
+    # σ_a,eq per rod calibrated before the run (default: the
+    sigma_a_eq: tuple[float, float] | None = None
     # material's nominal): the controller's model's, and the plant's plus the disturbance's
     # rest_strain_offset
     profile: str = DEFAULT_PROFILE  # the run profile these conditions come from (a label)
     velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
-    integrator_dt: float | None = (
-        None  # [s] the integrators' step (None: the control period 1/rate)
-    )
-    payload: float = (
-        0.0  # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
-    )
+    # [s] the integrators' step (None: the control period 1/rate)
+    integrator_dt: float | None = None
+    # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
+    payload: float = 0.0
     command_latency: float = 0.0  # [s] tick → goal on the bus (controller side; run_disturbance)
 
     def __post_init__(self) -> None:
@@ -292,9 +288,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         gap_factor=GAP_FACTOR,
         nominal_period=MOCAP_PERIOD_NS * 1e-9,
     )
-    newest: tuple[int, np.ndarray, np.ndarray] | None = (
-        None  # the newest sample (stamp, q, χ_ee), for at_ticks
-    )
+    # the newest sample (stamp, q, χ_ee), for at_ticks
+    newest: tuple[int, np.ndarray, np.ndarray] | None = None
     s0 = first_point_ns(config.start_delay)
     points = [s0 + seconds_to_ns(float(t)) for t in reference.t]
     outages = [(seconds_to_ns(a), seconds_to_ns(b)) for a, b in config.mocap_outages]

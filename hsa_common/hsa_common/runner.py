@@ -48,6 +48,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from typing import Protocol, runtime_checkable
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
@@ -155,7 +156,8 @@ def run_nodes(
         [
             lockstep.Participant(node)
             for node in nodes
-            if lockstep.enabled(node) and not getattr(node, "lockstep_coordinator", False)
+            if lockstep.enabled(node)
+            and not (isinstance(node, Coordinator) and node.lockstep_coordinator)
         ]
     )
     executor = SingleThreadedExecutor() if in_lockstep else make_executor()
@@ -183,9 +185,9 @@ def run_nodes(
     finally:
         if rclpy.ok():
             participant.idle(leaving=True)
-        hooks = [h for h in (getattr(node, "on_shutdown", None) for node in nodes) if h is not None]
-        for hook in hooks:
-            hook()
+        hooks = [node for node in nodes if isinstance(node, ShutdownHook)]
+        for node in hooks:
+            node.on_shutdown()
         if not hooks:
             # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
             os.nice(TEARDOWN_NICE)
@@ -216,15 +218,35 @@ def _shut_down(nodes: Sequence[Node]) -> None:
     """Run the ``on_shutdown`` hook of each node already made (the driver turns torque off
     there)."""
     for node in nodes:
-        hook = getattr(node, "on_shutdown", None)
-        if hook is not None:
-            hook()
+        if isinstance(node, ShutdownHook):
+            node.on_shutdown()
 
 
 def exit_code(nodes: Sequence[Node]) -> int:
     """The first non-zero ``exit_code`` a node set (0 if none did)."""
-    codes = (int(getattr(node, "exit_code", 0)) for node in nodes)
+    codes = (int(node.exit_code) for node in nodes if isinstance(node, ExitStatus))
     return next((code for code in codes if code), 0)
+
+
+@runtime_checkable
+class ShutdownHook(Protocol):
+    """A node with work to do before rclpy's teardown on every stop (the driver: torque off)."""
+
+    def on_shutdown(self) -> object: ...
+
+
+@runtime_checkable
+class ExitStatus(Protocol):
+    """A node that sets its process's exit code (non-zero: the run failed)."""
+
+    exit_code: int
+
+
+@runtime_checkable
+class Coordinator(Protocol):
+    """A node that runs the lockstep barrier itself and so is not a participant of it."""
+
+    lockstep_coordinator: bool
 
 
 class StopBeforeReady(BaseException):

@@ -14,6 +14,7 @@ clock is at t.
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from collections.abc import Sequence
 from typing import Any, Protocol
@@ -103,6 +104,8 @@ class Participant:
         self._matched: dict[str, int] = {}
         self._heard: dict[str, int] = {}
         self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, ACK_QOS) if publish_acks else None
+        self._since: set[str] = set()  # topics taken since the last report
+        self.triggers: Counter[str] = Counter()  # reports per cause (topics taken, timer, clock)
         self.instrument()
 
     def instrument(self) -> None:
@@ -120,7 +123,7 @@ class Participant:
                 continue
             self._wrapped.add(id(sub))
             self.taken.setdefault(sub.topic_name, 0)
-            sub.callback = self._counting(sub.callback, self.taken, sub.topic_name)
+            sub.callback = self._counting(sub.callback, self.taken, sub.topic_name, self._since)
         private = self.node.get_fully_qualified_name() + "/"  # parameter, lifecycle and type services of the node
         for srv in self.node.services:
             if id(srv) in self._wrapped:
@@ -131,7 +134,7 @@ class Participant:
                 continue
             name = f"srv:{resolved}"
             self.taken.setdefault(name, 0)
-            srv.callback = self._counting(srv.callback, self.taken, name)
+            srv.callback = self._counting(srv.callback, self.taken, name, self._since)
         for client in self.node.clients:
             if id(client) in self._wrapped:
                 continue
@@ -141,9 +144,11 @@ class Participant:
             client.call_async = self._calling(client.call_async, name)
 
     @staticmethod
-    def _counting(fn: Any, counter: Counter[str], topic: str) -> Any:
+    def _counting(fn: Any, counter: Counter[str], topic: str, since: set[str] | None = None) -> Any:
         def counted(*args: Any, **kwargs: Any) -> Any:
             counter[topic] += 1
+            if since is not None:
+                since.add(topic)
             return fn(*args, **kwargs)
 
         return counted
@@ -187,13 +192,27 @@ class Participant:
         if self._ack_pub is None:
             return
         r = self.report(leaving)
+        if leaving:  # what the reports cost (benchmarks/bench_lockstep_breakdown.py)
+            causes = json.dumps(dict(self.triggers))
+            self.node.get_logger().info(f"lockstep: reports by cause {causes}")
         key = (r.ready, r.leaving, r.next_due_ns, r.pending, tuple(sorted(r.published.items())),
                tuple(sorted(r.matched.items())), tuple(sorted(r.taken.items())), tuple(sorted(r.heard.items())),
                r.clock_ns if r.clock_acks else None)
         if key == self._last:
             return  # only the clock moved, and the simulator does not wait for this node's clock
+        self.triggers[self._cause(key)] += 1
+        self._since.clear()
         self._last = key
         self._ack_pub.publish(to_msg(r))
+
+    def _cause(self, key: tuple) -> str:
+        """What changed since the last report: topics taken, else a timer ran, else the clock."""
+        if self._since:
+            return "+".join(sorted(self._since))
+        if self._last is not None and key[2] != self._last[2]:
+            return "timer"
+        return "clock" if self._last is not None and key[8] != self._last[8] else "other"
+
 
 
 class Group:

@@ -222,14 +222,14 @@ def spin_lockstep(
     pacing = ReportPacing(period=SPIN_PERIOD)
     while not stop and rclpy.ok():
         try:
-            handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
+            handler, entity, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
         except TimeoutException:
             if pacing.timed_out() and participant is not None:
                 participant.idle()
             continue
         except (ShutdownException, ConditionReachedException):
             return
-        pacing.ran()
+        pacing.ran(getattr(entity, "topic_name", None) == lockstep.LEAD_TOPIC)
         handler()
         if errors is not None:
             errors.check()

@@ -151,3 +151,7 @@ def test_a_participant_reports_once_it_has_been_out_of_work_for_the_quiet_time()
     eager = ReportPacing(quiet=0.0, period=0.02)
     eager.ran()
     assert (eager.timeout(), eager.timed_out(), eager.timeout()) == (0.0, True, 0.02)
+    pacing.ran(last=True)  # the lead clock: nothing follows it in its instant
+    assert (pacing.timeout(), pacing.timed_out()) == (0.0, True)
+    pacing.ran()
+    assert (pacing.timed_out(), pacing.timed_out()) == (False, True)

@@ -131,6 +131,15 @@ class Sampler:
         return out
 
 
+def report_causes(log: str) -> dict[str, dict[str, int]]:
+    """Per participant, its reports by cause (topics taken since the previous one, a timer, the
+    clock), from the ``lockstep: reports by cause`` line each participant logs as it leaves."""
+    return {
+        node: json.loads(causes)
+        for node, causes in re.findall(r"\[hsa\.(\w+)\]: lockstep: reports by cause (\{.*\})", log)
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--setpoint-rate", default="0.5", help="[Hz] of the sequencer (11 steps)")
@@ -246,6 +255,13 @@ def main() -> int:
             },
             "wakeups_per_timer_instant": {
                 n: round(e["voluntary_switches"] / instants, 1) for n, e in per_process.items()
+            },
+            "reports_per_timer_instant_by_cause": {
+                node: {
+                    cause: round(n / instants, 2)
+                    for cause, n in sorted(causes.items(), key=lambda kv: -kv[1])
+                }
+                for node, causes in report_causes(log).items()
             },
         }
     runs = json.loads(args.out.read_text()) if args.out.exists() else {}

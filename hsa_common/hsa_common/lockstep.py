@@ -4,17 +4,19 @@ out of work.
 ``Participant(node)`` wraps the node's publishers, subscriptions, service servers and clients to
 count messages per topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the
 barrier's own topic and the node's private parameter/lifecycle services are not counted), and
-publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` each time the runner finds no callback ready
-(:func:`hsa_common.runner.run`). The decisions are in :mod:`hsa_core.sim.lockstep`; the contract is
-in docs/simulation.md. A node may add a readiness condition with a ``lockstep_ready() -> bool``
-method (the recorder: every selected topic subscribed). A node whose log times are simulated time
-(the recorder) reads them from a :class:`LeadClock` kept as its ``lockstep_clock``: the coordinator
-sends each timer instant there before /clock moves, and the participant reports every move of that
-clock, so nothing a timer publishes at t reaches the node before its clock is at t.
+publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner has found no callback ready
+for a moment (:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`). The
+decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in docs/simulation.md. A node may add
+a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder: every selected topic
+subscribed). A node whose log times are simulated time (the recorder) reads them from a
+:class:`LeadClock` kept as its ``lockstep_clock``: the coordinator sends each timer instant there
+before /clock moves, and the participant reports every move of that clock, so nothing a timer
+publishes at t reaches the node before its clock is at t.
 """
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from collections.abc import Sequence
 from typing import Any, Protocol
@@ -125,6 +127,8 @@ class Participant:
         self._ack_pub = (
             node.create_publisher(LockstepAck, ACK_TOPIC, ACK_QOS) if publish_acks else None
         )
+        self._since: set[str] = set()  # topics taken since the last report
+        self.triggers: Counter[str] = Counter()  # reports per cause (topics taken, timer, clock)
         self.instrument()
 
     def instrument(self) -> None:
@@ -143,7 +147,7 @@ class Participant:
                 continue
             self._wrapped.add(id(sub))
             self.taken.setdefault(sub.topic_name, 0)
-            sub.callback = self._counting(sub.callback, self.taken, sub.topic_name)
+            sub.callback = self._counting(sub.callback, self.taken, sub.topic_name, self._since)
         # parameter, lifecycle and type services of the node
         private = self.node.get_fully_qualified_name() + "/"
         for srv in self.node.services:
@@ -155,7 +159,7 @@ class Participant:
                 continue
             name = f"srv:{resolved}"
             self.taken.setdefault(name, 0)
-            srv.callback = self._counting(srv.callback, self.taken, name)
+            srv.callback = self._counting(srv.callback, self.taken, name, self._since)
         for client in self.node.clients:
             if id(client) in self._wrapped:
                 continue
@@ -165,9 +169,11 @@ class Participant:
             client.call_async = self._calling(client.call_async, name)
 
     @staticmethod
-    def _counting(fn: Any, counter: Counter[str], topic: str) -> Any:
+    def _counting(fn: Any, counter: Counter[str], topic: str, since: set[str] | None = None) -> Any:
         def counted(*args: Any, **kwargs: Any) -> Any:
             counter[topic] += 1
+            if since is not None:
+                since.add(topic)
             return fn(*args, **kwargs)
 
         return counted
@@ -227,6 +233,9 @@ class Participant:
         if self._ack_pub is None:
             return
         r = self.report(leaving)
+        if leaving:  # what the reports cost (benchmarks/bench_lockstep_breakdown.py)
+            causes = json.dumps(dict(self.triggers))
+            self.node.get_logger().info(f"lockstep: reports by cause {causes}")
         key = (
             r.ready,
             r.leaving,
@@ -240,8 +249,18 @@ class Participant:
         )
         if key == self._last:
             return  # only the clock moved, and the simulator does not wait for this node's clock
+        self.triggers[self._cause(key)] += 1
+        self._since.clear()
         self._last = key
         self._ack_pub.publish(to_msg(r))
+
+    def _cause(self, key: tuple) -> str:
+        """What changed since the last report: topics taken, else a timer ran, else the clock."""
+        if self._since:
+            return "+".join(sorted(self._since))
+        if self._last is not None and key[2] != self._last[2]:
+            return "timer"
+        return "clock" if self._last is not None and key[8] != self._last[8] else "other"
 
 
 class Group:

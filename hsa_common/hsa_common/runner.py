@@ -68,6 +68,7 @@ from rclpy.signals import SignalHandlerOptions
 from hsa_common import exit_deadline, lockstep, parent_death, rosenv
 from hsa_common.middleware_errors import MiddlewareErrors
 from hsa_common.parameters import ParameterValidationError
+from hsa_core.sim.lockstep import ReportPacing
 
 TEARDOWN_NICE = 5
 """Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a
@@ -260,23 +261,20 @@ def spin_lockstep(
     stop: list[int],
     errors: MiddlewareErrors | None = None,
 ) -> None:
-    """Run ready callbacks one at a time; each time none is ready, report to the simulator (if a
-    participant: one node's or a composed process's). ``errors`` (if given) is checked after each
-    callback."""
-    idle = False
+    """Run ready callbacks one at a time; when none has been ready for a moment
+    (:class:`hsa_core.sim.lockstep.ReportPacing`), report to the simulator (if a participant: one
+    node's or a composed process's). ``errors`` (if given) is checked after each callback."""
+    pacing = ReportPacing(period=SPIN_PERIOD)
     while not stop and rclpy.ok():
         try:
-            handler, _entity, _node = executor.wait_for_ready_callbacks(
-                timeout_sec=SPIN_PERIOD if idle else 0.0
-            )
+            handler, entity, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
         except TimeoutException:
-            if participant is not None:
+            if pacing.timed_out() and participant is not None:
                 participant.idle()
-            idle = True
             continue
         except (ShutdownException, ConditionReachedException):
             return
-        idle = False
+        pacing.ran(getattr(entity, "topic_name", None) == lockstep.LEAD_TOPIC)
         handler()
         if errors is not None:
             errors.check()

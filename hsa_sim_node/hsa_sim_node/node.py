@@ -26,6 +26,7 @@ import os
 import sys
 import time
 from collections import Counter
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -49,7 +50,7 @@ from hsa_core.sim.lockstep import Barrier
 from hsa_core.sim.playback import Action, Step
 from hsa_core.sim.run_conditions import plant_params, run_disturbance
 from hsa_core.sim.sim_lockstep import SimLockstep
-from hsa_core.sim.world import MOCAP_PERIOD_NS, World, payload_schedule
+from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World, payload_schedule
 from hsa_msgs.msg import LockstepAck
 from hsa_sim_node.mx28_emulator import (
     ADDR_GOAL_POSITION,
@@ -255,9 +256,11 @@ class SimNode(Node):
             "clocks": 0,
             "leads": 0,
             "runs": 0,
+            "publishes": 0,
             "pumps": 0,  # lockstep: barrier
         }
         self._acks_by: Counter[str] = Counter()
+        self._ran: list[MocapSample] = []  # lockstep: samples run to, not yet published
         self._world_rates, self._emulator_rates = (
             RateMeter(time.monotonic_ns()),
             RateMeter(time.monotonic_ns()),
@@ -308,10 +311,9 @@ class SimNode(Node):
             self._world.write_goals(goal, at_ns)
         self._world.set_torque([self._emulator.torque_enabled(i) for i in self._map.ids])
 
-    def _publish_samples(self, until_ns: int, origin_ns: int = 0) -> None:
-        """Publish every mocap sample available by ``until_ns`` (stamps: world time +
-        ``origin_ns``)."""
-        for sample in self._world.take_samples(until_ns):
+    def _publish_samples(self, samples: Sequence[MocapSample], origin_ns: int = 0) -> None:
+        """Publish ``samples`` (stamps: world time + ``origin_ns``)."""
+        for sample in samples:
             stamp, frame_id = convert.stamp_msg(sample.stamp_ns + origin_ns), self._p["frame_id"]
             position, quaternion = planar_to_world(sample.chiee, self._base)
             self._pub_platform.publish(convert.pose_stamped(stamp, frame_id, position, quaternion))
@@ -333,7 +335,7 @@ class SimNode(Node):
         self._collect_bus(self._world.t_ns)
         self._world.advance_to(t_ns - t_ns % 1_000_000)
         self._sync_shafts()
-        self._publish_samples(self._world.t_ns, self._origin.nanoseconds)
+        self._publish_samples(self._world.take_samples(self._world.t_ns), self._origin.nanoseconds)
 
     # ---------------------------------------------------------------- lockstep
     def _on_ack(self, msg: LockstepAck) -> None:
@@ -372,14 +374,17 @@ class SimNode(Node):
             elif step.action is Action.FINISH:
                 self._collect_bus(step.t_ns)
                 self._stats["instants"] += 1
-                self._publish_samples(step.t_ns)
+                self._publish_samples(self._world.take_samples(step.t_ns))
             elif step.action in (Action.RUN, Action.INSTANT):
                 self._world.advance_to(step.t_ns)
                 self._sync_shafts()
                 if step.action is Action.RUN:
                     self._traffic["runs"] += 1
-                    # no /clock: data callbacks keep the clock of the last instant
-                    self._publish_samples(step.t_ns)
+                    self._ran += self._world.take_samples(step.t_ns)
+            elif step.action is Action.PUBLISH:
+                self._traffic["publishes"] += 1
+                self._publish_samples(self._ran)  # no /clock: callbacks keep the last instant's
+                self._ran = []
             else:
                 return self._waiting(step)
 

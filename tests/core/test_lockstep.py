@@ -3,7 +3,7 @@ leavers."""
 
 from __future__ import annotations
 
-from hsa_core.sim.lockstep import Barrier, Report
+from hsa_core.sim.lockstep import Barrier, Report, ReportPacing
 
 MS = 1_000_000
 
@@ -152,3 +152,32 @@ def test_an_expected_participant_leaving_marks_the_end_of_the_graph() -> None:
     assert barrier.left == []  # not expected: nothing ends
     barrier.report(Report("/kin", 0, leaving=True))
     assert barrier.left == ["/kin"] and "/kin" not in barrier.reports
+
+
+def test_a_participant_reports_once_it_has_been_out_of_work_for_the_quiet_time() -> None:
+    """A burst of messages a little apart gives one report, not one per message."""
+    pacing = ReportPacing(quiet=0.002, period=0.02)
+    reports = []
+    for event in ["ran", "timeout", "ran", "timeout", "ran", "timeout", "timeout", "timeout"]:
+        if event == "ran":
+            pacing.ran()
+            reports.append((pacing.timeout(), False))
+        else:
+            reports.append((pacing.timeout(), pacing.timed_out()))
+    assert reports == [
+        (0.0, False),
+        (0.0, False),
+        (0.0, False),
+        (0.0, False),
+        (0.0, False),
+        (0.0, False),
+        (0.002, True),
+        (0.02, True),  # then every period while idle
+    ]
+    eager = ReportPacing(quiet=0.0, period=0.02)
+    eager.ran()
+    assert (eager.timeout(), eager.timed_out(), eager.timeout()) == (0.0, True, 0.02)
+    pacing.ran(last=True)  # the lead clock: nothing follows it in its instant
+    assert (pacing.timeout(), pacing.timed_out()) == (0.0, True)
+    pacing.ran()
+    assert (pacing.timed_out(), pacing.timed_out()) == (False, True)

@@ -62,6 +62,8 @@ def test_samples_between_instants_are_run_without_clock_and_an_instant_comes_eve
         s = step(sim, 0.0, world_ns=max(t - 5, 0) * MS, sample_ns=t * MS)
         assert (s.action, s.t_ns) == ("run", t * MS)
     s = step(sim, 0.0, world_ns=45 * MS, sample_ns=50 * MS)
+    assert (s.action, s.t_ns) == ("publish", 45 * MS)  # the runs' samples, before the instant
+    s = step(sim, 0.0, world_ns=45 * MS, sample_ns=50 * MS)
     assert (s.action, s.t_ns) == (
         "instant",
         50 * MS,  # 50 ms of simulated time since the last instant
@@ -144,3 +146,13 @@ def test_simulated_time_stops_once_an_expected_participant_leaves() -> None:
     s = step(sim, 0.0)
     assert (s.action, s.reason) == ("stop", "/ctl left")
     assert step(sim, 0.1).action == "done"
+
+
+def test_samples_run_to_are_published_before_simulated_time_stops() -> None:
+    barrier, sim = started()
+    assert step(sim, 0.0, sample_ns=5 * MS).action == "run"
+    assert step(sim, 0.0, world_ns=5 * MS, sample_ns=10 * MS).action == "run"
+    barrier.report(controller(leaving=True))
+    s = step(sim, 0.0, world_ns=10 * MS, sample_ns=15 * MS)
+    assert (s.action, s.t_ns) == ("publish", 10 * MS)
+    assert step(sim, 0.0, world_ns=10 * MS, sample_ns=15 * MS).action == "stop"

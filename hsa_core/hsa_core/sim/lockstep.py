@@ -37,8 +37,12 @@ that hold the barrier.
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+
+REPORT_QUIET = 0.002
+"""[s] of wall time a participant that ran out of work still waits for more before it reports."""
 
 
 @dataclass(frozen=True)
@@ -176,3 +180,43 @@ class Barrier:
         """The earliest timer of any participant, or None."""
         dues = [r.next_due_ns for r in self.reports.values() if r.next_due_ns is not None]
         return min(dues) if dues else None
+
+
+class Spin(enum.Enum):
+    """Where a participant's executor stands (:class:`ReportPacing`)."""
+
+    BUSY = "busy"  # a callback just ran: look for more ready work without waiting
+    QUIET = "quiet"  # nothing was ready: wait a little longer before reporting
+    IDLE = "idle"  # reported: wait for work, reporting again after each ``period`` without any
+
+
+class ReportPacing:
+    """When a participant reports (the runner's lockstep spin): once it has run out of work for
+    ``quiet`` s, not after every callback. A burst of messages that arrive a little apart (a mocap
+    sample through bridge, kinematics and controller, a tick's messages from several nodes) then
+    gives one report instead of one per message; a report shows the counts at the moment it is
+    made, so a later one is never less true. ``quiet`` 0 reports each time no callback is ready.
+    After the lead clock, which nothing else follows in its instant, it reports without waiting."""
+
+    def __init__(self, quiet: float = REPORT_QUIET, period: float = 0.02) -> None:
+        self.quiet = quiet
+        self.period = period
+        self.state = Spin.BUSY
+        self._last = False
+
+    def timeout(self) -> float:
+        """[s] how long the executor may wait for a ready callback now."""
+        return {Spin.BUSY: 0.0, Spin.QUIET: self.quiet, Spin.IDLE: self.period}[self.state]
+
+    def ran(self, last: bool = False) -> None:
+        """A callback ran (``last``: the lead clock's; the report need not wait)."""
+        self.state = Spin.BUSY
+        self._last = last
+
+    def timed_out(self) -> bool:
+        """No callback was ready within :meth:`timeout`: whether to report now."""
+        if self.state is Spin.BUSY and self.quiet > 0 and not self._last:
+            self.state = Spin.QUIET
+            return False
+        self.state = Spin.IDLE
+        return True

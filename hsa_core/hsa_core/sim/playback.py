@@ -40,12 +40,12 @@ class Action(enum.StrEnum):
 
     WAIT = "wait"  # the barrier holds: ``reason`` says why
     START = "start"  # simulated time starts (simulator)
-    RUN = "run"  # run the world to ``t_ns`` and publish its samples, no /clock (simulator)
+    RUN = "run"  # run the world to ``t_ns``, no /clock (simulator)
     INSTANT = "instant"  # run the world to the instant ``t_ns``, which must then settle (simulator)
     LEAD = "lead"  # publish ``t_ns`` on the lead clock
     CLOCK = "clock"  # publish /clock at ``t_ns`` (with a ``reason``: resent, the barrier holds)
     FINISH = "finish"  # the instant ``t_ns`` is finished (simulator)
-    PUBLISH = "publish"  # publish the next message (player)
+    PUBLISH = "publish"  # the next message (player); the samples run to, up to ``t_ns`` (simulator)
     STOP = "stop"  # an expected participant left: simulated time stops (simulator)
     DONE = "done"  # nothing more to do
     FAIL = "fail"  # a wait took too long: ``reason`` names what holds the barrier

@@ -9,8 +9,10 @@ emulated bus is idle, and acts on each :class:`~hsa_core.sim.playback.Step`:
 * ``start``: simulated time starts (:meth:`hsa_core.sim.lockstep.Barrier.start_problem` is None, the
   simulator's own publishers, /clock included, counted as ``matched``); until then /clock at 0 is
   sent again every ``resend`` s;
-* ``run`` to t: the next event is a sample becoming available; run the world to t and publish the
-  samples at once, without /clock (data callbacks keep the clock of the last timer instant);
+* ``run`` to t: the next event is a sample becoming available; run the world to t (no /clock:
+  data callbacks keep the clock of the last timer instant). The samples of consecutive runs go out
+  together (``publish`` t: those run to, up to t) before the next instant or stop, in one burst
+  rather than one by one between world steps;
 * ``instant`` t: the next event is a participant's timer due, or ``sync_ns`` of simulated time have
   passed since the last instant; run the world to t. The graph must then settle (take everything
   published); at a timer due the participants that log in simulated time get t first (``lead`` t,
@@ -67,6 +69,7 @@ class SimLockstep:
         self._clock_sent = 0.0
         self._synced = 0
         self._halted = False
+        self._ran: int | None = None  # [ns] run to here, the samples not yet published
 
     def step(
         self,
@@ -83,6 +86,8 @@ class SimLockstep:
         if self._since is None:
             self._since = now
         if self.barrier.left:
+            if self._ran is not None:
+                return self._publish()
             if self._halted:
                 return Step(Action.DONE, self.instant)
             self._halted = True
@@ -134,12 +139,20 @@ class SimLockstep:
         due = self.barrier.next_due_ns()
         event = next_sample_ns if due is None else min(due, next_sample_ns)
         if event - self._synced >= self.sync_ns or (due is not None and event == due):
+            if self._ran is not None:
+                return self._publish()
             self._synced = event
             self.instant = event
             self.phase = SETTLE
             self._since = now
             return Step(Action.INSTANT, event)
+        self._ran = event
         return Step(Action.RUN, event)
+
+    def _publish(self) -> Step:
+        """The samples of the runs since the last instant go out together."""
+        t_ns, self._ran = self._ran, None
+        return Step(Action.PUBLISH, t_ns)
 
     def _wait(self, problem: str, now: float, send_clock: bool = False) -> Step:
         """Resend /clock if it may have been lost (a ``clock`` step with a reason); else wait, or

@@ -238,6 +238,19 @@ class ParameterClient:
         )
 
 
+def write_step_sequence(path: Path, steps: int) -> None:
+    """A setpoint sequencer parameter file: the paper's first ``steps`` FPU steps; the sequencer
+    ends (exit 0) half a second after the last."""
+    points = [float(v) for v in step_reference("fpu").p_des[:steps].ravel()]
+    parameters = {
+        "trajectory": "steps",
+        "points": points,
+        "exit_on_finish": True,
+        "finish_hold": 0.5,
+    }
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
+
+
 @pytest.fixture(scope="session")
 def sim_step_bag(tmp_path_factory) -> Path:
     """The bag of one sim graph run (launch_scripts/sim.launch.yaml, FPU, P-satI-D,
@@ -247,21 +260,7 @@ def sim_step_bag(tmp_path_factory) -> Path:
     work = tmp_path_factory.mktemp("sim_steps")
     bag = work / "bag"
     config = work / "sequencer.yaml"
-    points = [float(v) for v in step_reference("fpu").p_des[:SIM_STEPS].ravel()]
-    config.write_text(
-        yaml.safe_dump(
-            {
-                "/**": {
-                    "ros__parameters": {
-                        "trajectory": "steps",
-                        "points": points,
-                        "exit_on_finish": True,
-                        "finish_hold": 0.5,
-                    }
-                }
-            }
-        )
-    )
+    write_step_sequence(config, SIM_STEPS)
     proc = start_process(
         [
             *LAUNCHER,

@@ -10,14 +10,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from hsa_bag.bagrun import runlog_from_bag
 from hsa_core.runs.profiles import load_profile
 from hsa_core.sim.experiment import profile_config, run_experiment
 from hsa_core.sim.run_conditions import graph_arguments
 from hsa_core.task.trajectories import step_reference
-from tests.ros.conftest import GRAPH_STOP, LAUNCHER, start_process, stop_process
+from tests.ros.conftest import (
+    GRAPH_STOP,
+    LAUNCHER,
+    start_process,
+    stop_process,
+    write_step_sequence,
+)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -32,21 +37,7 @@ def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
 ) -> None:
     bag = tmp_path / "bag"
     config = tmp_path / "sequencer.yaml"
-    points = [float(v) for v in step_reference("fpu").p_des[:STEPS].ravel()]
-    config.write_text(
-        yaml.safe_dump(
-            {
-                "/**": {
-                    "ros__parameters": {
-                        "trajectory": "steps",
-                        "points": points,
-                        "exit_on_finish": True,
-                        "finish_hold": 0.5,
-                    }
-                }
-            }
-        )
-    )
+    write_step_sequence(config, STEPS)
     conditions = [f"{k}:={v}" for k, v in graph_arguments(PROFILE).items()]
     proc = start_process(
         [

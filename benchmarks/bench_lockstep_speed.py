@@ -101,11 +101,9 @@ def main() -> int:
         result["lockstep"]["fpu_steps_200hz"] = run(work / "rate200", "--rate", "200")
     result["finding"] = (
         "the graph's own work (wall clock, no barrier) needs "
-        f"{result['wall']['cpu_s_per_simulated_s']} CPU s per "
-        f"simulated s, so 110 s cannot take less than {result['wall']['wall_floor_s_for_110s']} s "
-        f"on {cores} cores "
-        "even with a barrier that costs nothing; lockstep needs "
-        f"{result['lockstep']['cpu_s_per_simulated_s']}"
+        f"{result['wall']['cpu_s_per_simulated_s']} CPU s per simulated s, so 110 s cannot take "
+        f"less than {result['wall']['wall_floor_s_for_110s']} s on {cores} cores even with a "
+        f"barrier that costs nothing; lockstep needs {result['lockstep']['cpu_s_per_simulated_s']}"
     )
     out = ROOT / "benchmarks" / "results" / "lockstep_speed.json"
     out.write_text(json.dumps(result, indent=2) + "\n")

@@ -397,8 +397,7 @@ def _table(records: list[dict[str, object]]) -> str:
     """Markdown table of the records."""
     lines = [
         "| law | row | RMSE [mm] | e_ss [mm] | overshoot [%] | p2p x mean / max [mm] | f [Hz] | φ "
-        "last 2 s [rad] "
-        "| sat. |",
+        "last 2 s [rad] | sat. |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in records:

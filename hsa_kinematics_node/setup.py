@@ -21,8 +21,7 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description=(
         "Kinematics node: closed-form inverse kinematics and Savitzky-Golay velocity estimation "
-        "per mocap "
-        "sample; marker node: RViz/Foxglove markers of the robot and the setpoint."
+        "per mocap sample; marker node: RViz/Foxglove markers of the robot and the setpoint."
     ),
     license="Apache-2.0",
     entry_points={

@@ -21,8 +21,7 @@ setup(
     maintainer_email="hsa-ros@example.org",
     description=(
         "Live view: the running graph (3-D scene, tracking and actuation plots, diagnostics, run "
-        "progress) "
-        "served to Foxglove over WebSocket on 127.0.0.1, with a Foxglove layout."
+        "progress) served to Foxglove over WebSocket on 127.0.0.1, with a Foxglove layout."
     ),
     license="Apache-2.0",
     entry_points={

@@ -108,10 +108,9 @@ class StepMonitor:
         sim = rows[-1, 0] - (self._t0 or rows[0, 0])
         print(
             f"[run] step {self._index + 1}/{self._length}: target ({rows[0, 1] * 1e3:6.1f}, "
-            f"{rows[0, 2] * 1e3:6.1f})"
-            f" mm, final error {error * 1e3:5.2f} mm, t_r {step.response_time:5.2f} s; simulated "
-            f"{sim:6.1f} s, "
-            f"wall {time.monotonic() - self._wall0:6.1f} s",
+            f"{rows[0, 2] * 1e3:6.1f}) mm, final error {error * 1e3:5.2f} mm, t_r "
+            f"{step.response_time:5.2f} s; simulated {sim:6.1f} s, wall "
+            f"{time.monotonic() - self._wall0:6.1f} s",
             flush=True,
         )
 
@@ -220,8 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help=(
             "replay a real run of the paper with its own conditions (profile, material, law, "
-            "gains, "
-            f"sigma_a_eq, payload, setpoints at its real step instants): {', '.join(run_names())}"
+            "gains, sigma_a_eq, payload, setpoints at its real step instants): "
+            f"{', '.join(run_names())}"
         ),
     )
     parser.add_argument(
@@ -236,8 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help=(
             "A or A,B: sigma_a_eq of the rods, the model's and the plant's (default: the profile's "
-            "or "
-            "the run's, else the material's)"
+            "or the run's, else the material's)"
         ),
     )
     parser.add_argument(

@@ -74,14 +74,11 @@ class Against:
             f"{self.run.name} ({self.run.kind}) against {self.ref.name} ({self.ref.kind}), steps "
             f"{s.steps[0]}-{s.steps[-1]} each aligned at its own instant; run / reference",
             f"D = {c.deviation * 1e3:.2f} mm, RMSE {c.rmse[0] * 1e3:.2f} / {c.rmse[1] * 1e3:.2f} "
-            "mm, "
-            f"median relative difference of rise time {c.rise_time_difference * 100:.0f} %, of "
-            "response time "
-            f"{c.response_time_difference * 100:.0f} %",
+            f"mm, median relative difference of rise time {c.rise_time_difference * 100:.0f} %, of "
+            f"response time {c.response_time_difference * 100:.0f} %",
             "",
             f"{'step':>4} {'start [s]':>13} {'D [mm]':>7} {'rise time [s]':>13} "
-            f"{'overshoot [mm]':>15} "
-            f"{'end error [mm]':>15} {'x p2p [mm]':>13} {'y p2p [mm]':>13}",
+            f"{'overshoot [mm]':>15} {'end error [mm]':>15} {'x p2p [mm]':>13} {'y p2p [mm]':>13}",
         ]
         for i, k in enumerate(s.steps):
 

@@ -179,8 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="REFERENCE",
         help=(
             "compare the RUN step by step with REFERENCE (a bag, an NPZ RunLog or a real run of "
-            "the "
-            "paper, e.g. 20230925_093236; RUN may be one too): table, against.json, figures "
+            "the paper, e.g. 20230925_093236; RUN may be one too): table, against.json, figures "
             "(default --out out/analysis/<run>_against_<reference>)"
         ),
     )

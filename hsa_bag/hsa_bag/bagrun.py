@@ -160,8 +160,7 @@ def runlog_from_bag(path: Path | str, topic: str = TOPIC, progress: bool = False
         undecodable = f", {skipped[topic]} of them undecodable," if topic in skipped else ""
         raise BagError(
             f"{path}: topic {topic} has {info.count} messages{undecodable} but {len(rows)} tick(s) "
-            "in STATE_TRACKING "
-            "(at least 2 are needed)"
+            "in STATE_TRACKING (at least 2 are needed)"
         )
     stamps = np.array(sorted(rows), dtype=np.int64)
     columns = list(zip(*(rows[s] for s in stamps)))

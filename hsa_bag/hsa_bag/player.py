@@ -393,8 +393,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         logger.info(
             f"published {result.published} messages in {result.passes} pass(es), "
-            f"{result.elapsed:.3f} s; "
-            f"{summary}"
+            f"{result.elapsed:.3f} s; {summary}"
         )
     finally:
         node.destroy_node()

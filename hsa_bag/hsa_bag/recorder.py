@@ -63,8 +63,7 @@ SPECS = (
         "topics",
         Parameter.Type.STRING_ARRAY,
         "topics to record (relative names resolve in the node namespace); unset or empty = every "
-        "topic on "
-        "the graph except /rosout, /parameter_events and hidden topics",
+        "topic on the graph except /rosout, /parameter_events and hidden topics",
         read_only=True,
     ),
     ParamSpec(
@@ -72,8 +71,7 @@ SPECS = (
         "",
         "bag directory to create (an existing one is refused); ending in '/': a new "
         "<YYYYmmdd-HHMMSS> directory inside it (_2, _3, ... if taken), so every start gets its own "
-        "bag; "
-        "empty = out/bags/ (relative to the working directory)",
+        "bag; empty = out/bags/ (relative to the working directory)",
         read_only=True,
     ),
     ParamSpec(
@@ -182,8 +180,7 @@ class BagRecorder(Node):
         except FileExistsError as exc:
             raise ParameterValidationError(
                 f"parameter 'output': {self._bag.path} exists already; refusing to overwrite it (a "
-                "new path, or "
-                f"'{self._bag.path}/' for a new date-time bag inside it)"
+                f"new path, or '{self._bag.path}/' for a new date-time bag inside it)"
             ) from exc
         # log times; lockstep instants wait until it is there
         self.lockstep_clock = lockstep.LeadClock(self)

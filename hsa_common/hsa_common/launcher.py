@@ -148,8 +148,7 @@ def check_entity(kind: str, spec: object, where: str) -> None:
     if unexpected:
         raise LaunchError(
             f"{where}: Unexpected key(s) found in '{kind}': {unexpected} (ros2 launch refuses them "
-            "too; "
-            f"allowed: {sorted(SCHEMA[kind])})"
+            f"too; allowed: {sorted(SCHEMA[kind])})"
         )
     missing = sorted(_REQUIRED[kind] - set(spec))
     if missing:
@@ -246,8 +245,7 @@ class LaunchFile:
             if kind not in SCHEMA:
                 raise LaunchError(
                     f"{path.name}: entry {index + 1}: action '{kind}' is not implemented by "
-                    "hsa_launch "
-                    f"(implemented: {sorted(SCHEMA)})"
+                    f"hsa_launch (implemented: {sorted(SCHEMA)})"
                 )
             check_entity(kind, action[kind], f"{path.name} entry {index + 1}")
         self.vars: dict[str, str] = {}
@@ -433,8 +431,7 @@ class Launcher:
             failed.pump.join(timeout=2.0)  # its last lines, before they are named
             _print(
                 f"[launch] error: {failed.name} exited with {failed.popen.returncode}: "
-                f"{failed.message()}; "
-                f"stopping the graph",
+                f"{failed.message()}; stopping the graph",
                 "stderr",
             )
         worst = self.stop()

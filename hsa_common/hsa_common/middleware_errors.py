@@ -67,6 +67,5 @@ class MiddlewareErrors:
             self._logged = now
             self._node.get_logger().warning(
                 "middleware error (an incoming message that fails to deserialize is dropped): "
-                f"{text} "
-                f"[{self.count} so far; at most one line per {self._period:g} s]"
+                f"{text} [{self.count} so far; at most one line per {self._period:g} s]"
             )

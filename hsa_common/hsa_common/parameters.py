@@ -122,8 +122,7 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
     if unknown:
         raise ParameterValidationError(
             f"parameter '{unknown[0]}' is not a parameter of {node.get_name()} (misspelt, or meant "
-            "for another "
-            f"node?); known: {sorted(s.name for s in specs)}"
+            f"for another node?); known: {sorted(s.name for s in specs)}"
         )
     return values
 

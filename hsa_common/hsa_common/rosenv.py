@@ -110,8 +110,8 @@ def claim_user_domain(domain: int) -> None:
         return  # claimed by an earlier call in this process
     print(
         f"[hsa-ros] warning: ROS_DOMAIN_ID={domain} is also in use by another hsa-ros run (pid "
-        f"{holder}): the two "
-        "graphs will exchange messages; unset ROS_DOMAIN_ID to get a domain of this run's own",
+        f"{holder}): the two graphs will exchange messages; unset ROS_DOMAIN_ID to get a domain of "
+        "this run's own",
         file=sys.stderr,
         flush=True,
     )

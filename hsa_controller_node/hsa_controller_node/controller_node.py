@@ -367,20 +367,17 @@ class ControllerNode(Node):
         elif change.new is Mode.STALE:
             log.error(
                 f"{text}: newest state {age:.3f} s old; no command is sent (the driver's watchdog "
-                "holds the "
-                "motors), integrators frozen"
+                "holds the motors), integrators frozen"
             )
         elif change.new is Mode.DRIVER_LOST:
             log.error(
                 f"{text}: no phi_present from the driver for {silence:.3f} s; no command is sent, "
-                "integrators "
-                "frozen until it returns"
+                "integrators frozen until it returns"
             )
         elif change.new is Mode.TORQUE_OFF:
             log.error(
                 f"{text}: the driver reports its servos' torque off; no command is sent, "
-                "integrators frozen "
-                "until torque is on again"
+                "integrators frozen until torque is on again"
             )
         else:  # start-up, and E-stop changes (logged as ERROR/WARN when the estop message arrives)
             log.info(text)

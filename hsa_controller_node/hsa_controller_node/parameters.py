@@ -176,9 +176,8 @@ def specs() -> tuple[ParamSpec, ...]:
         ParamSpec(
             "setpoint_residual_tol",
             MAX_OPTIMALITY_ERROR,
-            "[N m, N] largest "
-            "||G + K - alpha|| at (q_des, phi_ss) of an accepted setpoint (the planner's "
-            "acceptance threshold)",
+            "[N m, N] largest ||G + K - alpha|| at (q_des, phi_ss) of an accepted setpoint (the "
+            "planner's acceptance threshold)",
             low=1e-12,
             high=1.0,
             read_only=True,

@@ -66,6 +66,5 @@ def require() -> None:
     if not jax.config.jax_enable_x64:
         raise RuntimeError(
             "JAX is not configured for hsa_core: call hsa_core.jaxsetup.configure_jax() at the "
-            "entry "
-            "point, before any model computation (the model needs float64)"
+            "entry point, before any model computation (the model needs float64)"
         )

@@ -135,9 +135,8 @@ class LatencyTimer:
         if self.slow:
             return (
                 f"{self.device}: latency_timer is {self.value_ms} ms, every read may wait that "
-                "long; set it to 1 "
-                f"(echo 1 > {LATENCY_TIMER_ROOT}/{Path(self.device).name}/latency_timer, or a udev "
-                "rule)"
+                "long; set it to 1 (echo 1 > "
+                f"{LATENCY_TIMER_ROOT}/{Path(self.device).name}/latency_timer, or a udev rule)"
             )
         return f"{self.device}: latency_timer is {self.value_ms} ms"
 

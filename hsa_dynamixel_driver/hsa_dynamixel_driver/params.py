@@ -81,10 +81,8 @@ SPECS = (
     ParamSpec(
         "neutral_ticks",
         Parameter.Type.INTEGER_ARRAY,
-        "configured neutral positions [ticks] (neutral_source "
-        "'param' or 'read'); unset = the wiring file's nominal neutral_ticks (the emulated servos' "
-        "power-on "
-        "position)",
+        "configured neutral positions [ticks] (neutral_source 'param' or 'read'); unset = the "
+        "wiring file's nominal neutral_ticks (the emulated servos' power-on position)",
         read_only=True,
         validator=_neutral_ticks,
     ),

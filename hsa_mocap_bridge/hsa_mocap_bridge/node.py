@@ -89,8 +89,7 @@ SPECS = (
         "base_quaternion",
         list(mocap.BASE_QUATERNION),
         "[-] (x, y, z, w) rotation of {0} in the world (use_base_pose false) or relative to the "
-        "measured base "
-        "body (true); also re-aligns the platform body frame",
+        "measured base body (true); also re-aligns the platform body frame",
         low=-1.0,
         high=1.0,
         length=4,
@@ -165,8 +164,7 @@ SPECS = (
         "max_jump",
         0.02,
         "[m] largest plausible EE position change per mocap period, scaled by the time since the "
-        "last "
-        "accepted sample; 0 disables",
+        "last accepted sample; 0 disables",
         low=0.0,
         high=1.0,
     ),
@@ -208,8 +206,7 @@ SPECS = (
         "rest_check",
         False,
         "compare the first valid sample with rest_pose (robot hanging straight, phi = 0); result "
-        "on "
-        "/diagnostics",
+        "on /diagnostics",
         read_only=True,
     ),
     ParamSpec(

@@ -61,8 +61,7 @@ SPECS = (
         "planners",
         Parameter.Type.STRING_ARRAY,
         f"planner kinds compiled at start, some of {list(PLANNER_KINDS)}; the first serves "
-        "PLANNER_DEFAULT "
-        "requests (unset or empty = the material's default planner)",
+        "PLANNER_DEFAULT requests (unset or empty = the material's default planner)",
         read_only=True,
         validator=_check_planners,
     ),

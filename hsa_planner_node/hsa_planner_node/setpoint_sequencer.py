@@ -56,8 +56,7 @@ SPECS = (
         "points",
         Parameter.Type.DOUBLE_ARRAY,
         "[m] steps only: custom EE positions [x0, y0, x1, y1, ...] in hsa_base (unset or empty = "
-        "the "
-        "material's step list of experiments.md §2)",
+        "the material's step list of experiments.md §2)",
         read_only=True,
         validator=_check_points,
     ),
@@ -65,8 +64,8 @@ SPECS = (
         "times",
         Parameter.Type.DOUBLE_ARRAY,
         "[s] steps with 'points' only: the instant of each point after point 0 (0 first, "
-        "increasing; e.g. a "
-        "real run's step instants); the last point lasts 1/rate; unset or empty = every 1/rate",
+        "increasing; e.g. a real run's step instants); the last point lasts 1/rate; unset or empty "
+        "= every 1/rate",
         read_only=True,
     ),
     ParamSpec(

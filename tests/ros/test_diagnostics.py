@@ -150,13 +150,11 @@ def test_every_node_reports_on_diagnostics(graph, ros_node) -> None:
     nodes = sorted({name.split(":")[0] for name in diagnostics.names()})
     fault(
         "none (diagnostics of the sim graph)",
-        f"{len(nodes)} nodes on /diagnostics ({', '.join(nodes)}), each "
-        f"within {max(delays.values()):.2f} s of `ready`; all ready {last_ready - started:.1f} s "
-        "after launch, "
-        f"controller reports tracking {tracking_after:.1f} s later; after {controller['ticks']} "
-        "ticks: "
-        f"stale_events {controller['stale_events']}, held_ticks {controller['held_ticks']}, "
-        "stale_stops "
-        f"{controller['stale_stops']}, rejected_states {controller['rejected_states']}",
+        f"{len(nodes)} nodes on /diagnostics ({', '.join(nodes)}), each within "
+        f"{max(delays.values()):.2f} s of `ready`; all ready {last_ready - started:.1f} s after "
+        f"launch, controller reports tracking {tracking_after:.1f} s later; after "
+        f"{controller['ticks']} ticks: stale_events {controller['stale_events']}, held_ticks "
+        f"{controller['held_ticks']}, stale_stops {controller['stale_stops']}, rejected_states "
+        f"{controller['rejected_states']}",
         "n/a",
     )

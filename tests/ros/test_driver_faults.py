@@ -169,10 +169,8 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     assert recovery < 0.2 + 0.5
     fault(
         f"U2D2 unplugged, replugged after {replugged - unplugged:.1f} s",
-        "driver keeps running, bus lost at "
-        f"the next cycle, {values['reconnect_attempts']} reconnect attempts while absent, torque "
-        "on after the "
-        "replug (present positions held)",
+        f"driver keeps running, bus lost at the next cycle, {values['reconnect_attempts']} "
+        "reconnect attempts while absent, torque on after the replug (present positions held)",
         recovery,
     )
 
@@ -349,8 +347,7 @@ def test_no_goal_outside_the_clamp_range_whatever_arrives_and_the_rate_limit(
     fault(
         "barrage of 401 bad phi_cmd (NaN, ±inf, ±1e300, negative, > phi_max, random ±50 rad)",
         f"{len(writes)} goal writes, all inside the clamp range; {values['rejected']} non-finite "
-        "rejected, "
-        f"{values['clamped']} clipped/clamped",
+        f"rejected, {values['clamped']} clipped/clamped",
         "none needed",
     )
 
@@ -576,12 +573,10 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
     assert recovery < 2.0, f"reboot -> torque on took {recovery:.3f} s"
     fault(
         "hardware error (overload, ID 22) cleared by reboot_22",
-        f"torque off on all servos "
-        f"{(events['torque off (all)'] - injected) * 1e3:.1f} ms after the alert; reboot_22 "
-        "refused while tracking "
-        f"with torque on, accepted with torque off: {reboot_s * 1e3:.1f} ms (error cleared, torque "
-        "off, positions "
-        f"re-checked); set_torque(true) -> torque on {(on - asked) * 1e3:.1f} ms, tracking "
+        f"torque off on all servos {(events['torque off (all)'] - injected) * 1e3:.1f} ms after "
+        "the alert; reboot_22 refused while tracking with torque on, accepted with torque off: "
+        f"{reboot_s * 1e3:.1f} ms (error cleared, torque off, positions re-checked); "
+        f"set_torque(true) -> torque on {(on - asked) * 1e3:.1f} ms, tracking "
         f"{(resumed - on) * 1e3:.1f} ms later",
         recovery,
     )
@@ -603,10 +598,8 @@ def test_overload_reboot_and_torque_on_again(emulator, drivers, ros_node) -> Non
     assert dh.torque(emulator) == {False}
     fault(
         "reboot of all servos while holding, two of them beyond one turn",
-        "torque off first, every servo "
-        f"rebooted in {(answered - sent) * 1e3:.1f} ms; positions re-checked: torque refused for "
-        "IDs 23, 24 "
-        "(multi-turn count lost)",
+        f"torque off first, every servo rebooted in {(answered - sent) * 1e3:.1f} ms; positions "
+        "re-checked: torque refused for IDs 23, 24 (multi-turn count lost)",
         "manual (re-home)",
     )
     assert driver.proc.poll() is None

@@ -123,10 +123,9 @@ def test_driver_killed_with_rods_twisted_restarts_without_moving_the_limits(
     assert max(true_twists(emulator)) <= dh.PHI_MAX + 0.5 / dh.TICKS_PER_RAD
     fault(
         f"driver SIGKILLed with the rods twisted 1.0 rad, restarted (neutral_source {source})",
-        "servos still held: the restarted driver keeps "
-        f"the pose (twist unchanged, {len(dh.goal_writes(emulator))} goals all inside the absolute "
-        "limits, "
-        "phi_max + 0.5 rad stops at phi_max)",
+        "servos still held: the restarted driver keeps the pose (twist unchanged, "
+        f"{len(dh.goal_writes(emulator))} goals all inside the absolute limits, phi_max + 0.5 rad "
+        "stops at phi_max)",
         restarted,
     )
 

@@ -144,8 +144,7 @@ def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
         fault(
             "phi_cmd stops with use_sim_time (/clock held 2 s, then stepped 10 ms)",
             f"watchdog relaxed the motors {fired:.2f} s of simulated time after the last command "
-            f"({wall:.1f} s of "
-            "wall time), never while /clock stood still",
+            f"({wall:.1f} s of wall time), never while /clock stood still",
             "next phi_cmd",
         )
     finally:

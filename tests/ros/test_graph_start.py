@@ -87,7 +87,6 @@ def test_a_node_that_refuses_to_start_stops_the_graph_at_once(tmp_path: Path) ->
     assert "[launch] mocap_bridge exited with 0" in output
     print(
         "FAULT | node refuses to start in a graph (controller:=pdi) | launcher stops the graph, "
-        "names the node "
-        f"and its FATAL line, exit 2 | graph ended {elapsed:.1f} s after launch (was: ran on "
-        "without it for 113 s)"
+        f"names the node and its FATAL line, exit 2 | graph ended {elapsed:.1f} s after launch "
+        "(was: ran on without it for 113 s)"
     )

@@ -256,8 +256,7 @@ def test_planner_and_controller_on_the_identified_set_track_the_simulated_plant(
     rmse, rmse_nominal = ident.metrics.rmse, nominal.metrics.rmse
     print(
         f"\nstep RMSE, P-satI-D, {STEPS} FPU steps of {STEP_PERIOD:g} s, simulated plant: "
-        "identified set "
-        f"{rmse * 1e3:.3f} mm, packaged set {rmse_nominal * 1e3:.3f} mm; true e_ss "
+        f"identified set {rmse * 1e3:.3f} mm, packaged set {rmse_nominal * 1e3:.3f} mm; true e_ss "
         f"{ident.true_steady_state_error() * 1e3:.3f} / "
         f"{nominal.true_steady_state_error() * 1e3:.3f} mm"
     )

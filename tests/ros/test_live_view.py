@@ -578,8 +578,7 @@ def test_scene_and_plots_reach_a_foxglove_client_at_their_rates(
     assert all(p["ok"] for p in paths.values()), [p for p in paths.values() if not p["ok"]]
     print(
         f"viewer check: {len(report['channels'])} channels parsed, {len(paths)} layout paths with "
-        "data "
-        f"({checking:.1f} s)"
+        f"data ({checking:.1f} s)"
     )
 
 
@@ -726,8 +725,7 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
     ), report
     print(
         f"sim graph live view: {len(scenes) / span:.1f} scenes/s over {span:.1f} s, "
-        f"{len(tracking)} ticks, "
-        f"final ‖e‖ {final[-1] * 1e3:.2f} mm"
+        f"{len(tracking)} ticks, final ‖e‖ {final[-1] * 1e3:.2f} mm"
     )
 
 

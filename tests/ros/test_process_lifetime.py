@@ -39,11 +39,10 @@ def test_tie_to_parent_answers_by_launcher_and_nohup() -> None:
 def test_a_tied_process_gets_sigterm_when_its_parent_is_killed(tmp_path) -> None:
     marker = tmp_path / "got_sigterm"
     child = (
-        f"import signal, sys, time; from hsa_common import parent_death; "
+        "import signal, sys, time; from hsa_common import parent_death; "
         f"signal.signal(signal.SIGTERM, lambda *_: (open({str(marker)!r}, 'w').close(), "
-        "sys.exit(0))); "
-        "assert parent_death.tie_to_parent() is parent_death.Tie.TIED; print('tied', flush=True); "
-        "time.sleep(60)"
+        "sys.exit(0))); assert parent_death.tie_to_parent() is parent_death.Tie.TIED; "
+        "print('tied', flush=True); time.sleep(60)"
     )
     middle = subprocess.Popen(
         [

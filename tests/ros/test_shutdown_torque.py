@@ -197,10 +197,8 @@ def test_sim_graph_ctrl_c_turns_torque_off_within_100_ms(tmp_path, ros_node) -> 
     confirmed = f"{(float(logged.group(1)) - sent_wall) * 1e3:.1f} ms" if logged else "not logged"
     fault(
         "SIGINT to the whole sim graph (process group, as Ctrl-C)",
-        f"torque off on all servos "
-        f"{latency * 1e3:.1f} ms after the signal (driver logged it confirmed after {confirmed}), "
-        "launcher exit "
-        f"code {code}",
+        f"torque off on all servos {latency * 1e3:.1f} ms after the signal (driver logged it "
+        f"confirmed after {confirmed}), launcher exit code {code}",
         "restart",
     )
     driver_lines = "".join(

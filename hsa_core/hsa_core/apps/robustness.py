@@ -317,9 +317,8 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
             r = w.record
             fig.suptitle(
                 f"{name}, worst of {n} plants: RMSE {r['rmse_mm']:.2f} mm (stiffness "
-                f"×{r['stiffness']:.3f}, "
-                f"$C_\\varepsilon$ ×{r['elongation']:.3f}, $\\sigma_{{a,eq}}$ "
-                f"×{r['rest_strain']:.3f})",
+                f"×{r['stiffness']:.3f}, $C_\\varepsilon$ ×{r['elongation']:.3f}, "
+                f"$\\sigma_{{a,eq}}$ ×{r['rest_strain']:.3f})",
                 fontsize="medium",
             )
             paths += plotting.save_all_formats(fig, out / f"worst_{law.replace('+', '_')}")
@@ -482,8 +481,7 @@ def main(argv: list[str] | None = None) -> int:
     figures(records, worst, args.out, args.material)
     print(
         f"{'law':<14} {'RMSE median [mm]':>17} {'q75':>7} {'max':>7} {'e_ss med':>9} "
-        f"{'t_r med':>8} "
-        f"{'unstable':>9} {'cycling':>8}"
+        f"{'t_r med':>8} {'unstable':>9} {'cycling':>8}"
     )
     for law, e in table.items():
         r, s, tr = e["rmse_mm"], e["e_ss_mm"], e["t_r_s"]

@@ -263,8 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     note = (
         f"hsa_tune --material {args.material} --law {args.law}: median RMSE over {args.plants} "
-        "plants "
-        f"{np.nanmedian(before.rmse_mm):.3f} -> {np.nanmedian(after.rmse_mm):.3f} mm on "
+        f"plants {np.nanmedian(before.rmse_mm):.3f} -> {np.nanmedian(after.rmse_mm):.3f} mm on "
         f"{args.duration:g} s of steps"
     )
     (args.out / "gains.yaml").write_text(gains_yaml(kind, tuned, note))
@@ -316,8 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, e, nom in (("paper gains", before, nominal[0]), ("tuned", after, nominal[1])):
         print(
             f"{name:<14} {e.objective:8.3f} {np.nanmedian(e.rmse_mm):17.3f} "
-            f"{e.terms['t_r_s']:8.3f} "
-            f"{e.terms['bad']:5.2f} {nom.rmse_mm[0]:13.3f}"
+            f"{e.terms['t_r_s']:8.3f} {e.terms['bad']:5.2f} {nom.rmse_mm[0]:13.3f}"
         )
     print(f"\ngains.yaml, report.json and figures in {args.out.resolve()}")
     return 0

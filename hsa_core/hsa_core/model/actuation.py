@@ -275,8 +275,7 @@ def accept_read_neutral(
         return None
     return (
         f"read neutral ticks {np.asarray(read_ticks).tolist()} deviate from the configured neutral "
-        "ticks by "
-        f"{np.round(deviation, 3).tolist()} rad (tolerance {tolerance} rad)"
+        f"ticks by {np.round(deviation, 3).tolist()} rad (tolerance {tolerance} rad)"
     )
 
 

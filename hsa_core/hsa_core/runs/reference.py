@@ -112,8 +112,7 @@ class ReferenceRun:
         if len(instants) != len(points) - 1:
             raise ValueError(
                 f"{self.conditions.bag}: {len(instants)} steps in the trace, {len(points) - 1} in "
-                "the "
-                f"{self.conditions.material} step list"
+                f"the {self.conditions.material} step list"
             )
         return TimedReference(
             np.concatenate([[0.0], instants]),

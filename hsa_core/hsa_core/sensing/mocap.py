@@ -254,7 +254,7 @@ def rest_pose_problem(
     if float(np.hypot(delta[0], delta[1])) > position_tol or abs(delta[2]) > angle_tol:
         return (
             f"rest pose {np.round(chiee, 4).tolist()} differs from {list(expected)} by more than "
-            f"{position_tol} m / "
-            f"{angle_tol} rad; check the base quaternion, offsets and Motive's axes"
+            f"{position_tol} m / {angle_tol} rad; check the base quaternion, offsets and Motive's "
+            "axes"
         )
     return None

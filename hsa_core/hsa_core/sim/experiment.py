@@ -561,8 +561,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help=(
             "replay a paper run with its own conditions (profile, law, gains, sigma_a_eq, real "
-            "step "
-            f"instants): {', '.join(run_names())}"
+            f"step instants): {', '.join(run_names())}"
         ),
     )
     parser.add_argument(

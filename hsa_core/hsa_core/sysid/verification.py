@@ -200,8 +200,7 @@ def format_table(results: dict[str, Verification]) -> str:
         lines.append(f"{name[:24]:24s}{cells}{res.lag * 1e3:10.1f}")
     lines.append(
         "units: x, y in mm; theta in rad; kappa_be in 1/m; sigma_sh, sigma_ax dimensionless; RMSE "
-        "after "
-        "removing the lag: "
+        "after removing the lag: "
         + "; ".join(
             f"{n}: "
             + ", ".join(f"{c} {r.rmse_lagged[c] * scale.get(c, 1.0):.3g}" for c in CHANNELS)

@@ -135,8 +135,8 @@ def _check_radius(radius: float, max_radius: float) -> None:
     if not 0.0 < radius <= max_radius:
         raise ValueError(
             f"radius {radius} m outside the safe range (0, {max_radius}] m (experiments.md §3: "
-            "r_max <= "
-            f"{R_MAX_SAFE} m around y = 0.1285 m); pass max_radius to override deliberately"
+            f"r_max <= {R_MAX_SAFE} m around y = 0.1285 m); pass max_radius to override "
+            "deliberately"
         )
 
 

@@ -23,11 +23,12 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from hsa_common import convert, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
+from hsa_common.drawing_params import DRAWING_SPECS
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.model.visual import RobotGeometry, geometry_fn
 from hsa_core.rate_meter import RateMeter
 from hsa_msgs.msg import CsConfiguration, PlanarState, Setpoint
 
@@ -43,25 +44,7 @@ SPECS = (
         low=0.1,
         high=1000.0,
     ),
-    ParamSpec(
-        "n_points",
-        DEFAULT_POINTS,
-        "[-] samples of the active length per backbone or rod polyline",
-        low=2,
-        high=200,
-        read_only=True,
-    ),
-    ParamSpec("backbone_width", 0.002, "[m] line width of the backbone", low=0.0001, high=0.1),
-    ParamSpec(
-        "ghost_alpha",
-        0.3,
-        "[-] opacity of the ghost of the desired configuration",
-        low=0.0,
-        high=1.0,
-    ),
-    ParamSpec(
-        "setpoint_diameter", 0.008, "[m] diameter of the setpoint sphere", low=0.0001, high=0.1
-    ),
+    *DRAWING_SPECS,
     ParamSpec(
         "diagnostics_period",
         1.0,

@@ -40,12 +40,13 @@ from std_msgs.msg import String
 
 from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import OK, WARN, Diagnostics, Report
+from hsa_common.drawing_params import DRAWING_SPECS
 from hsa_common.model_params import MODEL_SPECS, load_model
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare, guard_updates
 from hsa_common.runner import run
 from hsa_core.analysis import live
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.model.visual import DEFAULT_POINTS, RobotGeometry, geometry_fn
+from hsa_core.model.visual import RobotGeometry, geometry_fn
 from hsa_live import scene
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 
@@ -76,25 +77,7 @@ SPECS = (
         "frame of the scene entities (the planar base frame {0})",
         read_only=True,
     ),
-    ParamSpec(
-        "n_points",
-        DEFAULT_POINTS,
-        "[-] samples of the active length per backbone or rod polyline",
-        low=2,
-        high=200,
-        read_only=True,
-    ),
-    ParamSpec("backbone_width", 0.002, "[m] line width of the backbone", low=0.0001, high=0.1),
-    ParamSpec(
-        "ghost_alpha",
-        0.3,
-        "[-] opacity of the ghost of the desired configuration",
-        low=0.0,
-        high=1.0,
-    ),
-    ParamSpec(
-        "setpoint_diameter", 0.008, "[m] diameter of the setpoint sphere", low=0.0001, high=0.1
-    ),
+    *DRAWING_SPECS,
     ParamSpec(
         "progress_period",
         1.0,

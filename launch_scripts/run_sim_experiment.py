@@ -37,8 +37,7 @@ from hsa_core import cli
 from hsa_core.analysis import metrics
 from hsa_core.apps.tune import gains_yaml
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile, profile_names
-from hsa_core.runs.reference import run_names
+from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile
 from hsa_core.sim.run_conditions import graph_arguments, run_schedule
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
@@ -205,39 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="[Hz] control rate (default: the profile's, 40 Hz for lab)",
     )
-    parser.add_argument(
-        "--profile",
-        type=cli.run_profile,
-        default=None,
-        help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default "
-        f"{DEFAULT_PROFILE}): control rate, integrators' step, velocity estimator, sigma_a_eq, "
-        "payload (docs/simulation.md, 'Run profiles')",
-    )
-    parser.add_argument(
-        "--run",
-        type=cli.reference_run,
-        default=None,
-        help=(
-            "replay a real run of the paper with its own conditions (profile, material, law, "
-            "gains, sigma_a_eq, payload, setpoints at its real step instants): "
-            f"{', '.join(run_names())}"
-        ),
-    )
-    parser.add_argument(
-        "--payload",
-        type=cli.non_negative,
-        default=None,
-        help="[kg] the plant's payload (default: the profile's or the run's)",
-    )
-    parser.add_argument(
-        "--sigma-a-eq",
-        type=cli.sigma_a_eq,
-        default=None,
-        help=(
-            "A or A,B: sigma_a_eq of the rods, the model's and the plant's (default: the profile's "
-            "or the run's, else the material's)"
-        ),
-    )
+    cli.add_run_conditions(parser)
     parser.add_argument(
         "--gains",
         type=_gains_file,

@@ -80,3 +80,40 @@ def reference_run(text: str) -> ReferenceRun:
         return load_run(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_run_conditions(parser: argparse.ArgumentParser) -> None:
+    """The run-condition options of every CLI that runs the closed loop (``hsa_experiment``,
+    ``run_sim_experiment.py``): ``--profile``, ``--run``, ``--payload``, ``--sigma-a-eq``."""
+    from hsa_core.runs.profiles import DEFAULT_PROFILE, profile_names
+    from hsa_core.runs.reference import run_names
+
+    parser.add_argument(
+        "--profile",
+        type=run_profile,
+        default=None,
+        help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default "
+        f"{DEFAULT_PROFILE}): control rate, integrators' step, velocity estimator, sigma_a_eq, "
+        "payload (docs/simulation.md, 'Run profiles')",
+    )
+    parser.add_argument(
+        "--run",
+        type=reference_run,
+        default=None,
+        help="replay a real run of the paper with its own conditions (profile, material, law, "
+        "gains, sigma_a_eq, payload, setpoints at its real step instants): "
+        f"{', '.join(run_names())}",
+    )
+    parser.add_argument(
+        "--payload",
+        type=non_negative,
+        default=None,
+        help="[kg] the plant's payload (default: the profile's or the run's)",
+    )
+    parser.add_argument(
+        "--sigma-a-eq",
+        type=sigma_a_eq,
+        default=None,
+        help="A or A,B: sigma_a_eq of the rods, the model's and the plant's (default: the "
+        "profile's or the run's, else the material's)",
+    )

@@ -77,9 +77,8 @@ from hsa_core.runs.profiles import (
     RunProfile,
     VelocityEstimator,
     load_profile,
-    profile_names,
 )
-from hsa_core.runs.reference import ReferenceRun, run_names
+from hsa_core.runs.reference import ReferenceRun
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.sim.disturbance import DisturbanceModel
@@ -548,34 +547,7 @@ def main(argv: list[str] | None = None) -> int:
             "default: all)"
         ),
     )
-    parser.add_argument(
-        "--profile",
-        type=cli.run_profile,
-        default=None,
-        help=f"run profile, the set-up of a period: {', '.join(profile_names())} (default: "
-        f"{DEFAULT_PROFILE}; docs/simulation.md)",
-    )
-    parser.add_argument(
-        "--run",
-        type=cli.reference_run,
-        default=None,
-        help=(
-            "replay a paper run with its own conditions (profile, law, gains, sigma_a_eq, real "
-            f"step instants): {', '.join(run_names())}"
-        ),
-    )
-    parser.add_argument(
-        "--payload",
-        type=cli.non_negative,
-        default=None,
-        help="[kg] the plant's payload (default: the profile's or the run's)",
-    )
-    parser.add_argument(
-        "--sigma-a-eq",
-        type=cli.sigma_a_eq,
-        default=None,
-        help="A or A,B: sigma_a_eq per rod (default: the profile's or the run's)",
-    )
+    cli.add_run_conditions(parser)
     parser.add_argument(
         "--trajectory",
         type=_trajectory,

@@ -161,7 +161,7 @@ def run_nodes(
             and not (isinstance(node, Coordinator) and node.lockstep_coordinator)
         ]
     )
-    executor = SingleThreadedExecutor() if in_lockstep else make_executor()
+    executor = lockstep.LockstepExecutor() if in_lockstep else make_executor()
     for node in nodes:
         executor.add_node(node)
     errors = MiddlewareErrors(nodes[0])  # a malformed message: one throttled line per process
@@ -269,7 +269,8 @@ def spin_lockstep(
         try:
             handler, entity, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
         except TimeoutException:
-            if pacing.timed_out() and participant is not None:
+            pacing.timed_out()
+            if participant is not None:
                 participant.idle()
             continue
         except (ShutdownException, ConditionReachedException):

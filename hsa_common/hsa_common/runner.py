@@ -34,10 +34,10 @@ node prints every thread's stack and a C-level timer ends it with its exit code
 (:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
-barrier (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and,
-whenever none is ready, the node reports to the simulator. A node can end the process with a code of
-its own by setting ``exit_code`` before it shuts its context down (the simulator does, when a
-barrier times out).
+barrier (:mod:`hsa_common.lockstep`) — a :class:`~hsa_common.lockstep.LockstepExecutor` runs one
+ready callback at a time and, whenever none is ready, the node reports to the simulator. A node
+can end the process with a code of its own by setting ``exit_code`` before it shuts its context
+down (the simulator does, when a barrier times out).
 """
 
 from __future__ import annotations

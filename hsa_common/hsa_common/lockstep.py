@@ -5,7 +5,8 @@ out of work.
 count messages per topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the
 barrier's own topic and the node's private parameter/lifecycle services are not counted), and
 publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner has found no callback ready
-for a moment (:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`). The
+for a moment (:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`), spinning
+a :class:`LockstepExecutor`. The
 decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in docs/simulation.md. A node may add
 a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder: every selected topic
 subscribed). A node whose log times are simulated time (the recorder) reads them from a
@@ -16,14 +17,27 @@ publishes at t reaches the node before its clock is at t.
 
 from __future__ import annotations
 
+import inspect
 import json
+import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack
 from typing import Any, Protocol
 
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidHandle
+from rclpy.executors import (
+    ConditionReachedException,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+    TimeoutException,
+)
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock as ClockMsg
 
@@ -98,6 +112,219 @@ class LeadClock:
     def now_ns(self) -> int:
         """[ns] the later of the node clock and the latest lead instant."""
         return max(self.node.get_clock().now().nanoseconds, self.lead_ns)
+
+
+WAITABLE_PERIOD = 0.02
+"""[s] of wall time between two waits of a :class:`LockstepExecutor` that include waitables."""
+Entities = tuple[tuple[Any, ...], ...]
+"""Per node: its subscriptions, timers, clients, services, guard conditions and waitables."""
+
+
+class LockstepExecutor(SingleThreadedExecutor):
+    """rclpy's single-threaded executor for the lockstep spin, with a lean wait: the same callbacks
+    run, one at a time in rclpy's order, but the wait set is built once per change of the nodes'
+    entities (their handles held meanwhile) instead of once per wait, and the executor's own guard
+    condition, which rclpy triggers after every callback, does not end a wait (a wait lasts at most
+    the spin's period, and new entities or tasks are seen at the next one). A subscription's plain
+    callback runs without rclpy's task around it (:class:`Take`). The waitables (the QoS
+    event handlers of every publisher and subscription: incompatible QoS or type, which only log)
+    join a wait at most every ``WAITABLE_PERIOD`` of wall time: they are most of a wait set's
+    entities, and a wait's cost grows with them. Pending tasks (service futures' callbacks,
+    coroutines), a waiting for chosen nodes and a wait without timeout take rclpy's own path."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._entities: Entities | None = None
+        self._held = ExitStack()
+        self._wait_set: Any = None
+        self._waitables_due = 0.0  # [s] monotonic time from which the waitables join a wait
+        self._with_waitables = False  # whether the last wait had them
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """rclpy's shutdown, and the entities' handles are released (they can be destroyed)."""
+        done = super().shutdown(timeout_sec)
+        self._release()
+        return done
+
+    def _release(self) -> None:
+        self._held.close()
+        self._entities, self._wait_set = None, None
+
+    def _prepare(self, nodes: Sequence[Node], now: float) -> Any:
+        """The wait set of the nodes' entities now (the waitables if due at ``now``), rebuilt only
+        when they changed."""
+        entities = tuple(
+            (
+                tuple(n.subscriptions),
+                tuple(n.timers),
+                tuple(n.clients),
+                tuple(n.services),
+                tuple(n.guards),
+                tuple(n.waitables),
+            )
+            for n in nodes
+        )
+        if entities != self._entities:
+            self._release()
+            counts = [0, 1, 0, 0, 0, 0]  # subscriptions, guards (the SIGINT one), timers, ...
+            for subs, timers, clients, services, guards, waitables in entities:
+                for i, group in ((0, subs), (1, guards), (2, timers), (3, clients), (4, services)):
+                    for entity in group:
+                        self._held.enter_context(entity.handle)
+                        counts[i] += 1
+                for waitable in waitables:
+                    self._held.enter_context(waitable)
+                    more = waitable.get_num_entities()
+                    counts[0] += more.num_subscriptions
+                    counts[1] += more.num_guard_conditions
+                    counts[2] += more.num_timers
+                    counts[3] += more.num_clients
+                    counts[4] += more.num_services
+                    counts[5] += more.num_events
+            self._held.enter_context(self._sigint_gc.handle)
+            with self._context.handle:
+                self._wait_set = _rclpy.WaitSet(*counts, self._context.handle)
+            self._entities = entities
+        wait_set = self._wait_set
+        wait_set.clear_entities()
+        self._with_waitables = now >= self._waitables_due
+        if self._with_waitables:
+            self._waitables_due = now + WAITABLE_PERIOD
+        for subs, timers, clients, services, guards, waitables in entities:
+            for sub in subs:
+                wait_set.add_subscription(sub.handle)
+            for client in clients:
+                wait_set.add_client(client.handle)
+            for srv in services:
+                wait_set.add_service(srv.handle)
+            for tmr in timers:
+                wait_set.add_timer(tmr.handle)
+            for gc in guards:
+                if gc._executor_triggered:  # triggered but not handled: as rclpy
+                    gc.trigger()
+                wait_set.add_guard_condition(gc.handle)
+            if self._with_waitables:
+                for waitable in waitables:
+                    waitable.add_to_wait_set(wait_set)
+        wait_set.add_guard_condition(self._sigint_gc.handle)
+        return wait_set
+
+    def _wait_for_ready_callbacks(
+        self,
+        timeout_sec: float | None = None,
+        nodes: list[Node] | None = None,
+        condition: Callable[[], bool] = lambda: False,
+    ) -> Iterator[tuple[Any, Any, Node]]:
+        """The ready callbacks of one wait of at most ``timeout_sec`` (see the class docstring)."""
+        with self._tasks_lock:
+            self._tasks = [t for t in self._tasks if not t[0].done() and not t[0].cancelled()]
+            busy = bool(self._tasks)
+        if busy or nodes is not None or not isinstance(timeout_sec, (int, float)):
+            yield from super()._wait_for_ready_callbacks(timeout_sec, nodes, condition)
+            return
+        deadline = time.monotonic() + max(timeout_sec, 0.0)
+        while True:
+            if self._is_shutdown:
+                raise ShutdownException()
+            if not self._context.ok():
+                raise ExternalShutdownException()
+            if condition():
+                raise ConditionReachedException()
+            nodes_now = self.get_nodes()
+            try:
+                wait_set = self._prepare(nodes_now, time.monotonic())
+            except InvalidHandle:  # destroyed while held: rclpy's path sorts it out
+                self._release()
+                yield from super()._wait_for_ready_callbacks(timeout_sec, nodes, condition)
+                return
+            wait_set.wait(max(round((deadline - time.monotonic()) * 1e9), 0))
+            if self._is_shutdown:
+                raise ShutdownException()
+            if not self._context.ok():
+                raise ExternalShutdownException()
+            yielded = False
+            for handler in self._ready(wait_set, nodes_now):
+                yielded = True
+                yield handler
+            if yielded:
+                return
+            if time.monotonic() >= deadline:
+                raise TimeoutException()
+
+    def _ready(self, wait_set: Any, nodes: Sequence[Node]) -> Iterator[tuple[Any, Any, Node]]:
+        """Handlers of the entities ready in ``wait_set``, in rclpy's order."""
+        subs = set(wait_set.get_ready_entities("subscription"))
+        guards = set(wait_set.get_ready_entities("guard_condition"))
+        timers = set(wait_set.get_ready_entities("timer"))
+        clients = set(wait_set.get_ready_entities("client"))
+        services = set(wait_set.get_ready_entities("service"))
+        for node in nodes:
+            for gc in node.guards:
+                if gc.handle.pointer in guards:
+                    gc._executor_triggered = True
+        waited = (
+            {id(w) for entities in self._entities or () for w in entities[5]}
+            if self._with_waitables
+            else set()
+        )
+        for node in nodes:
+            for wt in node.waitables:
+                if id(wt) in waited and wt.is_ready(wait_set) and self.can_execute(wt):
+                    yield self._make_handler(wt, node, self._take_waitable), wt, node
+        for node in nodes:
+            for tmr in node.timers:
+                if (
+                    tmr.handle.pointer in timers
+                    and tmr.handle.is_timer_ready()
+                    and self.can_execute(tmr)
+                ):
+                    yield self._make_handler(tmr, node, self._take_timer), tmr, node
+            for sub in node.subscriptions:
+                if sub.handle.pointer in subs and self.can_execute(sub):
+                    if inspect.iscoroutinefunction(sub.callback):
+                        yield self._make_handler(sub, node, self._take_subscription), sub, node
+                    else:
+                        yield Take(sub), sub, node
+            for gc in node.guards:
+                if gc._executor_triggered and self.can_execute(gc):
+                    yield self._make_handler(gc, node, self._take_guard_condition), gc, node
+            for client in node.clients:
+                if client.handle.pointer in clients and self.can_execute(client):
+                    yield self._make_handler(client, node, self._take_client), client, node
+            for srv in node.services:
+                if srv.handle.pointer in services and self.can_execute(srv):
+                    yield self._make_handler(srv, node, self._take_service), srv, node
+
+
+class Take:
+    """A ready subscription's handler: when called, takes its message and runs its plain callback,
+    as rclpy's handler task does (a message already gone or a destroyed subscription: nothing);
+    an exception of the callback is kept for :meth:`exception`, as a task keeps it."""
+
+    __slots__ = ("_error", "_sub")
+
+    def __init__(self, sub: Subscription) -> None:
+        self._sub = sub
+        self._error: Exception | None = None
+
+    def __call__(self) -> None:
+        sub = self._sub
+        try:
+            with sub.handle:
+                info = sub.handle.take_message(sub.msg_type, sub.raw)
+        except InvalidHandle:
+            return
+        if info is None:
+            return
+        args = (info[0],) if sub._callback_type is Subscription.CallbackType.MessageOnly else info
+        try:
+            sub.callback(*args)
+        except Exception as exc:
+            self._error = exc
+
+    def exception(self) -> Exception | None:
+        """The exception the callback raised, or None."""
+        return self._error
 
 
 class Reporter(Protocol):

@@ -34,10 +34,10 @@ node prints every thread's stack and a C-level timer ends it with its exit code
 (:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
-barrier (:mod:`hsa_common.lockstep`) — the Python executor runs one ready callback at a time and,
-whenever none is ready, the node reports to the simulator. A node can end the process with a code of
-its own by setting ``exit_code`` before it shuts its context down (the simulator does, when a
-barrier times out).
+barrier (:mod:`hsa_common.lockstep`) — a :class:`~hsa_common.lockstep.LockstepExecutor` runs one
+ready callback at a time and, whenever none is ready, the node reports to the simulator. A node
+can end the process with a code of its own by setting ``exit_code`` before it shuts its context
+down (the simulator does, when a barrier times out).
 """
 
 from __future__ import annotations
@@ -161,7 +161,7 @@ def run_nodes(
             and not (isinstance(node, Coordinator) and node.lockstep_coordinator)
         ]
     )
-    executor = SingleThreadedExecutor() if in_lockstep else make_executor()
+    executor = lockstep.LockstepExecutor() if in_lockstep else make_executor()
     for node in nodes:
         executor.add_node(node)
     errors = MiddlewareErrors(nodes[0])  # a malformed message: one throttled line per process
@@ -269,7 +269,8 @@ def spin_lockstep(
         try:
             handler, entity, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
         except TimeoutException:
-            if pacing.timed_out() and participant is not None:
+            pacing.timed_out()
+            if participant is not None:
                 participant.idle()
             continue
         except (ShutdownException, ConditionReachedException):

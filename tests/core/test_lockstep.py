@@ -155,29 +155,23 @@ def test_an_expected_participant_leaving_marks_the_end_of_the_graph() -> None:
 
 
 def test_a_participant_reports_once_it_has_been_out_of_work_for_the_quiet_time() -> None:
-    """A burst of messages a little apart gives one report, not one per message."""
+    """After each callback the executor waits the quiet time (a burst a little apart gives one
+    report), then reports and waits a period at a time; no poll before the quiet wait."""
     pacing = ReportPacing(quiet=0.002, period=0.02)
-    reports = []
-    for event in ["ran", "timeout", "ran", "timeout", "ran", "timeout", "timeout", "timeout"]:
-        if event == "ran":
-            pacing.ran()
-            reports.append((pacing.timeout(), False))
-        else:
-            reports.append((pacing.timeout(), pacing.timed_out()))
-    assert reports == [
-        (0.0, False),
-        (0.0, False),
-        (0.0, False),
-        (0.0, False),
-        (0.0, False),
-        (0.0, False),
-        (0.002, True),
-        (0.02, True),  # then every period while idle
-    ]
+    assert pacing.timeout() == 0.002
+    for _ in range(3):  # a burst: every callback within the quiet time of the previous one
+        pacing.ran()
+        assert pacing.timeout() == 0.002
+    pacing.timed_out()  # the report
+    assert pacing.timeout() == 0.02  # then every period while idle
+    pacing.timed_out()
+    assert pacing.timeout() == 0.02
     eager = ReportPacing(quiet=0.0, period=0.02)
     eager.ran()
-    assert (eager.timeout(), eager.timed_out(), eager.timeout()) == (0.0, True, 0.02)
+    assert eager.timeout() == 0.0
+    eager.timed_out()
+    assert eager.timeout() == 0.02
     pacing.ran(last=True)  # the lead clock: nothing follows it in its instant
-    assert (pacing.timeout(), pacing.timed_out()) == (0.0, True)
+    assert pacing.timeout() == 0.0
     pacing.ran()
-    assert (pacing.timed_out(), pacing.timed_out()) == (False, True)
+    assert pacing.timeout() == 0.002

@@ -185,8 +185,8 @@ class Barrier:
 class Spin(enum.Enum):
     """Where a participant's executor stands (:class:`ReportPacing`)."""
 
-    BUSY = "busy"  # a callback just ran: look for more ready work without waiting
-    QUIET = "quiet"  # nothing was ready: wait a little longer before reporting
+    BUSY = "busy"  # the lead clock's callback just ran: report as soon as nothing else is ready
+    QUIET = "quiet"  # a callback just ran: wait a little for more work before reporting
     IDLE = "idle"  # reported: wait for work, reporting again after each ``period`` without any
 
 
@@ -196,13 +196,14 @@ class ReportPacing:
     sample through bridge, kinematics and controller, a tick's messages from several nodes) then
     gives one report instead of one per message; a report shows the counts at the moment it is
     made, so a later one is never less true. ``quiet`` 0 reports each time no callback is ready.
-    After the lead clock, which nothing else follows in its instant, it reports without waiting."""
+    After a callback the executor waits up to ``quiet`` at once (a ready callback ends that wait
+    as early as a poll would): one wait per callback, not a poll and then a wait. After the lead
+    clock, which nothing else follows in its instant, it reports without waiting."""
 
     def __init__(self, quiet: float = REPORT_QUIET, period: float = 0.02) -> None:
         self.quiet = quiet
         self.period = period
-        self.state = Spin.BUSY
-        self._last = False
+        self.state = Spin.QUIET
 
     def timeout(self) -> float:
         """[s] how long the executor may wait for a ready callback now."""
@@ -210,13 +211,9 @@ class ReportPacing:
 
     def ran(self, last: bool = False) -> None:
         """A callback ran (``last``: the lead clock's; the report need not wait)."""
-        self.state = Spin.BUSY
-        self._last = last
+        self.state = Spin.BUSY if last else Spin.QUIET
 
-    def timed_out(self) -> bool:
-        """No callback was ready within :meth:`timeout`: whether to report now."""
-        if self.state is Spin.BUSY and self.quiet > 0 and not self._last:
-            self.state = Spin.QUIET
-            return False
+    def timed_out(self) -> None:
+        """No callback was ready within :meth:`timeout` (the quiet time, or a period while idle):
+        the participant reports now, and waits a period for work from then on."""
         self.state = Spin.IDLE
-        return True

@@ -28,7 +28,9 @@ is what the collocated laws leave uncorrected (their integral drives ϕ, not p, 
   scanned alone in the fitted world (pooled FPU D).
 
 Writes benchmarks/results/static_mismatch.json and the fitted static world of each material,
-hsa_core/hsa_core/config/world/<material>_static.yaml (evidence: nothing loads it yet).
+hsa_core/hsa_core/config/world/<material>_static.yaml (read by
+hsa_core.sim.disturbance.calibrated_world where ``adopted``; each field's ``value`` is the one in
+force: the fitted one if identified, else the kept one, with the fit's beside it).
 
     .venv/bin/python benchmarks/bench_static_mismatch.py [--closed-loop]
 """
@@ -396,10 +398,14 @@ def world_yaml(material: str, analysis: dict) -> dict:
     fields = {}
     for name, value in chosen["values"].items():
         std = chosen["std"][name]
-        status = "identified"
+        entry = {"value": value, "std": std, "status": "identified"}
         if name in ZERO_DEFAULT and abs(value) < 2.0 * std:
-            status = "not identified: within two standard errors of 0"
-        entry = {"value": value, "std": std, "status": status}
+            entry = {
+                "value": 0.0,
+                "fitted": value,
+                "std": std,
+                "status": "not identified: within two standard errors of 0",
+            }
         if "leave_one_run_out" in chosen:
             loro = [r["values"][name] for r in chosen["leave_one_run_out"].values()]
             entry["leave_one_run_out"] = [min(loro), max(loro)]
@@ -417,11 +423,13 @@ def world_yaml(material: str, analysis: dict) -> dict:
             if name not in fields:
                 fields[name] = {
                     "value": START[name],
+                    "fitted": fit_["values"][name],
                     "status": f"not identified: at the bound of its range in fit {label!r}",
                 }
     return {
         "what": "the world's static plant/model mismatch fitted to the real robot at rest",
         "source": "benchmarks/bench_static_mismatch.py, benchmarks/results/static_mismatch.json",
+        "adopted": material == "fpu",
         "status": ADOPTED[material],
         "field_set": CHOSEN[material],
         "fields": fields,

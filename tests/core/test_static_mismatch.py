@@ -1,6 +1,7 @@
-"""The world's static plant/model mismatch (DisturbanceModel's rod asymmetry and shear rest strain)
-and the evidence for the fitted FPU world: on a real run left out of the fit, the fitted plant's
-static map φ → p explains the robot at rest much better than the declared world.
+"""The world's static plant/model mismatch (DisturbanceModel's rod asymmetry and shear rest strain),
+the evidence for the fitted FPU world (on a real run left out of the fit, the fitted plant's static
+map φ → p explains the robot at rest much better than the declared world) and each material's
+calibrated world (hsa_core.sim.disturbance.calibrated_world).
 
 The robot's pairs are read from the packaged CSV files directly (step ends from the step table, φ
 and p averaged over each step's last 2 s), not through the code under test."""
@@ -12,11 +13,12 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+import yaml
 
 import hsa_core
 from hsa_core.model import kinematics
 from hsa_core.model.params import load_params
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world
 from hsa_core.task.planning import static_equilibrium
 
 DATA = Path(hsa_core.__file__).resolve().parent / "config" / "realdata"
@@ -92,3 +94,23 @@ def test_the_rod_asymmetry_and_the_shear_rest_strain_reach_the_plant() -> None:
 def test_a_non_finite_static_mismatch_is_refused(field: str) -> None:
     with pytest.raises(ValueError, match="must be finite"):
         DisturbanceModel(**{field: float("nan")})
+
+
+def test_the_calibrated_world_of_fpu_is_its_identified_servo_cap_and_its_static_fit() -> None:
+    world = calibrated_world("fpu")
+    static = yaml.safe_load((WORLD_DIR / "fpu_static.yaml").read_text())
+    dynamic = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())["parameters"]
+    assert static["adopted"] is True
+    for name, field in static["fields"].items():
+        assert getattr(world, name) == pytest.approx(field["value"])
+    assert world.servo_max_speed == pytest.approx(dynamic["servo_max_speed"]["value"])
+    # what hsa_calibrate did not identify keeps its default
+    assert world.damping_scale == 1.0 and world.servo_time_constant == 0.0
+    assert world.actuation_latency == DisturbanceModel().actuation_latency
+
+
+def test_epu_has_no_calibrated_world_but_the_default_and_an_unknown_material_is_refused() -> None:
+    # one EPU run: its static fit is evidence only, and hsa_calibrate identified nothing
+    assert calibrated_world("epu") == DisturbanceModel()
+    with pytest.raises(ValueError, match="no calibrated world for material 'wood'"):
+        calibrated_world("wood")

@@ -36,6 +36,11 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
   minus the model's. Both, with the other mismatch factors, are fitted to the real robot at rest by
   benchmarks/bench_static_mismatch.py (docs/simulation.md, "Calibration").
 
+:func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
+identified (``config/world/<material>.yaml``) and the adopted static mismatch
+(``config/world/<material>_static.yaml``) over the default; what no fit identified keeps its
+default.
+
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous
 sensing, ideal servos; goals are still whole ticks, as on the bus).
 
@@ -48,13 +53,19 @@ cannot remove the end-effector error and the §3.8 extension is meant to.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
+import yaml
 from numpy.typing import ArrayLike
 
-from hsa_core.model.params import HsaParams
+from hsa_core.model.params import CONFIG_DIR, HsaParams
+
+WORLD_DIR = CONFIG_DIR / "world"
+"""The fitted worlds: ``<material>.yaml`` (hsa_calibrate), ``<material>_static.yaml`` (the static
+mismatch, benchmarks/bench_static_mismatch.py)."""
 
 
 @dataclass(frozen=True)
@@ -136,3 +147,20 @@ class DisturbanceModel:
         return np.asarray(chiee, dtype=np.float64) + rng.normal(0.0, 1.0, 3) * np.asarray(
             self.pose_noise_std
         )
+
+
+def calibrated_world(material: str) -> DisturbanceModel:
+    """The calibrated world of ``material``: the default with every parameter that
+    ``<material>.yaml`` marks identified and, where ``<material>_static.yaml`` is adopted, its
+    fields' values; ValueError (one line) for a material without a world file."""
+    path = WORLD_DIR / f"{material}.yaml"
+    if not path.is_file():
+        raise ValueError(f"no calibrated world for material {material!r} ({path} is missing)")
+    fitted = yaml.safe_load(path.read_text())["parameters"]
+    values = {name: p["value"] for name, p in fitted.items() if p["identified"]}
+    static = WORLD_DIR / f"{material}_static.yaml"
+    if static.is_file():
+        doc = yaml.safe_load(static.read_text())
+        if doc["adopted"]:
+            values |= {name: p["value"] for name, p in doc["fields"].items()}
+    return dataclasses.replace(DisturbanceModel(), **{k: float(v) for k, v in values.items()})

@@ -22,7 +22,11 @@ Variants (``--variants``):
   velocity estimator, or with the lab profile's control period and integrator step (which of the two
   conditions does what).
 
-The world is the default one in every variant: only the conditions of the run change. Writes
+* ``own_profile_calibrated_world`` / ``..._nominal_sigma``: ``own_profile`` (with the logbook's or
+  the nominal σ_a,eq) in the material's calibrated world (hsa_core.sim.disturbance.calibrated_world:
+  what hsa_calibrate identified and the adopted static mismatch; EPU: the default world).
+
+The world is the default one in every other variant: only the conditions of the run change. Writes
 benchmarks/results/sim_to_real.json.
 
     .venv/bin/python benchmarks/bench_sim_to_real.py [--variants default logbook_sigma] [--profiles]
@@ -97,6 +101,20 @@ def _own_estimator_only(real):
     )
 
 
+def _own_profile_calibrated_world(real):
+    """The replay in the material's calibrated world (hsa_core.sim.disturbance.calibrated_world)."""
+    from hsa_core.sim.disturbance import calibrated_world
+
+    return dataclasses.replace(
+        _own_profile(real), disturbance=calibrated_world(real.conditions.material)
+    )
+
+
+def _own_profile_calibrated_world_nominal_sigma(real):
+    """The replay in the calibrated world with the material's nominal σ_a,eq."""
+    return dataclasses.replace(_own_profile_calibrated_world(real), sigma_a_eq=None)
+
+
 VARIANTS = {
     "default": _default,
     "logbook_sigma": _logbook_sigma,
@@ -104,6 +122,8 @@ VARIANTS = {
     "own_profile_nominal_sigma": _own_profile_nominal_sigma,
     "own_rate_only": _own_rate_only,
     "own_estimator_only": _own_estimator_only,
+    "own_profile_calibrated_world": _own_profile_calibrated_world,
+    "own_profile_calibrated_world_nominal_sigma": _own_profile_calibrated_world_nominal_sigma,
 }
 """Variant → the ExperimentConfig of a reference run (module doc)."""
 
@@ -205,7 +225,8 @@ def main() -> int:
             )
     result_doc = {
         "what": (
-            "sim (offline experiment, paper's gains, default world, seed 0) against the real runs; "
+            "sim (offline experiment, paper's gains, default world unless the variant names "
+            "another, seed 0) against the real runs; "
             "hsa_core.analysis.sim_to_real, steps 1-10 each aligned at its own instant, "
             "first 9.3 s, 100 Hz; variants: the bench's docstring"
         ),

@@ -28,6 +28,19 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
   damping constants) are the world's parameters that no identification fixed;
   :mod:`hsa_core.apps.calibrate` fits them to the real runs.
 
+* **Rod asymmetry and shear rest strain** — ``rest_strain_difference`` (default 0): the plant's
+  σ_a_eq of rod 2 minus that of rod 1 beyond the model's (each rod gets ∓ half of it on top of
+  ``rest_strain_offset``); the September 2023 runs calibrated σ_a_eq per rod but gave the controller
+  the mean of the two (planning_and_control.md §6.5), so their rods differed by an amount the
+  logbook does not keep. ``shear_strain_offset`` (default 0): the plant's shear rest strain σ_sh_eq
+  minus the model's. Both, with the other mismatch factors, are fitted to the real robot at rest by
+  benchmarks/bench_static_mismatch.py (docs/simulation.md, "Calibration").
+
+:func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
+identified (``config/world/<material>.yaml``) and the adopted static mismatch
+(``config/world/<material>_static.yaml``) over the default; what no fit identified keeps its
+default.
+
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous
 sensing, ideal servos; goals are still whole ticks, as on the bus).
 
@@ -40,19 +53,26 @@ cannot remove the end-effector error and the §3.8 extension is meant to.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
+import yaml
 from numpy.typing import ArrayLike
 
-from hsa_core.model.params import HsaParams
+from hsa_core.model.params import CONFIG_DIR, HsaParams
+
+WORLD_DIR = CONFIG_DIR / "world"
+"""The fitted worlds: ``<material>.yaml`` (hsa_calibrate), ``<material>_static.yaml`` (the static
+mismatch, benchmarks/bench_static_mismatch.py)."""
 
 
 @dataclass(frozen=True)
 class DisturbanceModel:
     """Noise [m, m, rad], latencies [s], servo speed [rad/s] and time constant [s], plant/model
-    mismatch factors and the plant's damping factor (see module doc)."""
+    mismatch factors, the plant's damping factor, its rods' rest-strain difference and its shear
+    rest-strain offset [-] (see module doc)."""
 
     pose_noise_std: tuple[float, float, float] = (1e-4, 1e-4, 1e-3)
     measurement_latency: float = 0.006
@@ -65,6 +85,8 @@ class DisturbanceModel:
     seed: int = 0
     servo_time_constant: float = 0.0
     damping_scale: float = 1.0
+    rest_strain_difference: float = 0.0
+    shear_strain_offset: float = 0.0
 
     def __post_init__(self) -> None:
         """Reject negative noise or latency and non-positive scale factors."""
@@ -80,6 +102,10 @@ class DisturbanceModel:
             raise ValueError(f"servo_time_constant must be >= 0 s, got {self.servo_time_constant}")
         if not (math.isfinite(self.damping_scale) and self.damping_scale > 0.0):
             raise ValueError(f"damping_scale must be > 0, got {self.damping_scale}")
+        if not (
+            math.isfinite(self.rest_strain_difference) and math.isfinite(self.shear_strain_offset)
+        ):
+            raise ValueError("rest_strain_difference and shear_strain_offset must be finite")
         if not self.servo_max_speed > 0.0:
             raise ValueError("servo_max_speed must be > 0 (use math.inf for an ideal servo)")
 
@@ -103,7 +129,10 @@ class DisturbanceModel:
             S_a_hat=np.asarray(model.S_a_hat) * k,
             S_b_sh=np.asarray(model.S_b_sh) * k,
             C_eps=np.asarray(model.C_eps) * self.elongation_scale,
-            sigma_a_eq=np.asarray(model.sigma_a_eq) + self.rest_strain_offset,
+            sigma_a_eq=np.asarray(model.sigma_a_eq)
+            + self.rest_strain_offset
+            + np.array([-0.5, 0.5]) * self.rest_strain_difference,
+            sigma_sh_eq=np.asarray(model.sigma_sh_eq) + self.shear_strain_offset,
             zeta_b=np.asarray(model.zeta_b) * self.damping_scale,
             zeta_sh=np.asarray(model.zeta_sh) * self.damping_scale,
             zeta_a=np.asarray(model.zeta_a) * self.damping_scale,
@@ -118,3 +147,20 @@ class DisturbanceModel:
         return np.asarray(chiee, dtype=np.float64) + rng.normal(0.0, 1.0, 3) * np.asarray(
             self.pose_noise_std
         )
+
+
+def calibrated_world(material: str) -> DisturbanceModel:
+    """The calibrated world of ``material``: the default with every parameter that
+    ``<material>.yaml`` marks identified and, where ``<material>_static.yaml`` is adopted, its
+    fields' values; ValueError (one line) for a material without a world file."""
+    path = WORLD_DIR / f"{material}.yaml"
+    if not path.is_file():
+        raise ValueError(f"no calibrated world for material {material!r} ({path} is missing)")
+    fitted = yaml.safe_load(path.read_text())["parameters"]
+    values = {name: p["value"] for name, p in fitted.items() if p["identified"]}
+    static = WORLD_DIR / f"{material}_static.yaml"
+    if static.is_file():
+        doc = yaml.safe_load(static.read_text())
+        if doc["adopted"]:
+            values |= {name: p["value"] for name, p in doc["fields"].items()}
+    return dataclasses.replace(DisturbanceModel(), **{k: float(v) for k, v in values.items()})

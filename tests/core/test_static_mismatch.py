@@ -1,0 +1,116 @@
+"""The world's static plant/model mismatch (DisturbanceModel's rod asymmetry and shear rest strain),
+the evidence for the fitted FPU world (on a real run left out of the fit, the fitted plant's static
+map φ → p explains the robot at rest much better than the declared world) and each material's
+calibrated world (hsa_core.sim.disturbance.calibrated_world).
+
+The robot's pairs are read from the packaged CSV files directly (step ends from the step table, φ
+and p averaged over each step's last 2 s), not through the code under test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+import yaml
+
+import hsa_core
+from hsa_core.model import kinematics
+from hsa_core.model.params import load_params
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world
+from hsa_core.task.planning import static_equilibrium
+
+DATA = Path(hsa_core.__file__).resolve().parent / "config" / "realdata"
+HELD_OUT = "20230925_093236"
+SIGMA_A_EQ = 1.00711136  # the run's logbook value (runs.yaml, both rods)
+# fitted on the other two FPU runs only (benchmarks/results/static_mismatch.json, fits
+# "actuation + shear", leave_one_run_out 20230925_093236)
+FITTED_WITHOUT_HELD_OUT = DisturbanceModel(
+    stiffness_scale=1.0,
+    elongation_scale=0.9602,
+    rest_strain_offset=0.00653,
+    rest_strain_difference=0.00406,
+    shear_scale=2.239,
+    shear_strain_offset=-0.00892,
+)
+
+
+_pose = jax.jit(kinematics.end_effector_pose)
+
+
+def _csv(name: str) -> np.ndarray:
+    return np.loadtxt(DATA / name, delimiter=",", skiprows=1, ndmin=2)
+
+
+def robot_pairs(bag: str) -> tuple[np.ndarray, np.ndarray]:
+    """(φ (11, 2) [rad], p (11, 2) [m]) at the end of each step of the run, from its CSV files."""
+    ends = np.genfromtxt(DATA / f"{bag}_step_metrics.csv", delimiter=",", names=True)["t_end"]
+    phi_csv, pee = _csv(f"{bag}_phi.csv"), _csv(f"{bag}_pee_100Hz.csv")
+    phi, p = [], []
+    for end in ends:
+        w = (phi_csv[:, 0] >= end - 2.0) & (phi_csv[:, 0] < end)
+        phi.append(phi_csv[w, 3:5].mean(axis=0))  # t, phi1_ss, phi2_ss, phi1, phi2
+        g = (pee[:, 0] >= end - 2.0) & (pee[:, 0] < end)
+        p.append(pee[g, 3:5].mean(axis=0) * 1e-3)  # t, px_des, py_des, px, py [mm]
+    return np.array(phi), np.array(p)
+
+
+def static_rms(world: DisturbanceModel, phi: np.ndarray, p: np.ndarray) -> float:
+    """[m] RMS distance between the world's static end-effector positions at φ and the robot's."""
+    model = load_params("fpu").replace(sigma_a_eq=np.full(2, SIGMA_A_EQ))
+    plant = world.plant_params(model)
+    sim = np.array(
+        [np.asarray(_pose(plant, static_equilibrium(plant, f, np.zeros(3))[0]))[:2] for f in phi]
+    )
+    return float(np.sqrt(np.mean(np.sum((sim - p) ** 2, axis=1))))
+
+
+def test_the_fitted_static_mismatch_explains_a_held_out_run_at_rest() -> None:
+    phi, p = robot_pairs(HELD_OUT)
+    assert len(phi) == 11
+    declared = static_rms(DisturbanceModel(), phi, p)
+    fitted = static_rms(FITTED_WITHOUT_HELD_OUT, phi, p)
+    # the declared world misses the robot at rest by ~1.7 mm; the fit on the other runs, by ~0.8
+    assert declared > 1.5e-3
+    assert fitted < 1.0e-3
+    assert fitted < 0.6 * declared
+
+
+def test_the_rod_asymmetry_and_the_shear_rest_strain_reach_the_plant() -> None:
+    model = load_params("fpu").replace(sigma_a_eq=np.array([1.01, 1.02]))
+    plant = DisturbanceModel(
+        rest_strain_offset=0.005, rest_strain_difference=0.004, shear_strain_offset=-0.009
+    ).plant_params(model)
+    np.testing.assert_allclose(plant.sigma_a_eq, [1.01 + 0.005 - 0.002, 1.02 + 0.005 + 0.002])
+    np.testing.assert_allclose(plant.sigma_sh_eq, np.asarray(model.sigma_sh_eq) - 0.009)
+    # the defaults leave the plant as it was
+    default = DisturbanceModel().plant_params(model)
+    np.testing.assert_allclose(default.sigma_a_eq, [1.015, 1.025])
+    np.testing.assert_allclose(default.sigma_sh_eq, model.sigma_sh_eq)
+
+
+@pytest.mark.parametrize("field", ["rest_strain_difference", "shear_strain_offset"])
+def test_a_non_finite_static_mismatch_is_refused(field: str) -> None:
+    with pytest.raises(ValueError, match="must be finite"):
+        DisturbanceModel(**{field: float("nan")})
+
+
+def test_the_calibrated_world_of_fpu_is_its_identified_servo_cap_and_its_static_fit() -> None:
+    world = calibrated_world("fpu")
+    static = yaml.safe_load((WORLD_DIR / "fpu_static.yaml").read_text())
+    dynamic = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())["parameters"]
+    assert static["adopted"] is True
+    for name, field in static["fields"].items():
+        assert getattr(world, name) == pytest.approx(field["value"])
+    assert world.servo_max_speed == pytest.approx(dynamic["servo_max_speed"]["value"])
+    # what hsa_calibrate did not identify keeps its default
+    assert world.damping_scale == 1.0 and world.servo_time_constant == 0.0
+    assert world.actuation_latency == DisturbanceModel().actuation_latency
+
+
+def test_epu_has_no_calibrated_world_but_the_default_and_an_unknown_material_is_refused() -> None:
+    # one EPU run: its static fit is evidence only, and hsa_calibrate identified nothing
+    assert calibrated_world("epu") == DisturbanceModel()
+    with pytest.raises(ValueError, match="no calibrated world for material 'wood'"):
+        calibrated_world("wood")

@@ -116,6 +116,21 @@ class LeadClock:
 
 WAITABLE_PERIOD = 0.02
 """[s] of wall time between two waits of a :class:`LockstepExecutor` that include waitables."""
+RCLPY_INTERNALS = (
+    "_context",
+    "_is_shutdown",
+    "_make_handler",
+    "_sigint_gc",
+    "_take_client",
+    "_take_guard_condition",
+    "_take_service",
+    "_take_subscription",
+    "_take_timer",
+    "_take_waitable",
+    "_tasks",
+    "_tasks_lock",
+)
+"""The private parts of rclpy's Executor (Jazzy) that :class:`LockstepExecutor` builds on."""
 Entities = tuple[tuple[Any, ...], ...]
 """Per node: its subscriptions, timers, clients, services, guard conditions and waitables."""
 
@@ -134,6 +149,10 @@ class LockstepExecutor(SingleThreadedExecutor):
 
     def __init__(self) -> None:
         super().__init__()
+        self.lean = all(hasattr(self, name) for name in RCLPY_INTERNALS) and hasattr(
+            Subscription, "CallbackType"
+        )
+        """Whether this rclpy has the internals the lean wait uses (if not: rclpy's wait)."""
         self._entities: Entities | None = None
         self._held = ExitStack()
         self._wait_set: Any = None
@@ -219,7 +238,8 @@ class LockstepExecutor(SingleThreadedExecutor):
         with self._tasks_lock:
             self._tasks = [t for t in self._tasks if not t[0].done() and not t[0].cancelled()]
             busy = bool(self._tasks)
-        if busy or nodes is not None or not isinstance(timeout_sec, (int, float)):
+        plain = not isinstance(timeout_sec, (int, float))
+        if not self.lean or busy or nodes is not None or plain:
             yield from super()._wait_for_ready_callbacks(timeout_sec, nodes, condition)
             return
         deadline = time.monotonic() + max(timeout_sec, 0.0)

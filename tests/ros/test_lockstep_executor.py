@@ -1,6 +1,7 @@
 """hsa_common.lockstep.LockstepExecutor, the executor of the runner's lockstep spin, in the test
 process: every message is taken once and in order, entities created or destroyed between waits are
-followed, a callback's exception reaches the spin, and a pending task still runs."""
+followed, a callback's exception reaches the spin, and a pending task still runs; the same with
+rclpy's own wait, which runs where rclpy lacks the internals the lean wait uses."""
 
 from __future__ import annotations
 
@@ -54,10 +55,13 @@ def matched(executor: LockstepExecutor, pub: object, subscriptions: int) -> None
     spin_until(executor, lambda: pub.get_subscription_count() >= subscriptions)
 
 
+@pytest.mark.parametrize("lean", [True, False], ids=["lean", "rclpy_wait"])
 def test_the_lockstep_executor_takes_every_message_once_and_follows_new_entities(
-    node: Node,
+    node: Node, lean: bool
 ) -> None:
     executor = LockstepExecutor()
+    assert executor.lean  # this rclpy has every internal the lean wait builds on
+    executor.lean = lean  # False: what an rclpy without them runs
     executor.add_node(node)
     got: list[int] = []
     pub = node.create_publisher(Int32, "/probe/a", RELIABLE)

@@ -38,6 +38,7 @@ from hsa_core.analysis import metrics
 from hsa_core.apps.tune import gains_yaml
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile
+from hsa_core.sim.disturbance import WORLDS
 from hsa_core.sim.run_conditions import graph_arguments, run_schedule
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
@@ -184,7 +185,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--ee-integral", action="store_true", help="add the EE-position integral extension"
     )
-    parser.add_argument("--disturbance", choices=["none", "default"], default="default")
+    parser.add_argument(
+        "--disturbance",
+        choices=WORLDS,
+        default="default",
+        help="the world (hsa_core.sim.disturbance.named_world); calibrated: fitted to the robot",
+    )
     parser.add_argument(
         "--setpoint-rate",
         type=cli.non_negative,

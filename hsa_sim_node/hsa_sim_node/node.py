@@ -45,7 +45,7 @@ from hsa_common.runner import run
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.rate_meter import RateMeter
 from hsa_core.sensing.mocap import planar_to_world
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import WORLDS, named_world
 from hsa_core.sim.lockstep import Barrier
 from hsa_core.sim.playback import Action, Step
 from hsa_core.sim.run_conditions import plant_params, run_disturbance
@@ -141,8 +141,10 @@ SPECS = (
     ParamSpec(
         "disturbance",
         "none",
-        "none: plant = model, exact poses; default: hsa_core DisturbanceModel()",
-        choices=("none", "default"),
+        "none: plant = model, exact poses; default: hsa_core DisturbanceModel(); shear: the default"
+        " with half the shear stiffness; calibrated: the material's world fitted to the real runs"
+        " (hsa_core.sim.disturbance.named_world)",
+        choices=WORLDS,
         read_only=True,
     ),
     ParamSpec(
@@ -211,11 +213,7 @@ class SimNode(Node):
         wiring = load_wiring_param(self._p["wiring_file"])  # the driver's: IDs, rods, rod signs
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
         model = load_model(self._p)
-        declared = (
-            DisturbanceModel(seed=self._p["seed"])
-            if self._p["disturbance"] == "default"
-            else DisturbanceModel.none()
-        )
+        declared = named_world(self._p["disturbance"], self._p["material"], self._p["seed"])
         disturbance = run_disturbance(declared, self._p["command_latency"])
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)

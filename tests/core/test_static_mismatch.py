@@ -18,7 +18,9 @@ import yaml
 import hsa_core
 from hsa_core.model import kinematics
 from hsa_core.model.params import load_params
-from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world
+from hsa_core.runs.runlog import RunLog
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world, named_world
+from hsa_core.sim.experiment import main
 from hsa_core.task.planning import static_equilibrium
 
 DATA = Path(hsa_core.__file__).resolve().parent / "config" / "realdata"
@@ -114,3 +116,31 @@ def test_epu_has_no_calibrated_world_but_the_default_and_an_unknown_material_is_
     assert calibrated_world("epu") == DisturbanceModel()
     with pytest.raises(ValueError, match="no calibrated world for material 'wood'"):
         calibrated_world("wood")
+
+
+def test_a_run_names_its_world_and_an_unknown_name_is_refused() -> None:
+    assert named_world("default", "fpu", seed=3) == DisturbanceModel(seed=3)
+    assert named_world("none", "fpu") == DisturbanceModel.none()
+    assert named_world("shear", "epu", seed=2) == DisturbanceModel.shear_mismatch(2)
+    assert named_world("calibrated", "fpu", seed=4) == calibrated_world("fpu", seed=4)
+    assert calibrated_world("fpu", seed=4).seed == 4
+    with pytest.raises(ValueError, match="unknown world 'wood'"):
+        named_world("wood", "fpu")
+
+
+def test_hsa_experiment_replays_a_run_in_the_calibrated_world(tmp_path: Path, capsys) -> None:
+    logs = {}
+    for world in ("default", "calibrated"):
+        out = tmp_path / world
+        argv = ["--run", "20230925_093236", "--disturbance", world, "--duration", "1"]
+        assert main([*argv, "--quiet", "--no-figures", "--out", str(out)]) == 0
+        (run_dir,) = out.iterdir()
+        logs[world] = RunLog.load_npz(run_dir / "log.npz")
+    # the calibrated FPU plant rests elsewhere (its rest strains and shear differ): so does the
+    # measured pose from the first tick on
+    gap = np.abs(logs["calibrated"].chiee[0, :2] - logs["default"].chiee[0, :2])
+    assert gap.max() > 1e-4
+    with pytest.raises(SystemExit) as refused:
+        main(["--run", "20230925_093236", "--disturbance", "wood"])
+    assert refused.value.code == 2
+    assert "invalid choice: 'wood'" in capsys.readouterr().err

@@ -1,7 +1,8 @@
 """The lockstep graph under a run profile: launch_scripts/sim.launch.yaml with the September 2023
 conditions (36 ms control period, integrators at the nominal 25 ms, the 16-tick stand-in velocity
-estimator at the controller, hsa_core.sim.run_conditions.graph_arguments) equals the offline
-experiment under the same profile tick by tick, on a short FPU P-satI-D step schedule, as
+estimator at the controller, hsa_core.sim.run_conditions.graph_arguments) and the calibrated FPU
+world (``disturbance:=calibrated``, hsa_core.sim.disturbance.calibrated_world) equals the offline
+experiment under the same profile and world tick by tick, on a short FPU P-satI-D step schedule, as
 tests/ros/test_sim_in_the_loop.py checks for the lab default."""
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import pytest
 
 from hsa_bag.bagrun import runlog_from_bag
 from hsa_core.runs.profiles import load_profile
+from hsa_core.sim.disturbance import calibrated_world
 from hsa_core.sim.experiment import profile_config, run_experiment
 from hsa_core.sim.run_conditions import graph_arguments
 from hsa_core.task.trajectories import step_reference
@@ -32,7 +34,7 @@ STEP_PERIOD = 2.0  # s per setpoint
 PROFILE = load_profile("sep2023")
 
 
-def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
+def test_the_graph_in_the_september_profile_and_calibrated_world_equals_the_offline_experiment(
     tmp_path: Path,
 ) -> None:
     bag = tmp_path / "bag"
@@ -46,6 +48,7 @@ def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
             *GRAPH_STOP,
             "material:=fpu",
             "controller:=psatid",
+            "disturbance:=calibrated",
             *conditions,
             f"setpoint_rate:={1.0 / STEP_PERIOD}",
             f"bag_dir:={bag}",
@@ -59,7 +62,10 @@ def test_the_graph_under_the_september_profile_equals_the_offline_experiment(
         stop_process(proc)
     assert proc.returncode == 0, output[-5000:]
     reference = step_reference(np.asarray(step_reference("fpu").p_des[:STEPS]), period=STEP_PERIOD)
-    offline = run_experiment(profile_config(PROFILE, "fpu", "psatid", reference=reference))
+    world = calibrated_world("fpu")
+    offline = run_experiment(
+        profile_config(PROFILE, "fpu", "psatid", reference=reference, disturbance=world)
+    )
     log = runlog_from_bag(bag).trimmed(STEPS * STEP_PERIOD)
     # ticks every 36 ms in 4 s, the first one after 16 tick samples
     assert len(log) == len(offline.log) == 112

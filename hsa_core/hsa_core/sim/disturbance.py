@@ -149,9 +149,9 @@ class DisturbanceModel:
         )
 
 
-def calibrated_world(material: str) -> DisturbanceModel:
-    """The calibrated world of ``material``: the default with every parameter that
-    ``<material>.yaml`` marks identified and, where ``<material>_static.yaml`` is adopted, its
+def calibrated_world(material: str, seed: int = 0) -> DisturbanceModel:
+    """The calibrated world of ``material`` (noise seed ``seed``): the default with every parameter
+    that ``<material>.yaml`` marks identified and, where ``<material>_static.yaml`` is adopted, its
     fields' values; ValueError (one line) for a material without a world file."""
     path = WORLD_DIR / f"{material}.yaml"
     if not path.is_file():
@@ -163,4 +163,25 @@ def calibrated_world(material: str) -> DisturbanceModel:
         doc = yaml.safe_load(static.read_text())
         if doc["adopted"]:
             values |= {name: p["value"] for name, p in doc["fields"].items()}
-    return dataclasses.replace(DisturbanceModel(), **{k: float(v) for k, v in values.items()})
+    return dataclasses.replace(
+        DisturbanceModel(seed=seed), **{k: float(v) for k, v in values.items()}
+    )
+
+
+WORLDS = ("default", "none", "shear", "calibrated")
+"""The worlds a run can name (``hsa_experiment --disturbance``, sim_node's ``disturbance``)."""
+
+
+def named_world(name: str, material: str, seed: int = 0) -> DisturbanceModel:
+    """The world ``name`` of :data:`WORLDS` for ``material`` with noise seed ``seed``: the declared
+    default, none, the shear scenario, or the material's :func:`calibrated_world`; ValueError (one
+    line) for another name."""
+    if name == "default":
+        return DisturbanceModel(seed=seed)
+    if name == "none":
+        return DisturbanceModel.none()
+    if name == "shear":
+        return DisturbanceModel.shear_mismatch(seed)
+    if name == "calibrated":
+        return calibrated_world(material, seed)
+    raise ValueError(f"unknown world {name!r}: one of {', '.join(WORLDS)}")

@@ -81,7 +81,7 @@ from hsa_core.runs.profiles import (
 from hsa_core.runs.reference import ReferenceRun
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
 from hsa_core.sim.run_conditions import TickEstimator, plant_params, run_disturbance
 from hsa_core.sim.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
 from hsa_core.task.planning import Planner, PlanResult
@@ -473,13 +473,14 @@ def _trajectory(text: str) -> str:
     )
 
 
-def _configs(args: argparse.Namespace, dist: DisturbanceModel) -> list[ExperimentConfig]:
+def _configs(args: argparse.Namespace) -> list[ExperimentConfig]:
     """The experiments the command line selects: one replayed run, or every material × law under the
-    profile."""
+    profile, each in the world ``--disturbance`` names for its material."""
     if args.run is not None:
+        config = replay_config(args.run, sigma_a_eq=args.sigma_a_eq, payload=args.payload)
         configs = [
-            replay_config(
-                args.run, sigma_a_eq=args.sigma_a_eq, payload=args.payload, disturbance=dist
+            dataclasses.replace(
+                config, disturbance=named_world(args.disturbance, config.material, args.seed)
             )
         ]
     else:
@@ -498,7 +499,7 @@ def _configs(args: argparse.Namespace, dist: DisturbanceModel) -> list[Experimen
                         payload=args.payload,
                         ee_integral=ext == "eei",
                         reference=_reference(args) or step_reference(material),
-                        disturbance=dist,
+                        disturbance=named_world(args.disturbance, material, args.seed),
                     )
                 )
     adjusted = []
@@ -580,11 +581,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--disturbance",
-        choices=["default", "none", "shear"],
+        choices=WORLDS,
         default="default",
         help=(
-            "declared disturbance model (hsa_core.sim.disturbance); 'shear' adds a shear-stiffness "
-            "mismatch"
+            "the world (hsa_core.sim.disturbance): the declared default, none, 'shear' (the "
+            "default with half the shear stiffness) or 'calibrated' (the material's world fitted "
+            "to the real runs, docs/simulation.md)"
         ),
     )
     parser.add_argument("--seed", type=int, default=0)
@@ -606,13 +608,8 @@ def main(argv: list[str] | None = None) -> int:
         if given:
             parser.error(f"argument --run: the run sets its own {', '.join(given)}; leave them out")
 
-    dist = {
-        "default": DisturbanceModel(seed=args.seed),
-        "none": DisturbanceModel.none(),
-        "shear": DisturbanceModel.shear_mismatch(args.seed),
-    }[args.disturbance]
     results = []
-    for config in _configs(args, dist):
+    for config in _configs(args):
         result = run_experiment(config, progress=not args.quiet)
         results.append(result)
         out = args.out / config.name

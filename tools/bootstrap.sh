@@ -26,7 +26,8 @@ if ! fresh deps "$req_hash" || [ ! -x "$V/bin/python" ]; then
   log "creating venv and installing pinned dependencies (about 1 minute on a fresh machine)"
   [ -x "$V/bin/python" ] || "$PY" -m venv "$V"
   "$V/bin/python" -m pip install --quiet --disable-pip-version-check "uv==0.13.9"
-  "$V/bin/uv" pip install --quiet --python "$V/bin/python" -r "$ROOT/requirements.txt"
+  # wheel: stage 3 builds our editable installs with the venv's setuptools (bdist_wheel needs it)
+  "$V/bin/uv" pip install --quiet --python "$V/bin/python" -r "$ROOT/requirements.txt" "wheel==0.48.0"
   # CMake export-path fix: the wheels hard-code their manylinux build container's Python/numpy include paths.
   PYINC=$("$V/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   NPINC=$("$V/bin/python" -c "import numpy; print(numpy.get_include())")
@@ -62,7 +63,10 @@ if ! fresh pkgs "$pkg_hash"; then
   log "installing hsa-ros packages"
   args=()
   for p in "${PACKAGES[@]}"; do args+=(-e "$ROOT/$p"); done
-  "$V/bin/uv" pip install --quiet --python "$V/bin/python" --no-deps --config-settings editable_mode=compat "${args[@]}"
+  # --no-build-isolation: the venv's setuptools (the one colcon builds these packages with) instead of a fresh
+  # build environment per package
+  "$V/bin/uv" pip install --quiet --python "$V/bin/python" --no-deps --no-build-isolation \
+    --config-settings editable_mode=compat "${args[@]}"
   for p in "${PACKAGES[@]}"; do
     mkdir -p "$V/share/ament_index/resource_index/packages" "$V/share/$p"
     touch "$V/share/ament_index/resource_index/packages/$p"

@@ -21,7 +21,8 @@ MS] [--ros-args ...]``
   and the QoS from the offers stored in the bag (:func:`hsa_bag.qos.publisher_profile`).
 * **Start.** ``--wait-for-subscribers`` first waits (bounded) for a subscriber on every played
   topic, or only on the recorded names given to ``--wait-topics`` (e.g. the inputs of the nodes
-  under test, not topics only a recorder or viewer may take).
+  under test, not topics only a recorder or viewer may take), and plays once each has stayed
+  matched for ``MATCH_SETTLE`` s, so that the subscribers have matched the player too.
 * **Lockstep** (ROS parameter ``lockstep: true``, with ``use_sim_time``; the replay graph's
   default): the player owns /clock and plays losslessly and deterministically, whatever the
   machine's load. It coordinates the barrier of :mod:`hsa_core.sim.lockstep` (decisions in
@@ -71,6 +72,10 @@ from hsa_msgs.msg import LockstepAck
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ACK_TIMEOUT = Duration(seconds=5.0)
+MATCH_SETTLE = 0.5
+"""[s] a subscription stays matched before --wait-for-subscribers lets the play start: our writer
+matching it does not mean it matched our writer yet (its process learns of the writer by discovery
+too, later under load, and a volatile reader drops what came before)"""
 LOCKSTEP_SPIN = 0.01  # [s] longest wait for a participant's report while the barrier holds
 
 SPECS = (
@@ -202,16 +207,21 @@ class Player:
         return self._wait(due)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait (bounded) until every awaited topic has a matched subscription; report the ones that
-        have none."""
+        """Wait (bounded) until every awaited topic has had a matched subscription for MATCH_SETTLE
+        s; report the ones that have none."""
         awaited = {
             n: p
             for n, p in self.publishers.items()
             if not self.options.wait_topics or n in self.options.wait_topics
         }
         deadline = time.monotonic() + self.options.wait_for_subscribers
+        matched_since: float | None = None
         while time.monotonic() < deadline and not self.stop.is_set():
-            if all(p.get_subscription_count() > 0 for p in awaited.values()):
+            if not all(p.get_subscription_count() > 0 for p in awaited.values()):
+                matched_since = None
+            elif matched_since is None:
+                matched_since = time.monotonic()
+            elif time.monotonic() - matched_since >= MATCH_SETTLE:
                 return
             self.stop.wait(0.05)
         missing = [n for n, p in awaited.items() if p.get_subscription_count() == 0]

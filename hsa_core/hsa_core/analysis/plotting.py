@@ -33,6 +33,7 @@ from typing import Any
 import matplotlib
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from hsa_core.analysis.metrics import step_bounds, tracking_rmse
@@ -146,12 +147,22 @@ def save(fig: Figure, path: Path | str) -> Path:
 
 
 def save_all_formats(fig: Figure, stem: Path) -> list[Path]:
-    """Write ``stem.pdf`` (vector, for the paper) and ``stem.png`` (for a quick look)."""
+    """Write ``stem.pdf`` (vector, for the paper) and ``stem.png`` (for a quick look), cropped to
+    the drawing as ``bbox_inches="tight"`` crops it.
+
+    The layout and the crop are computed once, with the PNG's renderer, and both files are drawn
+    from them (``savefig`` would lay out and measure the figure again for each file).
+    """
     stem.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.set_dpi(PNG_DPI)
+    fig.draw_without_rendering()  # runs the layout engine
+    bbox = fig.get_tightbbox().padded(matplotlib.rcParams["savefig.pad_inches"])
+    fig.set_layout_engine(None)  # laid out: savefig draws each file once
     paths = []
     for fmt in FORMATS:
         path = stem.with_name(f"{stem.name}.{fmt}")
-        fig.savefig(path, dpi=PNG_DPI, bbox_inches="tight")
+        fig.savefig(path, dpi=PNG_DPI, bbox_inches=bbox)
         paths.append(path)
     return paths
 

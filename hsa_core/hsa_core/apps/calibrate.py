@@ -515,7 +515,10 @@ def main(argv: list[str] | None = None) -> int:
         help="fit the static mismatch at rest instead (hsa_core.sysid.static_mismatch)",
     )
     parser.add_argument(
-        "--material", choices=tuple(static_mismatch.CHOSEN), default=None, help="--static: whose"
+        "--material",
+        choices=tuple(static_mismatch.CHOSEN),
+        default=None,
+        help="--static: the material fitted",
     )
     parser.add_argument(
         "--write-world",

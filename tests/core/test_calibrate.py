@@ -133,6 +133,11 @@ def test_a_run_s_command_latency_adds_to_every_candidate_s_latency() -> None:
         (["--runs", "nope"], "unknown reference run(s)"),
         (["--population", "1"], "--population: must be >= 2"),
         (["--duration", "5"], "hold no whole step"),
+        (["--static", "--material", "wood"], "argument --material: invalid choice: 'wood'"),
+        (["--static"], "argument --material: required with --static"),
+        (["--material", "fpu"], "argument --material: only with --static"),
+        (["--write-world"], "argument --write-world: only with --static"),
+        (["--static", "--material", "fpu", "--population", "4"], "--population: not with --static"),
     ],
 )
 def test_bad_arguments_are_one_line_refusals(argv: list[str], message: str, capsys) -> None:

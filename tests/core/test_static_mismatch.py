@@ -1,6 +1,7 @@
 """The world's static plant/model mismatch (DisturbanceModel's rod asymmetry and shear rest strain),
 the evidence for the fitted FPU world (on a real run left out of the fit, the fitted plant's static
-map φ → p explains the robot at rest much better than the declared world) and each material's
+map φ → p explains the robot at rest much better than the declared world), the fit
+(hsa_core.sysid.static_mismatch) and its CLI (``hsa_calibrate --static``), and each material's
 calibrated world (hsa_core.sim.disturbance.calibrated_world).
 
 The robot's pairs are read from the packaged CSV files directly (step ends from the step table, φ
@@ -8,6 +9,8 @@ and p averaged over each step's last 2 s), not through the code under test."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from pathlib import Path
 
 import jax
@@ -16,11 +19,14 @@ import pytest
 import yaml
 
 import hsa_core
+from hsa_core.apps import calibrate
 from hsa_core.model import kinematics
 from hsa_core.model.params import load_params
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world, named_world
 from hsa_core.sim.experiment import main
+from hsa_core.sysid import static_mismatch
+from hsa_core.sysid.static_mismatch import FieldStatus, StaticMap
 from hsa_core.task.planning import static_equilibrium
 
 DATA = Path(hsa_core.__file__).resolve().parent / "config" / "realdata"
@@ -68,6 +74,22 @@ def static_rms(world: DisturbanceModel, phi: np.ndarray, p: np.ndarray) -> float
     return float(np.sqrt(np.mean(np.sum((sim - p) ** 2, axis=1))))
 
 
+def assert_same_document(got: object, want: object) -> None:
+    """Equal documents, numbers to 1e-9 relative (the fit's floating point on another machine)."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and list(got) == list(want)
+        for key in want:
+            assert_same_document(got[key], want[key])
+    elif isinstance(want, list):
+        assert isinstance(got, list) and len(got) == len(want)
+        for a, b in zip(got, want):
+            assert_same_document(a, b)
+    elif isinstance(want, float):
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-12)
+    else:
+        assert got == want
+
+
 def test_the_fitted_static_mismatch_explains_a_held_out_run_at_rest() -> None:
     phi, p = robot_pairs(HELD_OUT)
     assert len(phi) == 11
@@ -77,6 +99,76 @@ def test_the_fitted_static_mismatch_explains_a_held_out_run_at_rest() -> None:
     assert declared > 1.5e-3
     assert fitted < 1.0e-3
     assert fitted < 0.6 * declared
+
+
+def test_the_fit_s_pairs_are_the_robot_s_at_the_end_of_each_step() -> None:
+    phi, p = robot_pairs(HELD_OUT)
+    pairs = static_mismatch.static_pairs(HELD_OUT)
+    # the step ends from the 100 Hz reference, within 10 ms of the step table's: a window's edge
+    # sample may differ (step 0's φ by 4e-4 rad)
+    np.testing.assert_allclose(pairs.phi, phi, atol=1e-3)
+    np.testing.assert_allclose(pairs.p, p, atol=1e-6)
+    assert np.isnan(pairs.move_x[0]) and np.all(np.abs(pairs.move_x[1:]) > 0)
+    assert static_mismatch.material_runs("epu") == ("20231019_143126",)
+    with pytest.raises(ValueError, match="no reference run of material 'wood'"):
+        static_mismatch.material_runs("wood")
+
+
+def test_the_fit_recovers_a_known_static_mismatch_with_its_standard_errors() -> None:
+    smap = StaticMap((HELD_OUT,))
+    truth = static_mismatch.world_of(
+        {"elongation_scale": 0.95, "rest_strain_difference": 0.006, "shear_strain_offset": -0.009}
+    )
+    # the robot replaced by the plant of the known world (its pose at the robot's φ): the fit
+    # finds that world, with standard errors that vanish with the residual
+    known = smap.residuals(HELD_OUT, truth)
+    pairs = smap.pairs[HELD_OUT]
+    smap.pairs[HELD_OUT] = dataclasses.replace(
+        pairs,
+        p=pairs.p + known[:, :2],
+        theta=pairs.theta + known[:, 2] / float(smap.models[HELD_OUT].l),
+    )
+    names = ("elongation_scale", "rest_strain_difference", "shear_strain_offset")
+    found = static_mismatch.fit(smap, (HELD_OUT,), names)
+    for name in names:
+        assert found["values"][name] == pytest.approx(getattr(truth, name), abs=1e-6)
+        assert found["std"][name] < 1e-6
+    assert found["at_bound"] == [] and found["pooled_rms_mm"] < 1e-6
+
+
+def test_the_world_document_keeps_what_the_fit_does_not_identify() -> None:
+    def fitted(values: dict, std: dict, at_bound: tuple = ()) -> dict:
+        return {"values": values, "std": std, "at_bound": list(at_bound)}
+
+    analysis = {
+        "fits": {
+            "actuation + shear offset": fitted(
+                {"elongation_scale": 0.93, "shear_strain_offset": 0.008},
+                {"elongation_scale": 0.008, "shear_strain_offset": 0.0044},
+            ),
+            "actuation + shear stiffness": fitted(
+                {"elongation_scale": 0.9, "shear_scale": 10.0}, {}, ("shear_scale",)
+            ),
+        },
+        "stiffness_profile": {"stiffness_scale": [0.8, 1.0], "pooled_rms_mm": [0.8, 0.93]},
+    }
+    doc = static_mismatch.world_document("epu", analysis, "a test")
+    fields = doc["fields"]
+    assert doc["adopted"] is False and doc["source"] == "a test"
+    assert fields["elongation_scale"] == {
+        "value": 0.93,
+        "std": 0.008,
+        "status": FieldStatus.IDENTIFIED.value,
+    }
+    # within two standard errors of its default 0: kept at 0, the fit's value beside it
+    assert fields["shear_strain_offset"]["value"] == 0.0
+    assert fields["shear_strain_offset"]["fitted"] == 0.008
+    assert fields["shear_strain_offset"]["status"] == FieldStatus.WITHIN_NOISE_OF_ZERO.value
+    # at a bound in another fit: kept at its start; the stiffness factor at 1 (the parameter set)
+    assert fields["shear_scale"]["value"] == static_mismatch.START["shear_scale"]
+    assert fields["shear_scale"]["status"].startswith(FieldStatus.AT_BOUND.value)
+    assert fields["stiffness_scale"]["value"] == 1.0
+    assert "0.8: 0.80 mm, 1: 0.93 mm" in fields["stiffness_scale"]["status"]
 
 
 def test_the_rod_asymmetry_and_the_shear_rest_strain_reach_the_plant() -> None:
@@ -144,3 +236,30 @@ def test_hsa_experiment_replays_a_run_in_the_calibrated_world(tmp_path: Path, ca
         main(["--run", "20230925_093236", "--disturbance", "wood"])
     assert refused.value.code == 2
     assert "invalid choice: 'wood'" in capsys.readouterr().err
+
+
+def test_hsa_calibrate_static_writes_the_report_and_the_world_only_when_asked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    package = tmp_path / "package_world"
+    package.mkdir()
+    monkeypatch.setattr(calibrate, "WORLD_DIR", package)
+    out = tmp_path / "static"
+    assert calibrate.main(["--static", "--material", "epu", "--out", str(out)]) == 0
+    report = json.loads((out / "epu_static_report.json").read_text())
+    assert report["runs"] == ["20231019_143126"] and report["pairs_per_run"] == {
+        "20231019_143126": 11
+    }
+    assert set(report["fits"]) == set(static_mismatch.FIELD_SETS)
+    world = yaml.safe_load((out / "epu_static.yaml").read_text())
+    assert world == report["world"]
+    # the packaged EPU static world is this fit (written by the bench: its source aside)
+    packaged = yaml.safe_load((WORLD_DIR / "epu_static.yaml").read_text())
+    assert world["source"].startswith("hsa_calibrate --static --material epu")
+    assert_same_document({**world, "source": ""}, {**packaged, "source": ""})
+    assert list(package.iterdir()) == []
+    assert (
+        calibrate.main(["--static", "--material", "epu", "--out", str(out), "--write-world"]) == 0
+    )
+    assert (package / "epu_static.yaml").read_text() == (out / "epu_static.yaml").read_text()
+    assert "20231019_143126: static residual RMS 1.41 -> 0.93 mm" in capsys.readouterr().out

@@ -30,7 +30,9 @@ parameters for every run.
   those parameters.
 
 ``python -m hsa_core.apps.calibrate`` / ``hsa_calibrate`` (:func:`main`) writes the world YAML, the
-fit report (JSON) and one figure per run.
+fit report (JSON) and one figure per run. ``hsa_calibrate --static --material M`` fits the static
+mismatch at rest instead (:mod:`hsa_core.sysid.static_mismatch`): the fit report and the static
+world YAML, and with ``--write-world`` the package's ``config/world/<material>_static.yaml``.
 """
 
 from __future__ import annotations
@@ -54,10 +56,11 @@ from hsa_core.analysis import sim_to_real
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs import reference
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel
 from hsa_core.sim.experiment import ExperimentConfig, replay_config
 from hsa_core.sim.run_conditions import run_disturbance
 from hsa_core.sim.world import GRID_NS, servo_speed
+from hsa_core.sysid import static_mismatch
 from hsa_core.task.planning import Planner
 
 TOLERANCE = 5e-5
@@ -415,6 +418,68 @@ def _runs(text: str) -> tuple[str, ...]:
     return names
 
 
+STATIC_ONLY = ("material", "write_world")
+"""Options of ``--static`` alone."""
+CLOSED_LOOP_ONLY = (
+    "fit",
+    "runs",
+    "population",
+    "generations",
+    "scan_points",
+    "duration",
+    "no_loo",
+    "seed",
+    "world",
+)
+"""Options of the closed-loop fit alone."""
+
+
+def _check_mode(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse (exit 2) the options of the other mode and ``--static`` without ``--material``."""
+    if args.static and args.material is None:
+        parser.error("argument --material: required with --static")
+    wrong, why = (CLOSED_LOOP_ONLY, "not with") if args.static else (STATIC_ONLY, "only with")
+    for dest in wrong:
+        if getattr(args, dest) != parser.get_default(dest):
+            parser.error(f"argument --{dest.replace('_', '-')}: {why} --static")
+
+
+def static_main(material: str, out: Path, write_world: bool) -> int:
+    """``--static``: fit the static mismatch of ``material`` at rest; write the fit report
+    ``<out>/<material>_static_report.json`` and the world ``<out>/<material>_static.yaml``, and
+    with ``write_world`` the package's ``config/world/<material>_static.yaml``."""
+    started = time.perf_counter()
+    bags = static_mismatch.material_runs(material)
+    analysis = static_mismatch.static_analysis(material, bags)
+    source = f"hsa_calibrate --static --material {material} (hsa_core.sysid.static_mismatch)"
+    world = static_mismatch.world_document(material, analysis, source)
+    report = {
+        "what": "the static plant/model mismatch fitted to the real runs' end-of-step pairs",
+        "material": material,
+        "runs": list(bags),
+        "window_s": static_mismatch.WINDOW,
+        "field_set": static_mismatch.CHOSEN[material],
+        **analysis,
+        "world": world,
+        "wall_s": round(time.perf_counter() - started, 1),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{material}_static_report.json").write_text(json.dumps(report, indent=1) + "\n")
+    text = yaml.safe_dump(world, sort_keys=False)
+    for path in [out] + ([WORLD_DIR] if write_world else []):
+        (path / f"{material}_static.yaml").write_text(text)
+    chosen = analysis["fits"][static_mismatch.CHOSEN[material]]["per_run"]
+    for bag in bags:
+        before, after = analysis["declared_world"][bag]["rms_mm"], chosen[bag]["rms_mm"]
+        print(f"{bag}: static residual RMS {before:.2f} -> {after:.2f} mm")
+    for name, field in world["fields"].items():
+        std = f" ± {field['std']:.2g}" if "std" in field else ""
+        print(f"{name}: {field['value']:.4g}{std} ({field['status'].split(' (')[0]})")
+    written = " and the package's world" if write_world else ""
+    print(f"report in {out / f'{material}_static_report.json'}{written}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI: fit, scan, leave-one-run-out; write the world YAML, the report JSON and a figure per
     run."""
@@ -444,10 +509,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/calibrate"))
     parser.add_argument("--world", type=Path, default=None, help="also write the world YAML here")
+    parser.add_argument(
+        "--static",
+        action="store_true",
+        help="fit the static mismatch at rest instead (hsa_core.sysid.static_mismatch)",
+    )
+    parser.add_argument(
+        "--material",
+        choices=tuple(static_mismatch.CHOSEN),
+        default=None,
+        help="--static: the material fitted",
+    )
+    parser.add_argument(
+        "--write-world",
+        action="store_true",
+        help="--static: also write the package's config/world/<material>_static.yaml",
+    )
     args = parser.parse_args(argv)
+    _check_mode(parser, args)
     if args.population < 2:
         parser.error("argument --population: must be >= 2")
     configure_jax()
+    if args.static:
+        return static_main(args.material, args.out, args.write_world)
     from hsa_core.jaxsetup import use_every_core
 
     use_every_core()

@@ -1,1 +1,2 @@
-"""System identification: excitation, constants, rest strains and open-loop verification."""
+"""System identification: excitation, constants, rest strains, open-loop verification and the
+world's static mismatch at rest."""

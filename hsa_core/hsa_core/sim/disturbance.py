@@ -34,7 +34,7 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
   the mean of the two (planning_and_control.md §6.5), so their rods differed by an amount the
   logbook does not keep. ``shear_strain_offset`` (default 0): the plant's shear rest strain σ_sh_eq
   minus the model's. Both, with the other mismatch factors, are fitted to the real robot at rest by
-  benchmarks/bench_static_mismatch.py (docs/simulation.md, "Calibration").
+  ``hsa_calibrate --static`` (:mod:`hsa_core.sysid.static_mismatch`; docs/simulation.md).
 
 :func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
 identified (``config/world/<material>.yaml``) and the adopted static mismatch
@@ -65,7 +65,7 @@ from hsa_core.model.params import CONFIG_DIR, HsaParams
 
 WORLD_DIR = CONFIG_DIR / "world"
 """The fitted worlds: ``<material>.yaml`` (hsa_calibrate), ``<material>_static.yaml`` (the static
-mismatch, benchmarks/bench_static_mismatch.py)."""
+mismatch, ``hsa_calibrate --static --write-world``)."""
 
 
 @dataclass(frozen=True)

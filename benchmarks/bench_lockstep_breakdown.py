@@ -180,6 +180,7 @@ def main() -> int:
     log, _ = proc.communicate(timeout=3600)
     sampler.stop()
     (work / "graph.log").write_text(log)
+    print(f"[bench] bag and graph log in {work}", file=sys.stderr, flush=True)
     if proc.returncode != 0:
         raise RuntimeError(f"run failed ({proc.returncode}):\n{log[-3000:]}")
     # log lines carry the wall time (epoch); the sampler's rows monotonic time: map with the offset

@@ -21,7 +21,7 @@ from hsa_common.parameters import RUNNER_PARAMS
 GRAPHS = sorted((Path(__file__).parents[2] / "launch_scripts").glob("*.launch.yaml"))
 REQUIRED = {"replay.launch.yaml": {"bag": "/tmp/some_bag"}}
 OPTIONAL_ON = {
-    "sim.launch.yaml": [{"markers": "true", "live": "true"}, {"compose": "true"}],
+    "sim.launch.yaml": [{"markers": "true", "live": "true"}, {"compose": "false"}],
     "real.launch.yaml": [{"live": "true"}],
     "replay.launch.yaml": [{"record": "true"}],
     "identify.launch.yaml": [{"sim": "true"}, {"sim": "false"}],
@@ -62,18 +62,19 @@ def _composed(proc: Process) -> list[str]:
 
 
 def test_names_of_the_sim_graph() -> None:
-    """One process per node; lockstep with compose:=true: simulator + bridge and kinematics +
-    controller + recorder composed (compose:=true on the wall clock changes nothing)."""
+    """Lockstep (compose:=true, the default): simulator + bridge and kinematics + controller +
+    recorder composed; compose:=false, and the wall clock: one process per node."""
     sim = GRAPHS[0].with_name("sim.launch.yaml")
-    layout = [_composed(p) for p in LaunchFile(sim, {"compose": "true"}).processes()]
-    assert layout == [
-        ["sim_node", "mocap_bridge"],
-        ["kinematics_node", "controller_node", "bag_recorder"],
-        ["dynamixel_driver"],
-        ["planner_node"],
-        ["setpoint_sequencer"],
-    ]
-    for args in ({}, {"clock": "wall", "compose": "true"}):
+    for args in ({}, {"compose": "true"}):
+        layout = [_composed(p) for p in LaunchFile(sim, args).processes()]
+        assert layout == [
+            ["sim_node", "mocap_bridge"],
+            ["kinematics_node", "controller_node", "bag_recorder"],
+            ["dynamixel_driver"],
+            ["planner_node"],
+            ["setpoint_sequencer"],
+        ], args
+    for args in ({"compose": "false"}, {"clock": "wall"}, {"clock": "wall", "compose": "true"}):
         names = [p.name for p in LaunchFile(sim, args).processes()]
         assert names == [
             "sim_node",
@@ -85,7 +86,7 @@ def test_names_of_the_sim_graph() -> None:
             "setpoint_sequencer",
             "bag_recorder",
         ], args
-    for args in ({"record": "false", "compose": "true"}, {"record": "false"}):
+    for args in ({"record": "false"}, {"record": "false", "compose": "false"}):
         nodes = [n for p in LaunchFile(sim, args).processes() for n in _composed(p)]
         assert "bag_recorder" not in nodes and len(nodes) == 7, args
 

@@ -71,15 +71,16 @@ def test_the_cli_without_a_profile_runs_the_lab_default() -> None:
         duration=None,
         kd=None,
         rate=None,
+        disturbance="default",
+        seed=0,
     )
     dist = DisturbanceModel(seed=0)
-    configs = experiment._configs(args, dist)
+    configs = experiment._configs(args)
     assert [dataclasses.replace(c, reference=None) for c in configs] == [
         ExperimentConfig("fpu", law, False, None, 40.0, dist) for law in ("psatid", "pid")
     ]
-    for config in (
-        configs
-    ):  # the material's step list (a TimedReference holds arrays: compared field by field)
+    # the material's step list (a TimedReference holds arrays: compared field by field)
+    for config in configs:
         np.testing.assert_array_equal(config.reference.t, step_reference("fpu").t)
         np.testing.assert_array_equal(config.reference.p_des, step_reference("fpu").p_des)
         assert config.reference.duration == step_reference("fpu").duration

@@ -89,6 +89,7 @@ def _parameters(args: dict[str, str]) -> Parameters:
 
 def _composed(proc: Process, ros_args: list[str]) -> Parameters:
     """The nodes of an hsa_compose process, resolved as hsa_compose's main hands them to rclpy."""
+    start = len(compose.WRITTEN)  # other tests of this process may have left their own entries
     entries, files, left_out = compose.parse_entries(proc.cmd[1 : proc.cmd.index("--ros-args")])
     names = [e.name for e in entries]
     kept, per_node = compose.split_parameters(ros_args, names + left_out, files)
@@ -97,9 +98,9 @@ def _composed(proc: Process, ros_args: list[str]) -> Parameters:
     try:
         return dict(_resolve(name, kept) for name in names)
     finally:
-        for path in compose.WRITTEN:
+        for path in compose.WRITTEN[start:]:
             os.unlink(path)
-        compose.WRITTEN.clear()
+        del compose.WRITTEN[start:]
 
 
 def _reached(base: Parameters, varied: Parameters) -> set[tuple[str, str]]:

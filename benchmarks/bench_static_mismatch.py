@@ -32,16 +32,22 @@ import numpy as np
 import yaml
 
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.sim.disturbance import WORLD_DIR
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel
 from hsa_core.sysid import static_mismatch
 from hsa_core.sysid.static_mismatch import CHOSEN, WINDOW, world_of
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "static_mismatch.json"
-DECLARED = {"stiffness_scale": 1.05, "elongation_scale": 0.97, "rest_strain_offset": 0.005}
+DECLARED = {
+    name: getattr(DisturbanceModel(), name)
+    for name in ("stiffness_scale", "elongation_scale", "rest_strain_offset")
+}
+"""The declared world's static mismatch (``DisturbanceModel()``)."""
 SOURCE = "benchmarks/bench_static_mismatch.py, benchmarks/results/static_mismatch.json"
 """What the world YAML names as its writer."""
-SERVO_CAP_FPU = 3.888439069321042
+SERVO_CAP_FPU = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())["parameters"][
+    "servo_max_speed"
+]["value"]
 """[rad/s] the FPU speed cap identified by hsa_calibrate (config/world/fpu.yaml)."""
 
 

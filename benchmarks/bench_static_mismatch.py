@@ -6,15 +6,17 @@ stiffness profile and the approach direction; the method is in that module's doc
 
 * **Closed loop** (``--closed-loop``): each run replayed with its own conditions through the batched
   loop of hsa_calibrate (hsa_core.apps.calibrate.prepare_run / simulate: the PID run with the
-  nominal σ_a,eq, as there) in the default world, the static fit, the FPU speed cap 3.89 rad/s of
-  config/world/fpu.yaml, both, the leave-one-run-out static fit (with and without the cap) and the
+  nominal σ_a,eq, as there) in the default world, the static fit, the FPU speed cap 3.89 rad/s that
+  hsa_calibrate identified before the static fit (benchmarks/results/calibration_fpu_cmdlat.json),
+  both, the leave-one-run-out static fit (with and without the cap) and the
   fit without the shear factor (with the cap); the sim-versus-real table
   (hsa_core.analysis.sim_to_real.compare) per run and world; the speed cap and the shear factor
   scanned alone in the fitted world (pooled FPU D).
 
-Writes benchmarks/results/static_mismatch.json and the fitted static world of each material,
-hsa_core/hsa_core/config/world/<material>_static.yaml (static_mismatch.world_document; read by
-hsa_core.sim.disturbance.calibrated_world where ``adopted``).
+Writes benchmarks/results/static_mismatch.json. The packaged static worlds
+(hsa_core/hsa_core/config/world/<material>_static.yaml, read by
+hsa_core.sim.disturbance.static_world where ``adopted``) are written by ``hsa_calibrate --static
+--material M --write-world`` alone.
 
     .venv/bin/python benchmarks/bench_static_mismatch.py [--closed-loop]
 """
@@ -29,10 +31,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from hsa_core.jaxsetup import configure_jax
-from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel
+from hsa_core.sim.disturbance import DisturbanceModel
 from hsa_core.sysid import static_mismatch
 from hsa_core.sysid.static_mismatch import CHOSEN, WINDOW, world_of
 
@@ -43,12 +44,11 @@ DECLARED = {
     for name in ("stiffness_scale", "elongation_scale", "rest_strain_offset")
 }
 """The declared world's static mismatch (``DisturbanceModel()``)."""
-SOURCE = "benchmarks/bench_static_mismatch.py, benchmarks/results/static_mismatch.json"
-"""What the world YAML names as its writer."""
-SERVO_CAP_FPU = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())["parameters"][
-    "servo_max_speed"
-]["value"]
-"""[rad/s] the FPU speed cap identified by hsa_calibrate (config/world/fpu.yaml)."""
+SERVO_CAP_FPU = json.loads(
+    (ROOT / "benchmarks" / "results" / "calibration_fpu_cmdlat.json").read_text()
+)["report"]["kept"]["servo_max_speed"]
+"""[rad/s] the FPU speed cap hsa_calibrate identified in the declared world, before the static fit
+(the world of that round's config/world/fpu.yaml)."""
 
 
 def end_offsets(run, steps: tuple[int, ...]) -> np.ndarray:  # noqa: ANN001 - StepRun
@@ -155,9 +155,6 @@ def main() -> None:
 
         result[material] = static_mismatch.static_analysis(material, bags, progress)
     result["static_wall_s"] = time.perf_counter() - t0
-    for material in runs:
-        doc = static_mismatch.world_document(material, result[material], SOURCE)
-        (WORLD_DIR / f"{material}_static.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     if args.closed_loop:
         result["closed_loop"] = closed_loop(result, runs)
     result["machine"] = platform.platform()

@@ -39,6 +39,7 @@ from hsa_core.apps.tune import gains_yaml
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile
 from hsa_core.sim.disturbance import WORLDS
+from hsa_core.sim.experiment import replay_config
 from hsa_core.sim.run_conditions import graph_arguments, run_schedule
 
 GRAPH = Path(__file__).with_name("sim.launch.yaml")
@@ -159,8 +160,13 @@ def _conditions(args: argparse.Namespace) -> dict[str, str]:
     # a launch argument: the graph gives it to the sequencer after its file
     rate = schedule.pop("rate")
     sequencer.write_text(yaml.safe_dump({"/**": {"ros__parameters": schedule}}))
+    replay = replay_config(args.run, sigma_a_eq=args.sigma_a_eq, payload=args.payload)
     return graph_arguments(
-        cond.profile, sigma_a_eq=args.sigma_a_eq, payload=args.payload, run=args.run
+        cond.profile,
+        sigma_a_eq=replay.sigma_a_eq,
+        plant_sigma_a_eq=replay.plant_sigma_a_eq,
+        payload=replay.payload,
+        run=args.run,
     ) | {
         "gains": str(gains.resolve()),
         "sequencer_config": str(sequencer.resolve()),

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 MATERIALS = ("fpu", "epu")
 
 
-def _check_sigma_a_eq(value: Any) -> str | None:
+def check_sigma_a_eq(value: Any) -> str | None:
     """Unset/empty, or two finite positive strains."""
     if value is None or len(value) == 0:
         return None
@@ -50,7 +50,7 @@ MODEL_SPECS = (
         "[-] calibrated axial rest strains of virtual rods 1 and 2 (unset or empty = from the "
         "parameter set)",
         read_only=True,
-        validator=_check_sigma_a_eq,
+        validator=check_sigma_a_eq,
     ),
 )
 

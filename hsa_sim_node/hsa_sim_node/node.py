@@ -39,7 +39,13 @@ from rosgraph_msgs.msg import Clock
 
 from hsa_common import convert, lockstep, qos
 from hsa_common.diagnostics import Diagnostics, Report
-from hsa_common.model_params import MODEL_SPECS, WIRING_SPEC, load_model, load_wiring_param
+from hsa_common.model_params import (
+    MODEL_SPECS,
+    WIRING_SPEC,
+    check_sigma_a_eq,
+    load_model,
+    load_wiring_param,
+)
 from hsa_common.parameters import ParamSpec, declare
 from hsa_common.runner import run
 from hsa_core.jaxsetup import configure_jax
@@ -190,6 +196,14 @@ SPECS = (
         read_only=True,
     ),
     ParamSpec(
+        "plant_sigma_a_eq",
+        Parameter.Type.DOUBLE_ARRAY,
+        "[-] the plant's axial rest strains of rods 1 and 2 where a run's plant and controller "
+        "differ (unset or empty = sigma_a_eq; hsa_core.sim.run_conditions.run_disturbance)",
+        read_only=True,
+        validator=check_sigma_a_eq,
+    ),
+    ParamSpec(
         "payload_schedule",
         Parameter.Type.DOUBLE_ARRAY,
         "[s, kg] flat pairs [t0, m0, t1, m1, ...]: from "
@@ -214,7 +228,9 @@ class SimNode(Node):
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
         model = load_model(self._p)
         declared = named_world(self._p["disturbance"], self._p["material"], self._p["seed"])
-        disturbance = run_disturbance(declared, self._p["command_latency"])
+        plant_sigma = self._p["plant_sigma_a_eq"]
+        shift = np.asarray(plant_sigma or model.sigma_a_eq, float) - np.asarray(model.sigma_a_eq)
+        disturbance = run_disturbance(declared, self._p["command_latency"], tuple(shift))
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"

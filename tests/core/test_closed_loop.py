@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from hsa_core.controller.control import CollocatedGains, default_gains
+from hsa_core.model.params import load_params
 from hsa_core.runs import profiles, reference
 from hsa_core.sim import closed_loop
 from hsa_core.sim.disturbance import DisturbanceModel
@@ -127,6 +128,26 @@ def test_the_profile_s_command_latency_reaches_both_paths() -> None:
     without = inputs._replace(actuation_latency_ms=jax.numpy.asarray(2))  # the world's own only
     before = np.asarray(closed_loop.compiled(spec, without, constants).true_chiee)
     assert np.max(np.abs(after - before)) > 1e-5  # it did change the world
+
+
+def test_a_plant_sigma_a_eq_reaches_both_paths_and_the_plant_only() -> None:
+    """A run's plant σ_a,eq beyond the controller's model (ExperimentConfig.plant_sigma_a_eq, the
+    PID replay) moves the plant's rest strains in the offline experiment and the batched loop
+    alike (equal logs); the controller's model keeps its own."""
+    config = ExperimentConfig(
+        "fpu", "pid", reference=short(seconds=2.0), plant_sigma_a_eq=(1.03, 1.02)
+    )
+    spec, inputs, constants = closed_loop.prepare(config)
+    nominal = np.asarray(load_params("fpu").sigma_a_eq)
+    np.testing.assert_allclose(constants.model.sigma_a_eq, nominal)
+    default = DisturbanceModel()
+    np.testing.assert_allclose(
+        inputs.plant.sigma_a_eq, np.array([1.03, 1.02]) + default.rest_strain_offset, atol=1e-12
+    )
+    after = np.asarray(assert_equal_to_the_offline_experiment(config).true_chiee)
+    plain = closed_loop.prepare(dataclasses.replace(config, plant_sigma_a_eq=None))[1]
+    before = np.asarray(closed_loop.compiled(spec, plain, constants).true_chiee)
+    assert np.max(np.abs(after - before)) > 1e-4  # it did change the plant
 
 
 def test_a_batch_of_gains_equals_the_runs_one_by_one() -> None:

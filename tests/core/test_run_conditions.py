@@ -5,6 +5,8 @@ test)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -31,6 +33,7 @@ def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
         "velocity_estimator": "savitzky_golay_20",
         "payload": "0.0",
         "sigma_a_eq": "[]",
+        "plant_sigma_a_eq": "[]",
         "command_latency": "0.0",
     }
     sep = graph_arguments(load_profile("sep2023"), sigma_a_eq=(0.98, 1.01), payload=0.2)
@@ -41,8 +44,13 @@ def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
         "velocity_estimator": "smoothing_spline_16",
         "payload": "0.2",
         "sigma_a_eq": "[0.98, 1.01]",
+        "plant_sigma_a_eq": "[]",
         "command_latency": "0.011",
     }
+    plant = graph_arguments(
+        load_profile("lab"), sigma_a_eq=(1.0, 1.0), plant_sigma_a_eq=(1.03, 1.02)
+    )
+    assert (plant["sigma_a_eq"], plant["plant_sigma_a_eq"]) == ("[1.0, 1.0]", "[1.03, 1.02]")
 
 
 def test_a_command_latency_adds_to_the_world_s_actuation_latency_only() -> None:
@@ -55,6 +63,18 @@ def test_a_command_latency_adds_to_the_world_s_actuation_latency_only() -> None:
     assert run_disturbance(world, 0.0) is world
     with pytest.raises(ValueError, match="command_latency must be >= 0 s"):
         run_disturbance(world, -0.001)
+
+
+def test_a_plant_sigma_shift_moves_the_plant_s_rest_strains_only() -> None:
+    world = DisturbanceModel(rest_strain_offset=0.005, rest_strain_difference=0.002)
+    run = run_disturbance(world, 0.0, (0.01, 0.03))
+    # rod 1: 0.005 - 0.001 + 0.01, rod 2: 0.005 + 0.001 + 0.03 (plant_params' split of the two)
+    plant = run.plant_params(load_params("fpu"))
+    nominal = np.asarray(load_params("fpu").sigma_a_eq)
+    np.testing.assert_allclose(plant.sigma_a_eq - nominal, [0.014, 0.036], atol=1e-12)
+    assert dataclasses.replace(run, rest_strain_offset=0.005, rest_strain_difference=0.002) == world
+    with pytest.raises(ValueError, match="rest_strain_shift must be finite"):
+        run_disturbance(world, 0.0, (float("nan"), 0.0))
 
 
 def test_a_real_run_brings_its_own_conditions_and_step_instants() -> None:

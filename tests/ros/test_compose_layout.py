@@ -36,6 +36,7 @@ def _values(tmp_path: Path) -> dict[str, str]:
         "rate": "27.8",
         "integrator_dt": "0.036",
         "sigma_a_eq": "[0.98, 1.01]",
+        "plant_sigma_a_eq": "[1.03, 1.02]",
         "payload": "0.05",
         "command_latency": "0.012",
         "gains": str(package_share("hsa_core") / "config/gains/fpu_pid.yaml"),

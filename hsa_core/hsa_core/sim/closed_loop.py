@@ -54,7 +54,6 @@ from hsa_core.sim.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, Experimen
 from hsa_core.sim.run_conditions import (
     SPLINE_WINDOW,
     TickWindow,
-    run_disturbance,
     tick_rates,
     tick_take,
     tick_window,
@@ -162,7 +161,7 @@ def prepare(
     period_ns = seconds_to_ns(1.0 / config.rate)
     if period_ns % GRID_NS or period_ns < GRID_NS:
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
-    dist = run_disturbance(config.disturbance, config.command_latency)
+    dist = config.world()
     lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
     if lat_m % GRID_NS or lat_a % GRID_NS:
         raise ValueError("latencies must be whole milliseconds")

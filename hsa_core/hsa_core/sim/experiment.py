@@ -133,6 +133,9 @@ class ExperimentConfig:
     # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
     payload: float = 0.0
     command_latency: float = 0.0  # [s] tick → goal on the bus (controller side; run_disturbance)
+    # σ_a,eq per rod of the plant where it differs from the controller's model (default: the
+    # model's); the disturbance's rest_strain_offset still adds to it
+    plant_sigma_a_eq: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         """Reject a negative payload, a non-positive integrator step and a σ_a,eq that is not two
@@ -150,6 +153,13 @@ class ExperimentConfig:
             or not all(math.isfinite(v) and v > 0.0 for v in self.sigma_a_eq)
         ):
             raise ValueError(f"sigma_a_eq must be two values > 0, got {self.sigma_a_eq}")
+        if self.plant_sigma_a_eq is not None and (
+            len(self.plant_sigma_a_eq) != 2
+            or not all(math.isfinite(v) and v > 0.0 for v in self.plant_sigma_a_eq)
+        ):
+            raise ValueError(
+                f"plant_sigma_a_eq must be two values > 0, got {self.plant_sigma_a_eq}"
+            )
 
     def model(self) -> HsaParams:
         """The controller's model: the material's parameter set with the run's σ_a,eq."""
@@ -159,6 +169,20 @@ class ExperimentConfig:
             if self.sigma_a_eq is None
             else params.replace(sigma_a_eq=np.asarray(self.sigma_a_eq, float))
         )
+
+    @property
+    def rest_strain_shift(self) -> tuple[float, float]:
+        """The plant's σ_a,eq minus the controller's model's, per rod (0 without
+        ``plant_sigma_a_eq``)."""
+        if self.plant_sigma_a_eq is None:
+            return (0.0, 0.0)
+        model = np.asarray(self.model().sigma_a_eq, float)
+        return tuple(float(v) for v in np.asarray(self.plant_sigma_a_eq, float) - model)
+
+    def world(self) -> DisturbanceModel:
+        """The world of this run: the disturbance with the run's command latency and plant σ_a,eq
+        (:func:`hsa_core.sim.run_conditions.run_disturbance`)."""
+        return run_disturbance(self.disturbance, self.command_latency, self.rest_strain_shift)
 
     @property
     def name(self) -> str:
@@ -201,9 +225,11 @@ def replay_config(
 ) -> ExperimentConfig:
     """A paper run replayed with its own conditions: its profile, material, law, gains, σ_a,eq and
     payload, and its setpoints at the real step instants (``sigma_a_eq`` / ``payload`` override the
-    run's)."""
+    run's). A PID run (its law needs no plan) whose σ_a,eq leaves a setpoint without a plan keeps
+    that σ_a,eq in the plant (``plant_sigma_a_eq``) and gives the controller's model the material's
+    nominal one, so the sequencer passes every setpoint as the original did."""
     cond = run.conditions
-    return profile_config(
+    config = profile_config(
         cond.profile,
         cond.material,
         cond.law.value,
@@ -213,6 +239,13 @@ def replay_config(
         reference=run.timed_reference(),
         **options,
     )
+    if cond.law is not ControllerKind.PID or config.sigma_a_eq is None:
+        return config
+    planner = Planner(config.model(), config.planner)
+    if all(planner.plan(p).success for p in config.reference.p_des):
+        return config
+    nominal = tuple(float(v) for v in load_params(cond.material).sigma_a_eq)
+    return dataclasses.replace(config, sigma_a_eq=nominal, plant_sigma_a_eq=config.sigma_a_eq)
 
 
 @dataclass(frozen=True)
@@ -265,7 +298,7 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     phi_max = motor_map.phi_max
     world = World(
         plant_params(model, config.payload),
-        run_disturbance(config.disturbance, config.command_latency),
+        config.world(),
         motor_map,
     )
     planner = Planner(model, config.planner)

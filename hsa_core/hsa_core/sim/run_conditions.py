@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -109,15 +110,27 @@ def plant_params(model: HsaParams, payload: float) -> HsaParams:
     return model.replace(m_pl=payload) if payload else model
 
 
-def run_disturbance(disturbance: DisturbanceModel, command_latency: float) -> DisturbanceModel:
+def run_disturbance(
+    disturbance: DisturbanceModel,
+    command_latency: float,
+    rest_strain_shift: tuple[float, float] = (0.0, 0.0),
+) -> DisturbanceModel:
     """The world of a run: ``disturbance`` with the controller side's ``command_latency`` [s]
-    (tick → goal written on the bus) added to its actuation latency."""
+    (tick → goal written on the bus) added to its actuation latency, and the plant's σ_a,eq of rods
+    1 and 2 moved by ``rest_strain_shift`` [-] beyond the controller's model (a run whose plant and
+    controller had different σ_a,eq: ExperimentConfig.plant_sigma_a_eq)."""
     if not (command_latency >= 0.0):
         raise ValueError(f"command_latency must be >= 0 s, got {command_latency}")
-    if not command_latency:
+    s1, s2 = (float(v) for v in rest_strain_shift)
+    if not (math.isfinite(s1) and math.isfinite(s2)):
+        raise ValueError(f"rest_strain_shift must be finite, got {rest_strain_shift}")
+    if not (command_latency or s1 or s2):
         return disturbance
     return dataclasses.replace(
-        disturbance, actuation_latency=disturbance.actuation_latency + command_latency
+        disturbance,
+        actuation_latency=disturbance.actuation_latency + command_latency,
+        rest_strain_offset=disturbance.rest_strain_offset + 0.5 * (s1 + s2),
+        rest_strain_difference=disturbance.rest_strain_difference + (s2 - s1),
     )
 
 
@@ -125,12 +138,14 @@ def graph_arguments(
     profile: RunProfile,
     *,
     sigma_a_eq: tuple[float, float] | None = None,
+    plant_sigma_a_eq: tuple[float, float] | None = None,
     payload: float | None = None,
     run: ReferenceRun | None = None,
 ) -> dict[str, str]:
     """Launch arguments of sim.launch.yaml for ``profile`` (a real ``run``: its profile, material,
-    law, σ_a,eq and payload); ``sigma_a_eq`` / ``payload`` override the profile's or the run's. The
-    run's gains and setpoints are files (gains_file, sequencer_file), written by the caller."""
+    law, σ_a,eq and payload); ``sigma_a_eq`` / ``payload`` override the profile's or the run's,
+    ``plant_sigma_a_eq`` gives the plant its own (ExperimentConfig.plant_sigma_a_eq). The run's
+    gains and setpoints are files (gains_file, sequencer_file), written by the caller."""
     if run is not None:
         cond = run.conditions
         profile = cond.profile
@@ -143,11 +158,17 @@ def graph_arguments(
         "velocity_estimator": profile.velocity_estimator.value,
         "payload": repr(float(payload if payload is not None else profile.payload)),
         "command_latency": repr(profile.command_latency_ms * 1e-3),
-        "sigma_a_eq": "[]" if sigma is None else f"[{float(sigma[0])!r}, {float(sigma[1])!r}]",
+        "sigma_a_eq": _strains(sigma),
+        "plant_sigma_a_eq": _strains(plant_sigma_a_eq),
     }
     if run is not None:
         args |= {"material": run.conditions.material, "controller": run.conditions.law.value}
     return args
+
+
+def _strains(sigma: tuple[float, float] | None) -> str:
+    """A σ_a,eq launch argument: "[]" (the default) or "[s1, s2]"."""
+    return "[]" if sigma is None else f"[{float(sigma[0])!r}, {float(sigma[1])!r}]"
 
 
 def run_schedule(run: ReferenceRun) -> dict[str, object]:

@@ -23,7 +23,13 @@ from hsa_core.apps import calibrate
 from hsa_core.model import kinematics
 from hsa_core.model.params import load_params
 from hsa_core.runs.runlog import RunLog
-from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, calibrated_world, named_world
+from hsa_core.sim.disturbance import (
+    WORLD_DIR,
+    DisturbanceModel,
+    calibrated_world,
+    named_world,
+    static_world,
+)
 from hsa_core.sim.experiment import main
 from hsa_core.sysid import static_mismatch
 from hsa_core.sysid.static_mismatch import FieldStatus, StaticMap
@@ -190,17 +196,41 @@ def test_a_non_finite_static_mismatch_is_refused(field: str) -> None:
         DisturbanceModel(**{field: float("nan")})
 
 
-def test_the_calibrated_world_of_fpu_is_its_identified_servo_cap_and_its_static_fit() -> None:
+def test_the_calibrated_world_of_fpu_is_its_static_fit_and_its_identified_latency() -> None:
     world = calibrated_world("fpu")
     static = yaml.safe_load((WORLD_DIR / "fpu_static.yaml").read_text())
-    dynamic = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())["parameters"]
+    dynamic = yaml.safe_load((WORLD_DIR / "fpu.yaml").read_text())
     assert static["adopted"] is True
     for name, field in static["fields"].items():
         assert getattr(world, name) == pytest.approx(field["value"])
-    assert world.servo_max_speed == pytest.approx(dynamic["servo_max_speed"]["value"])
-    # what hsa_calibrate did not identify keeps its default
+    # the closed-loop fit started from the static world and identified the latency only
+    assert "fpu_static.yaml" in dynamic["base"]
+    fitted = dynamic["parameters"]
+    assert fitted["actuation_latency"]["identified"] is True
+    assert world.actuation_latency == pytest.approx(fitted["actuation_latency"]["value"])
+    assert 0.05 < world.actuation_latency < 0.25
+    # what hsa_calibrate did not identify keeps its default: the e-Manual's speed, no lag
+    default = DisturbanceModel()
+    assert [n for n, p in fitted.items() if not p["identified"]] == [
+        "servo_max_speed",
+        "servo_time_constant",
+        "damping_scale",
+    ]
+    assert world.servo_max_speed == default.servo_max_speed
     assert world.damping_scale == 1.0 and world.servo_time_constant == 0.0
-    assert world.actuation_latency == DisturbanceModel().actuation_latency
+
+
+def test_a_fit_starts_from_the_static_world_of_its_runs_material() -> None:
+    fpu = [calibrate.prepare_run(b, duration=25.0) for b in ("20230925_093236",)]
+    base, name = calibrate.base_world(fpu)
+    assert base == static_world("fpu") and "fpu_static.yaml" in name
+    assert base.shear_scale != DisturbanceModel().shear_scale
+    epu = [calibrate.prepare_run("20231019_143126", duration=25.0)]
+    assert calibrate.base_world(epu)[0] == DisturbanceModel()
+    assert calibrate.base_world(fpu + epu) == (
+        DisturbanceModel(),
+        "default (the runs are of several materials)",
+    )
 
 
 def test_epu_has_no_calibrated_world_but_the_default_and_an_unknown_material_is_refused() -> None:

@@ -4,7 +4,8 @@ The world's parameters that no identification fixed
 (:class:`~hsa_core.sim.disturbance.DisturbanceModel` fields: the actuation latency, the servos'
 speed cap and time constant, the plant's damping and shear-stiffness factors) are fitted to the
 paper's reference runs (:mod:`hsa_core.runs.reference`), each replayed with its own conditions
-(:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants).
+(:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants),
+on top of the runs' material's static mismatch fitted at rest (:func:`base_world`).
 The measure is D of :mod:`hsa_core.analysis.sim_to_real` (each step aligned at its own instant,
 steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one set of world
 parameters for every run.
@@ -24,7 +25,7 @@ parameters for every run.
   moves D by less than ``tolerance`` over the whole range is not identified (flat); one whose
   interval reaches a bound of its range (or the edge of the region where the run stays finite) is
   not identified (at bound): the data put its minimum outside what is physical or simulable. Either
-  way the default value is kept, not fitted to noise or to a bound. ``tolerance`` defaults to
+  way the base world's value is kept, not fitted to noise or to a bound. ``tolerance`` defaults to
   0.05 mm, a sixth of the robot's own repeatability (0.32 mm RMS between two runs).
 * **Leave-one-run-out**: the search repeated on all runs but one, and D of the left-out run with
   those parameters.
@@ -56,9 +57,8 @@ from hsa_core.analysis import sim_to_real
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs import reference
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, static_world
 from hsa_core.sim.experiment import ExperimentConfig, replay_config
-from hsa_core.sim.run_conditions import run_disturbance
 from hsa_core.sim.world import GRID_NS, servo_speed
 from hsa_core.sysid import static_mismatch
 from hsa_core.task.planning import Planner
@@ -127,12 +127,17 @@ class PreparedRun:
 
 
 def prepare_run(bag: str, duration: float | None = None) -> PreparedRun:
-    """The run ``bag`` replayed with its own conditions; with its logbook σ_a,eq unless the planner
-    cannot reach every setpoint with it (then the material's nominal, said in ``note``).
-    ``duration`` cuts the run (a quick check: the steps it holds whole are compared)."""
+    """The run ``bag`` replayed with its own conditions (:func:`replay_config`); with its logbook
+    σ_a,eq unless the planner cannot reach every setpoint with it (then the material's nominal,
+    said in ``note``). ``duration`` cuts the run (a quick check: the steps it holds whole are
+    compared)."""
     real = reference.load_run(bag)
     config = replay_config(real)
-    note = "logbook sigma_a_eq"
+    note = (
+        "logbook sigma_a_eq"
+        if config.plant_sigma_a_eq is None
+        else "logbook sigma_a_eq in the plant, nominal in the controller's model (PID: no plan)"
+    )
     planner = Planner(config.model(), config.planner)
     if not all(planner.plan(p).success for p in config.reference.p_des):
         config, note = (
@@ -162,7 +167,7 @@ def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed
     shared)."""
     model = run.config.model()
     plant_model = model.replace(m_pl=run.config.payload) if run.config.payload else model
-    worlds = [run_disturbance(w, run.config.command_latency) for w in worlds]
+    worlds = [dataclasses.replace(run.config, disturbance=w).world() for w in worlds]
     lat = [round(w.actuation_latency * 1e3) for w in worlds]
     if any(abs(w.actuation_latency * 1e3 - v) > 1e-9 for w, v in zip(worlds, lat)) or max(
         lat
@@ -220,6 +225,19 @@ def deviations(run: PreparedRun, worlds: list[DisturbanceModel]) -> np.ndarray:
             d = math.inf
         out.append(d if math.isfinite(d) else math.inf)
     return np.array(out)
+
+
+def base_world(runs: list[PreparedRun]) -> tuple[DisturbanceModel, str]:
+    """The world a fit starts from and keeps what it does not fit of, and its name: the static
+    world of the runs' material (its adopted static mismatch, fitted at rest) when they share one,
+    else the default."""
+    materials = {r.config.material for r in runs}
+    if len(materials) == 1:
+        material = materials.pop()
+        return static_world(
+            material
+        ), f"{material} static world (config/world/{material}_static.yaml)"
+    return DisturbanceModel(), "default (the runs are of several materials)"
 
 
 def pooled(d: np.ndarray) -> np.ndarray:
@@ -334,8 +352,8 @@ def identification(
 
 def world_document(report: dict) -> dict:
     """The world YAML of a fit report: each parameter's value (the fitted one if identified, else
-    the default), the search's best, the status, interval and scan (the evidence), and D per run in
-    the default and the calibrated world."""
+    the base world's), the search's best, the status, interval and scan (the evidence), and D per
+    run in the base and the calibrated world."""
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
@@ -348,6 +366,7 @@ def world_document(report: dict) -> dict:
             for bag, row in report["per_run"].items()
         },
         "objective": f"{report['objective']}: {report['objective_mm']} mm",
+        "base": report["base"],
         "parameters": {
             n: {
                 "value": report["kept"][n],
@@ -361,7 +380,7 @@ def world_document(report: dict) -> dict:
             for n, ident in report["identification"].items()
         },
         "evidence_D_mm": {
-            bag: {"default": row["default"]["D_mm"], "calibrated": row["calibrated"]["D_mm"]}
+            bag: {"base": row["base"]["D_mm"], "calibrated": row["calibrated"]["D_mm"]}
             for bag, row in report["per_run"].items()
         },
         "leave_one_run_out_D_mm": {
@@ -540,7 +559,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = [prepare_run(bag, args.duration) for bag in args.runs]
     except ValueError as err:
         parser.error(f"argument --duration: {err}")
-    base = DisturbanceModel()
+    base, base_name = base_world(runs)
 
     def fit_on(subset: list[PreparedRun]) -> SearchResult:
         """The search over ``subset`` with the command line's fit, budget and seed."""
@@ -576,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in runs:
         before, after = simulate(r, [base, world])
         rows = {}
-        for label, sim in (("default", before), ("calibrated", after)):
+        for label, sim in (("base", before), ("calibrated", after)):
             c = sim_to_real.compare(sim, r.robot, r.steps)
             d_step = np.sqrt(
                 np.mean(
@@ -608,12 +627,13 @@ def main(argv: list[str] | None = None) -> int:
             "command_latency_ms": round(r.config.command_latency * 1e3),
             **rows,
         }
-        _figure(r, {"default world": before, "calibrated world": after}, args.out / f"{r.bag}.png")
+        _figure(r, {"base world": before, "calibrated world": after}, args.out / f"{r.bag}.png")
     wall = time.perf_counter() - started
     report = {
         "fit": list(args.fit),
         "runs": list(args.runs),
         "objective": "sqrt(mean over runs of D^2)",
+        "base": base_name,
         "best": fit.best,
         "objective_mm": round(fit.objective * 1e3, 4),
         "history_mm": [round(h * 1e3, 4) for h in fit.history],
@@ -631,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in [args.out / "world.yaml"] + ([args.world] if args.world else []):
         path.write_text(yaml.safe_dump(world_doc, sort_keys=False))
     for bag, row in per_run.items():
-        print(f"{bag}: D {row['default']['D_mm']:.2f} -> {row['calibrated']['D_mm']:.2f} mm")
+        print(f"{bag}: D {row['base']['D_mm']:.2f} -> {row['calibrated']['D_mm']:.2f} mm")
     print(f"fitted {kept} in {wall:.0f} s; report in {args.out / 'report.json'}")
     return 0
 

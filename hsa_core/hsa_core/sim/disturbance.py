@@ -149,23 +149,30 @@ class DisturbanceModel:
         )
 
 
+def static_world(material: str, seed: int = 0) -> DisturbanceModel:
+    """The default world of ``material`` (noise seed ``seed``) with its adopted static mismatch
+    (``<material>_static.yaml``) in place; the default where none is adopted."""
+    path = WORLD_DIR / f"{material}_static.yaml"
+    values = {}
+    if path.is_file():
+        doc = yaml.safe_load(path.read_text())
+        if doc["adopted"]:
+            values = {name: p["value"] for name, p in doc["fields"].items()}
+    return dataclasses.replace(
+        DisturbanceModel(seed=seed), **{k: float(v) for k, v in values.items()}
+    )
+
+
 def calibrated_world(material: str, seed: int = 0) -> DisturbanceModel:
-    """The calibrated world of ``material`` (noise seed ``seed``): the default with every parameter
-    that ``<material>.yaml`` marks identified and, where ``<material>_static.yaml`` is adopted, its
-    fields' values; ValueError (one line) for a material without a world file."""
+    """The calibrated world of ``material`` (noise seed ``seed``): its :func:`static_world` with
+    every parameter that ``<material>.yaml`` marks identified; ValueError (one line) for a material
+    without a world file."""
     path = WORLD_DIR / f"{material}.yaml"
     if not path.is_file():
         raise ValueError(f"no calibrated world for material {material!r} ({path} is missing)")
     fitted = yaml.safe_load(path.read_text())["parameters"]
-    values = {name: p["value"] for name, p in fitted.items() if p["identified"]}
-    static = WORLD_DIR / f"{material}_static.yaml"
-    if static.is_file():
-        doc = yaml.safe_load(static.read_text())
-        if doc["adopted"]:
-            values |= {name: p["value"] for name, p in doc["fields"].items()}
-    return dataclasses.replace(
-        DisturbanceModel(seed=seed), **{k: float(v) for k, v in values.items()}
-    )
+    values = {name: float(p["value"]) for name, p in fitted.items() if p["identified"]}
+    return dataclasses.replace(static_world(material, seed), **values)
 
 
 WORLDS = ("default", "none", "shear", "calibrated")

@@ -6,12 +6,20 @@ vertex counts of every rest window (last 2 s of each step) of the material's run
 and level switching only add vertices), leave-one-run-out for FPU (three runs), and the
 maximum-likelihood σ if every vertex of the flat windows were noise (an over-estimate). Then each
 run is replayed (hsa_core.sim.experiment.replay_config, the material's calibrated world, seed 0;
-the PID run with nominal σ_a,eq) with the pose noise declared today and with the bound, and its x
-peak-to-peak (max over steps 1–10, last 2 s) is compared with the robot's: raw (the sim's ticks)
-and at the data's resolution (the sim's trace simplified as the run's figure was, on the 10 ms grid
-of the robot's trace). Writes benchmarks/results/mocap_noise.json.
+the PID run with nominal σ_a,eq) with the pose noise declared today and with the bound on x and y
+(θ as declared, or scaled by the bound's ratio to the declared x noise), and its x peak-to-peak
+(max over steps 1–10, last 2 s) is compared with the robot's: raw (the sim's ticks) and at the
+data's resolution (the sim's trace simplified as the run's figure was, on the 10 ms grid of the
+robot's trace).
 
-    .venv/bin/python benchmarks/bench_mocap_noise.py [--replicates 1000] [--no-sim]
+θ (``--q-eps DIR``, the authors' ``<bag>_q.eps`` files, tud-phi/hsa-planar-control f1ed958
+``data/experiments/<bag>/``, not packaged here): the same bound on the noise of the plotted κ_be,
+which the controller's inverse kinematics makes θ_b / l (hsa_core.model.kinematics), so σ_θ = l·σ_κ.
+The κ_be line is the file's first long polyline; its windows are counted in the file (steps 0–9:
+the last step's window holds the vertices the simplifier adds at the end of the path). Writes
+benchmarks/results/mocap_noise.json.
+
+    .venv/bin/python benchmarks/bench_mocap_noise.py [--replicates 1000] [--no-sim] [--q-eps DIR]
 """
 
 from __future__ import annotations
@@ -59,6 +67,74 @@ def estimates(bags: list[str], replicates: int) -> dict:
     return out
 
 
+EPS_UNIT = 0.012
+"""[pt] the user unit of the authors' EPS files (their ``0.012 0 0 0.012 0 0 cm``)."""
+
+
+def _polylines(path: Path) -> list[np.ndarray]:
+    """The EPS file's polylines of more than 50 points (n, 2) [EPS units], in file order."""
+    lines: list[list[tuple[float, float]]] = []
+    for row in path.read_text(errors="replace").splitlines():
+        parts = row.split()
+        if len(parts) != 3 or parts[2] not in ("m", "l"):
+            continue
+        try:
+            point = (float(parts[0]), float(parts[1]))
+        except ValueError:
+            continue
+        if parts[2] == "m":
+            lines.append([point])
+        elif lines:
+            lines[-1].append(point)
+    return [np.array(line) for line in lines if len(line) > 50]
+
+
+def theta_bound(q_dir: Path, bags: list[str], replicates: int) -> dict:
+    """The bound on σ_θ [rad] from the κ_be lines of ``bags``' ``_q.eps`` figures."""
+    import csv
+
+    from hsa_core.model.params import load_params
+    from hsa_core.runs.reference import DATA_DIR
+    from hsa_core.sysid import mocap_noise as mn
+
+    windows, counts, tolerance = [], {}, {}
+    for bag in bags:
+        kappa = _polylines(q_dir / f"{bag}_q.eps")[0]
+        with (DATA_DIR / f"{bag}_q.csv").open() as f:
+            table = np.array([[float(v) for v in row] for row in list(csv.reader(f))[1:]])
+        t = table[:, 0]
+        span = kappa[-1, 0] - kappa[0, 0]
+        t_vertex = t[0] + (kappa[:, 0] - kappa[0, 0]) / span * (t[-1] - t[0])
+        scale = np.polyfit(np.interp(t_vertex, t, table[:, 2]), kappa[:, 1], 1)[0]
+        with (DATA_DIR / f"{bag}_step_metrics.csv").open() as f:
+            steps = list(csv.DictReader(f))[:-1]
+        geometry = mn.Geometry(
+            float(steps[0]["dt_sample_est"]),
+            span * EPS_UNIT / (t[-1] - t[0]),
+            scale * EPS_UNIT,
+        )
+        tolerance[bag] = geometry.tolerance
+        ends = [float(row["t_end"]) for row in steps]
+        counts[bag] = [int(np.sum((t_vertex >= e - mn.WINDOW) & (t_vertex < e))) for e in ends]
+        windows += [(n, geometry) for n in counts[bag]]
+    length = float(load_params(_material(bags)).l)
+    bound, _ = mn.upper_bound(windows, SIGMAS * 1e3, replicates)
+    est, _ = mn.all_noise_estimate(windows, SIGMAS * 1e3, replicates)
+    return {
+        "rod_length_m": length,
+        "kappa_tolerance_rad_per_m": tolerance,
+        "window_vertices": counts,
+        "upper_bound_95": bound * length,
+        "all_noise_mle": est.value * length,
+        "all_noise_interval_95": [est.low * length, est.high * length],
+    }
+
+
+def _material(bags: list[str]) -> str:
+    """The material of ``bags`` (MATERIALS)."""
+    return next(m for m, runs in MATERIALS.items() if set(bags) <= set(runs))
+
+
 def sim_p2p(bag: str, std: tuple[float, float, float]) -> dict:
     """x peak-to-peak [m] (max over steps) of the replay at pose noise ``std``, raw and as drawn,
     and the robot's."""
@@ -104,6 +180,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--replicates", type=int, default=1000)
     parser.add_argument("--no-sim", action="store_true", help="only the σ estimates")
+    parser.add_argument("--q-eps", type=Path, help="folder of the authors' <bag>_q.eps files")
     args = parser.parse_args()
     configure_jax()
     out: dict = {
@@ -120,6 +197,13 @@ def main() -> int:
             entry["leave_one_run_out"] = {
                 left: estimates([b for b in bags if b != left], args.replicates) for left in bags
             }
+        if args.q_eps:
+            entry["estimate"]["theta"] = theta_bound(args.q_eps, bags, args.replicates)
+            if len(bags) > 1:
+                for left in bags:
+                    entry["leave_one_run_out"][left]["theta"] = theta_bound(
+                        args.q_eps, [b for b in bags if b != left], args.replicates
+                    )
         entry["estimate_wall_s"] = time.perf_counter() - t0
         bound = entry["estimate"]
         std = (bound["x"]["upper_bound_95"], bound["y"]["upper_bound_95"])

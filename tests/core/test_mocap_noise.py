@@ -33,16 +33,16 @@ def mpl_kept(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def mpl_window_counts(
     sigma: float, geometry: mn.Geometry, replicates: int, seed: int
 ) -> np.ndarray:
-    """Vertices that matplotlib keeps in a 2 s rest window of white noise σ [m], with 2 s of the
+    """Vertices that matplotlib keeps in a 2 s rest window of white noise σ [m], with 8 s of the
     same rest before it and 0.15 s after it, drawn at ``geometry``'s scale."""
     rng = np.random.default_rng(seed)
-    n_win, n_tail = round(2.0 / geometry.dt), round(0.15 / geometry.dt)
-    n = 2 * n_win + n_tail
+    n_lead, n_win, n_tail = (round(d / geometry.dt) for d in (8.0, 2.0, 0.15))
+    n = n_lead + n_win + n_tail
     x = np.arange(n) * geometry.dt * geometry.pt_per_s
     counts = []
     for _ in range(replicates):
         y = sigma * rng.standard_normal(n) * geometry.pt_per_m
-        counts.append(int(mpl_kept(x, y)[n_win : 2 * n_win].sum()))
+        counts.append(int(mpl_kept(x, y)[n_lead : n_lead + n_win].sum()))
     return np.array(counts)
 
 
@@ -129,6 +129,7 @@ def test_bad_input_is_refused_in_one_line():
         lambda: mn.Geometry(0.036, float("nan"), 800.0),
         lambda: mn.window_statistics(-1e-6, g),
         lambda: mn.window_statistics(1e-6, g, replicates=0),
+        lambda: mn.window_statistics(1e-6, g, lead=-1.0),
         lambda: mn.simplify_mask(np.zeros(3), np.zeros(4)),
         lambda: mn.simplify_mask(np.zeros(3), np.array([0.0, np.inf, 0.0])),
         lambda: mn.upper_bound([], grid),

@@ -5,11 +5,14 @@ simplifier thinned (matplotlib ``src/path_converters.h``, ``PathSimplifier``, ru
 coordinates in points when the figure was saved): a sample is kept only where the line leaves a
 band of half-width :data:`SIMPLIFY_THRESHOLD` pt around the line being built. The last 2 s of a step
 (the robot at rest) keep few vertices; white pose noise of standard deviation σ would keep more.
+Where the samples lie closer on the page than the threshold, each run's direction is that of one
+sample step, so sample-to-sample noise far below the threshold already ends runs.
 
 * :func:`simplify_mask`: the samples that matplotlib's simplifier keeps, for many lines at once
   (a re-implementation of ``PathSimplifier`` for one MOVETO followed by LINETOs, finite points);
 * :class:`Geometry`: one run's figure: sample spacing, display scale of time and of position;
-  :func:`run_windows` reads the rest windows of a run (their vertex counts) and its geometry;
+  :func:`run_geometry`, :func:`run_windows` and :func:`observed` read a run's figure and the
+  vertex counts of its rest windows; :func:`as_drawn` draws a trace as such a figure does;
 * :func:`window_statistics`: Monte-Carlo vertex counts and peak-to-peak of a rest window under
   white Gaussian noise σ (plus an optional linear drift), simplified as the figure was;
 * :func:`upper_bound`: the largest σ the windows' vertex counts admit (one-sided test of stochastic
@@ -34,6 +37,10 @@ SIMPLIFY_THRESHOLD = 0.111111111111
 points in a PostScript file."""
 WINDOW = 2.0
 """[s] the rest window at the end of each step (the data's last 2 s)."""
+LEAD = 8.0
+"""[s] rest before a window: a step lasts 9.5–10.4 s and its window is its last 2 s. The longer the
+rest, the longer the runs the simplifier builds (their length is heavy-tailed), the fewer vertices
+per σ: counting the response as rest too makes the bound on σ larger, not smaller."""
 TAIL = 0.15
 """[s] rest samples after a window before the next step moves the robot (its onset delay)."""
 AXES_WIDTH = {
@@ -105,10 +112,6 @@ class WindowStatistics:
         """(n_max + 1,) the count's probabilities, add-half smoothed (no zero)."""
         hist = np.bincount(np.minimum(self.counts, n_max), minlength=n_max + 1) + 0.5
         return hist / hist.sum()
-
-    def cdf(self, n: int) -> float:
-        """P(count ≤ n), add-half smoothed."""
-        return float((np.sum(self.counts <= n) + 0.5) / (len(self.counts) + 1.0))
 
 
 @dataclass(frozen=True)
@@ -197,25 +200,27 @@ def window_statistics(
     replicates: int = 400,
     drift: float = 0.0,
     seed: int = 0,
+    lead: float = LEAD,
 ) -> WindowStatistics:
     """Vertex counts and peak-to-peak of a rest window of :data:`WINDOW` s under white Gaussian
     noise ``sigma`` [m] and a linear ``drift`` [m/s], simplified in ``geometry``'s display scale.
-    The window follows as long a stretch of the same rest and precedes :data:`TAIL` s of it."""
+    The window follows ``lead`` s of the same rest and precedes :data:`TAIL` s of it."""
     if not (np.isfinite(sigma) and sigma >= 0.0):
         raise ValueError(f"sigma must be finite and >= 0, got {sigma}")
     if replicates < 1:
         raise ValueError(f"replicates must be >= 1, got {replicates}")
     if not np.isfinite(drift):
         raise ValueError(f"drift must be finite, got {drift}")
-    n_win = geometry.samples(WINDOW)
-    n_tail = geometry.samples(TAIL)
-    n = 2 * n_win + n_tail
+    if not (np.isfinite(lead) and lead >= 0.0):
+        raise ValueError(f"lead must be finite and >= 0, got {lead}")
+    n_win, n_lead = geometry.samples(WINDOW), geometry.samples(lead)
+    n = n_lead + n_win + geometry.samples(TAIL)
     t = np.arange(n) * geometry.dt
     noise = np.random.default_rng(seed).standard_normal((replicates, n))
     pos = sigma * noise + drift * t  # [m]
     x = np.broadcast_to(t * geometry.pt_per_s, pos.shape)
     kept = simplify_mask(x, pos * geometry.pt_per_m)
-    window = slice(n_win, 2 * n_win)
+    window = slice(n_lead, n_lead + n_win)
     counts = kept[:, window].sum(axis=1)
     return WindowStatistics(counts, _simplified_p2p(t, pos, kept, window))
 

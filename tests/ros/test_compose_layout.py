@@ -87,7 +87,7 @@ def _resolve(name: str, ros_args: list[str]) -> tuple[str, dict[str, Any]]:
     for file in files:
         for key, section in (yaml.safe_load(Path(file).read_text()) or {}).items():
             if key in ("/**", f"/**/{name}", f"{namespace.rstrip('/')}/{name}"):
-                params.update(compose._common({"/**": section}))
+                params.update(compose.common_parameters({"/**": section}))
     for rule in rules:
         key, _, value = rule.partition(":=")
         params[key] = yaml.safe_load(value)

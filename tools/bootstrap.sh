@@ -26,8 +26,7 @@ if ! fresh deps "$req_hash" || [ ! -x "$V/bin/python" ]; then
   log "creating venv and installing pinned dependencies (about 1 minute on a fresh machine)"
   [ -x "$V/bin/python" ] || "$PY" -m venv "$V"
   "$V/bin/python" -m pip install --quiet --disable-pip-version-check "uv==0.13.9"
-  # wheel: stage 3 builds our editable installs with the venv's setuptools (bdist_wheel needs it)
-  "$V/bin/uv" pip install --quiet --python "$V/bin/python" -r "$ROOT/requirements.txt" "wheel==0.48.0"
+  "$V/bin/uv" pip install --quiet --python "$V/bin/python" -r "$ROOT/requirements.txt"
   # CMake export-path fix: the wheels hard-code their manylinux build container's Python/numpy include paths.
   PYINC=$("$V/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   NPINC=$("$V/bin/python" -c "import numpy; print(numpy.get_include())")

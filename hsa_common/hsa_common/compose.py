@@ -114,7 +114,7 @@ def split_parameters(
     kept: list[str] = []
     per_node: dict[str, dict[str, Any]] = {}
     for name, path in node_files:
-        per_node.setdefault(name, {}).update(_common(_read(path)))
+        per_node.setdefault(name, {}).update(common_parameters(_read(path)))
     words = iter(ros_args)
     for word in words:
         if word in ("-p", "--param"):
@@ -128,7 +128,7 @@ def split_parameters(
         elif word == "--params-file":
             path = next(words, "")
             doc = _read(path)
-            common = _common(doc)
+            common = common_parameters(doc)
             mine = {
                 k: v
                 for k, v in common.items()
@@ -156,7 +156,7 @@ def _read(path: str) -> dict[str, Any]:
     return doc if isinstance(doc, dict) else {}
 
 
-def _common(doc: dict[str, Any]) -> dict[str, Any]:
+def common_parameters(doc: dict[str, Any]) -> dict[str, Any]:
     """The parameters of a file's ``/**`` section, by dotted name (as rcl reads nested mappings)."""
     section = doc.get("/**")
     params = section.get("ros__parameters") if isinstance(section, dict) else None

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
@@ -85,6 +86,27 @@ def test_every_figure_is_written_as_pdf_and_png(tmp_path: Path) -> None:
     for path in paths:
         magic = b"%PDF" if path.suffix == ".pdf" else b"\x89PNG\r\n\x1a\n"
         assert path.read_bytes().startswith(magic) and path.stat().st_size > 5_000
+
+
+def test_pdf_fonts_are_subset_once_per_glyph_set_and_the_files_stay_the_same(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """The Type 42 subsets are reused across figures: a second PDF of the same glyphs subsets
+    nothing again, and both are byte for byte what matplotlib writes with its own subsetting."""
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")  # no creation date in the PDF
+    with matplotlib.rc_context(plotting.STYLE):
+        fig, ax = plotting.subplots(figsize=(3.0, 2.0))
+        ax.plot([0.0, 1.0], [0.0, 1.0])
+        ax.set_title(r"subset once: $\varphi_1$ [rad], Ω")
+        plotting._font_subset.cache_clear()
+        first = plotting.save(fig, tmp_path / "first.pdf").read_bytes()
+        subset = plotting._font_subset.cache_info()
+        second = plotting.save(fig, tmp_path / "second.pdf").read_bytes()
+        again = plotting._font_subset.cache_info()
+        fig.savefig(tmp_path / "matplotlib.pdf", dpi=120)  # matplotlib's own subsetting
+    assert subset.misses >= 2 and again.misses == subset.misses  # text and math fonts
+    assert again.hits == subset.hits + subset.misses
+    assert second == first == (tmp_path / "matplotlib.pdf").read_bytes()
 
 
 def test_contour_runs_get_no_step_figure(tmp_path: Path) -> None:

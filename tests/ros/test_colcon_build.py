@@ -31,7 +31,7 @@ PACKAGES = sorted(p.parent for p in REPO.glob("hsa_*/package.xml"))
 @pytest.fixture(scope="module")
 def install(tmp_path_factory) -> Path:
     """A fresh colcon install space of all packages (hsa_msgs with ament_cmake, the rest
-    ament_python).
+    ament_python), with no CMAKE_BUILD_TYPE as in a lab's plain ``colcon build --symlink-install``.
 
     colcon's parallel executor (colcon-common-extensions has it) builds independent packages side by
     side, and hsa_msgs' make gets one job per core: colcon's own default adds ``-l <cores>``, under
@@ -65,7 +65,6 @@ def install(tmp_path_factory) -> Path:
             "--cmake-args",
             f"-DPython3_EXECUTABLE={sys.executable}",
             "-DBUILD_TESTING=OFF",
-            "-DCMAKE_BUILD_TYPE=Release",
         ],
         cwd=ws,
         env=env,

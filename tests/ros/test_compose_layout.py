@@ -1,7 +1,8 @@
-"""sim.launch.yaml's two layouts give every node the same parameters: for every launch argument,
-the (node, parameter) pairs it reaches with one process per node are the ones it reaches with
-``compose:=true`` (hsa_compose), with the same values. Read from the command lines the project's
-launcher builds, as rcl and hsa_compose resolve them; no graph is started."""
+"""The two layouts of sim.launch.yaml and of identify.launch.yaml (lockstep simulation) give every
+node the same parameters: for every launch argument, the (node, parameter) pairs it reaches with one
+process per node are the ones it reaches with ``compose:=true`` (hsa_compose), with the same values.
+Read from the command lines the project's launcher builds, as rcl and hsa_compose resolve them; no
+graph is started."""
 
 from __future__ import annotations
 
@@ -9,23 +10,33 @@ import os
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from hsa_common import compose
 from hsa_common.launcher import LaunchFile, Process, package_share
 
-SIM = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
-LAYOUT_ARGS = {"compose", "clock"}
-"""Arguments that choose the layout itself (on the wall clock both layouts are the same)."""
-OPTIONAL_ON = {"markers": "true", "live": "true"}
-"""The optional nodes, on (so that their arguments, e.g. ``live_port``, reach them)."""
+LAUNCH = Path(__file__).parents[2] / "launch_scripts"
+LAYOUT_ARGS = {"compose", "clock", "sim"}
+"""Arguments that choose the layout itself (on the wall clock, and with the real robot, both
+layouts are the same)."""
+BASE = {
+    "sim.launch.yaml": {"markers": "true", "live": "true"},
+    "identify.launch.yaml": {"clock": "lockstep"},
+}
+"""Per graph, the arguments of its composed layout: the optional nodes on (so that their
+arguments, e.g. ``live_port``, reach them), and the clock that composes."""
+REAL_ONLY = {"sim.launch.yaml": set(), "identify.launch.yaml": {"port"}}
+"""Per graph, the arguments of the real robot's nodes alone (sim:=false): none of the simulation."""
+NODES = {"sim.launch.yaml": 8, "identify.launch.yaml": 7}
+"""Nodes of each graph with :data:`BASE`'s arguments, optional nodes off."""
 Parameters = dict[str, dict[str, Any]]
 """Per node (namespace/name), its parameters by dotted name."""
 
 
 def _values(tmp_path: Path) -> dict[str, str]:
-    """A value other than the default (or :data:`OPTIONAL_ON`'s) for each launch argument that is
-    not a choice."""
+    """A value other than the default (or :data:`BASE`'s) for each launch argument that is not a
+    choice."""
     clock = tmp_path / "clock.yaml"
     lockstep = yaml.safe_load(
         (package_share("hsa_sim_node") / "config/clock_lockstep.yaml").read_text()
@@ -48,6 +59,15 @@ def _values(tmp_path: Path) -> dict[str, str]:
         "record": "false",
         "bag_dir": str(tmp_path / "bags") + "/",
         "clock_config": str(clock),
+        "duration": "12.5",
+        "seed": "4",
+        "n_levels": "3",
+        "hold": "4.5",
+        "start_delay": "1.5",
+        "final_hold": "0.5",
+        "robot_params": str(tmp_path / "robot.yaml"),
+        "payload_schedule": "[0.0, 0.0, 2.0, 0.2]",
+        "topics": "[/hsa/ee_pose, /hsa/phi_cmd]",
     }
 
 
@@ -68,17 +88,17 @@ def _resolve(name: str, ros_args: list[str]) -> tuple[str, dict[str, Any]]:
     for file in files:
         for key, section in (yaml.safe_load(Path(file).read_text()) or {}).items():
             if key in ("/**", f"/**/{name}", f"{namespace.rstrip('/')}/{name}"):
-                params.update(compose._common({"/**": section}))
+                params.update(compose.common_parameters({"/**": section}))
     for rule in rules:
         key, _, value = rule.partition(":=")
         params[key] = yaml.safe_load(value)
     return f"{namespace.rstrip('/')}/{name}", params
 
 
-def _parameters(args: dict[str, str]) -> Parameters:
-    """Every node of the sim graph with ``args``, and its parameters."""
+def _parameters(graph: str, args: dict[str, str]) -> Parameters:
+    """Every node of launch file ``graph`` with ``args``, and its parameters."""
     nodes: Parameters = {}
-    for proc in LaunchFile(SIM, args).processes():
+    for proc in LaunchFile(LAUNCH / graph, args).processes():
         ros_args = proc.cmd[proc.cmd.index("--ros-args") + 1 :]
         if Path(proc.cmd[0]).name != "hsa_compose":
             name, params = _resolve(proc.name, ros_args)
@@ -113,27 +133,36 @@ def _reached(base: Parameters, varied: Parameters) -> set[tuple[str, str]]:
     return pairs
 
 
-def test_both_layouts_give_every_node_the_same_parameters() -> None:
-    separate = _parameters({"compose": "false"})
-    composed = _parameters({"compose": "true"})
-    assert len(separate) == 8
+@pytest.mark.parametrize("graph", sorted(BASE))
+def test_both_layouts_give_every_node_the_same_parameters(graph: str) -> None:
+    args = {k: v for k, v in BASE[graph].items() if k in LAYOUT_ARGS}
+    separate = _parameters(graph, {**args, "compose": "false"})
+    composed = _parameters(graph, {**args, "compose": "true"})
+    assert len(separate) == NODES[graph]
     differ = sorted(_reached(separate, composed))
     assert not differ, f"(node, parameter) given differently under compose:=true: {differ}"
 
 
-def test_every_launch_argument_reaches_the_same_parameters_in_both_layouts(tmp_path) -> None:
-    spec = yaml.safe_load(SIM.read_text())["launch"]
+@pytest.mark.parametrize("graph", sorted(BASE))
+def test_every_launch_argument_reaches_the_same_parameters_in_both_layouts(
+    graph: str, tmp_path
+) -> None:
+    spec = yaml.safe_load((LAUNCH / graph).read_text())["launch"]
     declared = {a["arg"]["name"]: a["arg"] for a in spec if "arg" in a}
     values = _values(tmp_path)
-    base = {layout: _parameters({**OPTIONAL_ON, "compose": layout}) for layout in ("false", "true")}
+    (tmp_path / "robot.yaml").write_text(
+        yaml.safe_dump({"/**": {"ros__parameters": {"params_file": "/tmp/robot_set.yaml"}}})
+    )
+    on = BASE[graph]
+    base = {layout: _parameters(graph, {**on, "compose": layout}) for layout in ("false", "true")}
     for name, arg in declared.items():
-        if name in LAYOUT_ARGS:
+        if name in LAYOUT_ARGS | REAL_ONLY[graph]:
             continue
         choices = [c["value"] for c in arg.get("choice", [])]
         value = next((c for c in choices if c != arg["default"]), values.get(name))
         assert value is not None, f"no test value for launch argument '{name}': add one"
         varied = {
-            layout: _parameters({**OPTIONAL_ON, "compose": layout, name: value}) for layout in base
+            layout: _parameters(graph, {**on, "compose": layout, name: value}) for layout in base
         }
         reached = {layout: _reached(base[layout], varied[layout]) for layout in base}
         assert reached["false"], f"{name}:={value} reaches no node"

@@ -24,7 +24,7 @@ OPTIONAL_ON = {
     "sim.launch.yaml": [{"markers": "true", "live": "true"}, {"compose": "false"}],
     "real.launch.yaml": [{"live": "true"}],
     "replay.launch.yaml": [{"record": "true"}],
-    "identify.launch.yaml": [{"sim": "true"}, {"sim": "false"}],
+    "identify.launch.yaml": [{"sim": "true"}, {"sim": "false"}, {"clock": "lockstep"}],
 }
 """Launch arguments that switch every optional node of a graph on (or each branch of it)."""
 PACKAGES = (
@@ -89,6 +89,35 @@ def test_names_of_the_sim_graph() -> None:
     for args in ({"record": "false"}, {"record": "false", "compose": "false"}):
         nodes = [n for p in LaunchFile(sim, args).processes() for n in _composed(p)]
         assert "bag_recorder" not in nodes and len(nodes) == 7, args
+
+
+def test_names_of_the_identify_graph() -> None:
+    """Simulated in lockstep (compose:=true, the default): simulator + bridge and kinematics +
+    calibration + recorder composed; compose:=false, the wall clock and the real robot: one process
+    per node."""
+    identify = GRAPHS[0].with_name("identify.launch.yaml")
+    layout = [_composed(p) for p in LaunchFile(identify, {"clock": "lockstep"}).processes()]
+    assert layout == [
+        ["sim_node", "mocap_bridge"],
+        ["kinematics_node", "calibration_node", "bag_recorder"],
+        ["dynamixel_driver"],
+        ["excitation_player"],
+    ]
+    alone = ["dynamixel_driver", "mocap_bridge", "kinematics_node", "calibration_node"]
+    alone += ["excitation_player", "bag_recorder"]
+    for args in (
+        {"clock": "lockstep", "compose": "false"},
+        {},
+        {"sim": "false", "clock": "lockstep"},
+    ):
+        names = [p.name for p in LaunchFile(identify, args).processes()]
+        assert names == (["sim_node"] if args.get("sim") != "false" else []) + alone, args
+    nodes = [
+        n
+        for p in LaunchFile(identify, {"clock": "lockstep", "record": "false"}).processes()
+        for n in _composed(p)
+    ]
+    assert "bag_recorder" not in nodes and len(nodes) == 6
 
 
 def test_bad_invocations_are_refused(tmp_path, capsys) -> None:

@@ -25,14 +25,19 @@ run carry ``gid = "run:<index>"``, references ``gid = "reference"`` (tests count
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import lru_cache
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import matplotlib
 import numpy as np
+from fontTools.ttLib import TTFont
 from matplotlib.axes import Axes
+from matplotlib.backends import _backend_pdf_ps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -136,13 +141,46 @@ def subplots(
     return fig, fig.subplots(*args, **kwargs)
 
 
+_SUBSET_FONT = _backend_pdf_ps.get_glyphs_subset
+"""matplotlib's Type 42 font subsetting (a font file and glyph set → the subset font)."""
+
+
+@lru_cache(maxsize=256)
+def _font_subset(fontfile: Any, glyphs: frozenset[int]) -> tuple[bytes, dict[int, int]]:
+    """The subset font's file bytes and glyph index map, computed once per font and glyph set."""
+    with _SUBSET_FONT(fontfile, glyphs) as subset:
+        return _backend_pdf_ps.font_as_file(subset.font).getvalue(), dict(subset.glyph_index_map)
+
+
+@contextmanager
+def _stored_subset(fontfile: Any, glyphs: Collection[int]) -> Iterator[Any]:
+    """``get_glyphs_subset`` from :func:`_font_subset`: the same font (written again, byte for byte:
+    no new timestamp) and index map."""
+    data, index_map = _font_subset(fontfile, frozenset(glyphs))
+    with TTFont(BytesIO(data), recalcTimestamp=False) as font:
+        yield _backend_pdf_ps.SubsetResults(font, index_map)
+
+
+@contextmanager
+def _font_subsets_reused() -> Iterator[None]:
+    """While a figure is written: the PDF writer subsets each font for a glyph set once per process
+    (fontTools parses the whole font file for every subset, most of a PDF's writing time; figures
+    of one run share their glyph sets). The files are byte for byte the same."""
+    _backend_pdf_ps.get_glyphs_subset = _stored_subset
+    try:
+        yield
+    finally:
+        _backend_pdf_ps.get_glyphs_subset = _SUBSET_FONT
+
+
 def save(fig: Figure, path: Path | str) -> Path:
     """Lay out and write a figure (creating missing directories) in ``path``'s format; returns
     the path."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    with _font_subsets_reused():
+        fig.savefig(path, dpi=120)
     return path
 
 
@@ -162,7 +200,8 @@ def save_all_formats(fig: Figure, stem: Path) -> list[Path]:
     paths = []
     for fmt in FORMATS:
         path = stem.with_name(f"{stem.name}.{fmt}")
-        fig.savefig(path, dpi=PNG_DPI, bbox_inches=bbox)
+        with _font_subsets_reused():
+            fig.savefig(path, dpi=PNG_DPI, bbox_inches=bbox)
         paths.append(path)
     return paths
 

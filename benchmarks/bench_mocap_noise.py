@@ -6,7 +6,7 @@ vertex counts of every rest window (last 2 s of each step) of the material's run
 and level switching only add vertices), leave-one-run-out for FPU (three runs), and the
 maximum-likelihood σ if every vertex of the flat windows were noise (an over-estimate). Then each
 run is replayed (hsa_core.sim.experiment.replay_config, the material's calibrated world, seed 0;
-the PID run with nominal σ_a,eq) with the pose noise declared today and with the bound on x and y
+as replay_config gives it) with the pose noise declared today and with the bound on x and y
 (θ as declared, or scaled by the bound's ratio to the declared x noise), and its x peak-to-peak
 (max over steps 1–10, last 2 s) is compared with the robot's: raw (the sim's ticks) and at the
 data's resolution (the sim's trace simplified as the run's figure was, on the 10 ms grid of the
@@ -17,9 +17,12 @@ robot's trace).
 which the controller's inverse kinematics makes θ_b / l (hsa_core.model.kinematics), so σ_θ = l·σ_κ.
 The κ_be line is the file's first long polyline; its windows are counted in the file (steps 0–9:
 the last step's window holds the vertices the simplifier adds at the end of the path). Writes
-benchmarks/results/mocap_noise.json.
+benchmarks/results/mocap_noise.json. The pooled bound of all four runs (one OptiTrack system for
+both materials) is the mocap noise of the rest world (hsa_core.sim.disturbance.rest_world); with
+``--write-world`` it goes to hsa_core/hsa_core/config/world/mocap_noise.yaml.
 
     .venv/bin/python benchmarks/bench_mocap_noise.py [--replicates 1000] [--no-sim] [--q-eps DIR]
+        [--write-world]
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from hsa_core.jaxsetup import configure_jax
 
@@ -146,8 +150,6 @@ def sim_p2p(bag: str, std: tuple[float, float, float]) -> dict:
 
     real = reference.load_run(bag)
     config = replay_config(real)
-    if bag == "20230925_092200":
-        config = dataclasses.replace(config, sigma_a_eq=None)
     world = dataclasses.replace(calibrated_world(real.conditions.material), pose_noise_std=std)
     wall0 = time.perf_counter()
     log = run_experiment(dataclasses.replace(config, disturbance=world)).log
@@ -181,6 +183,11 @@ def main() -> int:
     parser.add_argument("--replicates", type=int, default=1000)
     parser.add_argument("--no-sim", action="store_true", help="only the σ estimates")
     parser.add_argument("--q-eps", type=Path, help="folder of the authors' <bag>_q.eps files")
+    parser.add_argument(
+        "--write-world",
+        action="store_true",
+        help="also write the pooled bound on x and y to config/world/mocap_noise.yaml",
+    )
     args = parser.parse_args()
     configure_jax()
     out: dict = {
@@ -219,6 +226,25 @@ def main() -> int:
             }
         out["materials"][material] = entry
         print(json.dumps({material: entry["estimate"]}, indent=1), flush=True)
+    everything = [bag for bags in MATERIALS.values() for bag in bags]
+    pooled = {"runs": everything, "estimate": estimates(everything, args.replicates)}
+    pooled["leave_one_run_out"] = {
+        left: estimates([b for b in everything if b != left], args.replicates)
+        for left in everything
+    }
+    out["pooled"] = pooled
+    print(json.dumps({"pooled": pooled["estimate"]}, indent=1), flush=True)
+    if args.write_world:
+        from hsa_core.sim.disturbance import WORLD_DIR
+        from hsa_core.sysid import mocap_noise as mn
+
+        doc = mn.world_document(
+            pooled["estimate"]["x"]["upper_bound_95"],
+            pooled["estimate"]["y"]["upper_bound_95"],
+            everything,
+            "benchmarks/bench_mocap_noise.py --write-world",
+        )
+        (WORLD_DIR / "mocap_noise.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     path = ROOT / "benchmarks" / "results" / "mocap_noise.json"
     path.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {path}")

@@ -15,7 +15,7 @@ stiffness profile and the approach direction; the method is in that module's doc
 
 Writes benchmarks/results/static_mismatch.json. The packaged static worlds
 (hsa_core/hsa_core/config/world/<material>_static.yaml, read by
-hsa_core.sim.disturbance.static_world where ``adopted``) are written by ``hsa_calibrate --static
+hsa_core.sim.disturbance.rest_world where ``adopted``) are written by ``hsa_calibrate --static
 --material M --write-world`` alone.
 
     .venv/bin/python benchmarks/bench_static_mismatch.py [--closed-loop]

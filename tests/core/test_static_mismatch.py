@@ -28,7 +28,7 @@ from hsa_core.sim.disturbance import (
     DisturbanceModel,
     calibrated_world,
     named_world,
-    static_world,
+    rest_world,
 )
 from hsa_core.sim.experiment import main
 from hsa_core.sysid import static_mismatch
@@ -220,22 +220,45 @@ def test_the_calibrated_world_of_fpu_is_its_static_fit_and_its_identified_latenc
     assert world.damping_scale == 1.0 and world.servo_time_constant == 0.0
 
 
-def test_a_fit_starts_from_the_static_world_of_its_runs_material() -> None:
-    fpu = [calibrate.prepare_run(b, duration=25.0) for b in ("20230925_093236",)]
+def test_a_fit_starts_from_the_rest_world_of_its_runs_material() -> None:
+    fpu, epu = ("20230925_093236", "20230925_094023"), ("20231019_143126",)
     base, name = calibrate.base_world(fpu)
-    assert base == static_world("fpu") and "fpu_static.yaml" in name
+    assert base == rest_world("fpu") and "fpu_static.yaml" in name
     assert base.shear_scale != DisturbanceModel().shear_scale
-    epu = [calibrate.prepare_run("20231019_143126", duration=25.0)]
-    assert calibrate.base_world(epu)[0] == DisturbanceModel()
+    assert calibrate.base_world(epu)[0] == rest_world("epu")
+    # the run carries the base world's noise; a candidate with other noise is refused
+    run = calibrate.prepare_run(epu[0], duration=25.0, world=rest_world("epu"))
+    assert run.config.disturbance.pose_noise_std == rest_world("epu").pose_noise_std
+    with pytest.raises(ValueError, match="must keep the run's pose_noise_std"):
+        calibrate.candidate_inputs(run, [DisturbanceModel()])
     assert calibrate.base_world(fpu + epu) == (
         DisturbanceModel(),
         "default (the runs are of several materials)",
     )
 
 
-def test_epu_has_no_calibrated_world_but_the_default_and_an_unknown_material_is_refused() -> None:
+def test_the_rest_world_takes_the_mocap_noise_bound_of_every_material() -> None:
+    """One motion-capture system: x and y noise from config/world/mocap_noise.yaml (an upper
+    bound; tests/core/test_mocap_noise.py shows the data reject 40 µm), θ as declared."""
+    noise = yaml.safe_load((WORLD_DIR / "mocap_noise.yaml").read_text())
+    assert noise["adopted"] is True
+    sigma_x, sigma_y = noise["pose_noise_std_xy"]
+    assert 0.0 < sigma_x < 4e-5 and 0.0 < sigma_y < 4e-5
+    for material in ("fpu", "epu"):
+        assert rest_world(material).pose_noise_std == (
+            sigma_x,
+            sigma_y,
+            DisturbanceModel().pose_noise_std[2],
+        )
+        assert calibrated_world(material).pose_noise_std == rest_world(material).pose_noise_std
+
+
+def test_epu_has_no_calibrated_world_but_its_rest_world_and_an_unknown_material_is_refused() -> (
+    None
+):
     # one EPU run: its static fit is evidence only, and hsa_calibrate identified nothing
-    assert calibrated_world("epu") == DisturbanceModel()
+    noise = rest_world("epu").pose_noise_std
+    assert calibrated_world("epu") == DisturbanceModel(pose_noise_std=noise)
     with pytest.raises(ValueError, match="no calibrated world for material 'wood'"):
         calibrated_world("wood")
 

@@ -5,7 +5,8 @@ The world's parameters that no identification fixed
 speed cap and time constant, the plant's damping and shear-stiffness factors) are fitted to the
 paper's reference runs (:mod:`hsa_core.runs.reference`), each replayed with its own conditions
 (:func:`hsa_core.sim.experiment.replay_config`: profile, law, gains, σ_a,eq, real step instants),
-on top of the runs' material's static mismatch fitted at rest (:func:`base_world`).
+on top of what the robot at rest gave: the material's static mismatch and the mocap noise bound
+(:func:`base_world`).
 The measure is D of :mod:`hsa_core.analysis.sim_to_real` (each step aligned at its own instant,
 steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): one set of world
 parameters for every run.
@@ -57,7 +58,7 @@ from hsa_core.analysis import sim_to_real
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs import reference
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, static_world
+from hsa_core.sim.disturbance import WORLD_DIR, DisturbanceModel, rest_world
 from hsa_core.sim.experiment import ExperimentConfig, replay_config
 from hsa_core.sim.world import GRID_NS, servo_speed
 from hsa_core.sysid import static_mismatch
@@ -126,13 +127,16 @@ class PreparedRun:
     horizon: float = sim_to_real.HORIZON  # [s] of each step compared
 
 
-def prepare_run(bag: str, duration: float | None = None) -> PreparedRun:
-    """The run ``bag`` replayed with its own conditions (:func:`replay_config`); with its logbook
-    σ_a,eq unless the planner cannot reach every setpoint with it (then the material's nominal,
-    said in ``note``). ``duration`` cuts the run (a quick check: the steps it holds whole are
-    compared)."""
+def prepare_run(
+    bag: str, duration: float | None = None, world: DisturbanceModel | None = None
+) -> PreparedRun:
+    """The run ``bag`` replayed with its own conditions (:func:`replay_config`) in ``world``
+    (default: the declared one), whose mocap noise and latency every candidate shares; with its
+    logbook σ_a,eq unless the planner cannot reach every setpoint with it (then the material's
+    nominal, said in ``note``). ``duration`` cuts the run (a quick check: the steps it holds whole
+    are compared)."""
     real = reference.load_run(bag)
-    config = replay_config(real)
+    config = replay_config(real, disturbance=world or DisturbanceModel())
     note = (
         "logbook sigma_a_eq"
         if config.plant_sigma_a_eq is None
@@ -164,7 +168,15 @@ def prepare_run(bag: str, duration: float | None = None) -> PreparedRun:
 
 def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed_loop.LoopInputs:
     """The loop inputs of ``run`` in each of ``worlds`` (stacked; the noise and gains of the run
-    shared)."""
+    shared: a world whose mocap noise, seed or latency differs from the run's is refused)."""
+    shared = ("pose_noise_std", "seed", "measurement_latency")
+    own = run.config.disturbance
+    for w in worlds:
+        if any(getattr(w, n) != getattr(own, n) for n in shared):
+            raise ValueError(
+                f"a candidate world must keep the run's {', '.join(shared)} "
+                f"(prepare_run's world): {[getattr(w, n) for n in shared]}"
+            )
     model = run.config.model()
     plant_model = model.replace(m_pl=run.config.payload) if run.config.payload else model
     worlds = [dataclasses.replace(run.config, disturbance=w).world() for w in worlds]
@@ -227,16 +239,15 @@ def deviations(run: PreparedRun, worlds: list[DisturbanceModel]) -> np.ndarray:
     return np.array(out)
 
 
-def base_world(runs: list[PreparedRun]) -> tuple[DisturbanceModel, str]:
-    """The world a fit starts from and keeps what it does not fit of, and its name: the static
-    world of the runs' material (its adopted static mismatch, fitted at rest) when they share one,
-    else the default."""
-    materials = {r.config.material for r in runs}
+def base_world(bags: tuple[str, ...]) -> tuple[DisturbanceModel, str]:
+    """The world a fit of the runs ``bags`` starts from and keeps what it does not fit of, and its
+    name: the rest world of the runs' material (its adopted static mismatch and the mocap noise
+    bound, both from the robot at rest) when they share one, else the default."""
+    materials = {reference.load_run(b).conditions.material for b in bags}
     if len(materials) == 1:
         material = materials.pop()
-        return static_world(
-            material
-        ), f"{material} static world (config/world/{material}_static.yaml)"
+        name = f"{material} rest world (config/world/{material}_static.yaml, mocap_noise.yaml)"
+        return rest_world(material), name
     return DisturbanceModel(), "default (the runs are of several materials)"
 
 
@@ -555,11 +566,11 @@ def main(argv: list[str] | None = None) -> int:
 
     use_every_core()
     started = time.perf_counter()
+    base, base_name = base_world(args.runs)
     try:
-        runs = [prepare_run(bag, args.duration) for bag in args.runs]
+        runs = [prepare_run(bag, args.duration, base) for bag in args.runs]
     except ValueError as err:
         parser.error(f"argument --duration: {err}")
-    base, base_name = base_world(runs)
 
     def fit_on(subset: list[PreparedRun]) -> SearchResult:
         """The search over ``subset`` with the command line's fit, budget and seed."""

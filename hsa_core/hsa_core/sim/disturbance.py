@@ -149,22 +149,28 @@ class DisturbanceModel:
         )
 
 
-def static_world(material: str, seed: int = 0) -> DisturbanceModel:
-    """The default world of ``material`` (noise seed ``seed``) with its adopted static mismatch
-    (``<material>_static.yaml``) in place; the default where none is adopted."""
-    path = WORLD_DIR / f"{material}_static.yaml"
-    values = {}
-    if path.is_file():
-        doc = yaml.safe_load(path.read_text())
+def rest_world(material: str, seed: int = 0) -> DisturbanceModel:
+    """The default world of ``material`` (noise seed ``seed``) with what the robot at rest says:
+    its adopted static mismatch (``<material>_static.yaml``) and the mocap's pose noise on x and y
+    (``mocap_noise.yaml``, one motion-capture system for every material); the default where neither
+    is adopted."""
+    values: dict = {}
+    static = WORLD_DIR / f"{material}_static.yaml"
+    if static.is_file():
+        doc = yaml.safe_load(static.read_text())
         if doc["adopted"]:
-            values = {name: p["value"] for name, p in doc["fields"].items()}
-    return dataclasses.replace(
-        DisturbanceModel(seed=seed), **{k: float(v) for k, v in values.items()}
-    )
+            values = {name: float(p["value"]) for name, p in doc["fields"].items()}
+    noise = WORLD_DIR / "mocap_noise.yaml"
+    if noise.is_file():
+        doc = yaml.safe_load(noise.read_text())
+        if doc["adopted"]:
+            theta = DisturbanceModel().pose_noise_std[2]
+            values["pose_noise_std"] = (*(float(v) for v in doc["pose_noise_std_xy"]), theta)
+    return dataclasses.replace(DisturbanceModel(seed=seed), **values)
 
 
 def calibrated_world(material: str, seed: int = 0) -> DisturbanceModel:
-    """The calibrated world of ``material`` (noise seed ``seed``): its :func:`static_world` with
+    """The calibrated world of ``material`` (noise seed ``seed``): its :func:`rest_world` with
     every parameter that ``<material>.yaml`` marks identified; ValueError (one line) for a material
     without a world file."""
     path = WORLD_DIR / f"{material}.yaml"
@@ -172,7 +178,7 @@ def calibrated_world(material: str, seed: int = 0) -> DisturbanceModel:
         raise ValueError(f"no calibrated world for material {material!r} ({path} is missing)")
     fitted = yaml.safe_load(path.read_text())["parameters"]
     values = {name: float(p["value"]) for name, p in fitted.items() if p["identified"]}
-    return dataclasses.replace(static_world(material, seed), **values)
+    return dataclasses.replace(rest_world(material, seed), **values)
 
 
 WORLDS = ("default", "none", "shear", "calibrated")

@@ -379,3 +379,19 @@ def all_noise_estimate(
         raise ValueError(f"the interval reaches the grid's largest σ {sigmas[-1]:.3g} m: extend it")
     low = 0.0 if inside.min() == sigmas[0] else float(inside.min())
     return Interval(float(sigmas[best]), low, float(inside.max())), log_l
+
+
+def world_document(sigma_x: float, sigma_y: float, runs: list[str], source: str) -> dict:
+    """The mocap-noise world YAML: the upper bounds on σ_x and σ_y [m] of ``runs`` as the rest
+    world's pose noise (θ keeps the declared value: its counts are not in the packaged data)."""
+    return {
+        "what": "the mocap's white pose noise, bounded by the reference runs' rest windows",
+        "source": source,
+        "runs": list(runs),
+        "adopted": True,
+        "status": (
+            f"upper bound at {CONFIDENCE:.0%}, not identified (the data admit 0); theta keeps "
+            "the declared value"
+        ),
+        "pose_noise_std_xy": [float(sigma_x), float(sigma_y)],
+    }

@@ -16,15 +16,16 @@ Variants (``--variants``):
 * ``own_profile`` (added by ``--profiles``): the run replayed with its own conditions, as
   ``hsa_experiment --run BAG`` does (hsa_core.sim.experiment.replay_config: the run's profile of
   hsa_core.runs.profiles, law, gains, σ_a,eq and real step instants), on the same default world;
-* ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal (the PID run with its logbook
-  σ_a,eq has a setpoint the planner refuses, so it is compared only this way);
+* ``own_profile_nominal_sigma``: ``own_profile`` with σ_a,eq nominal in the controller's model (the
+  PID run's plant keeps its logbook σ_a,eq either way: replay_config's ``plant_sigma_a_eq``);
 * ``own_rate_only`` / ``own_estimator_only``: ``own_profile_nominal_sigma`` with the lab profile's
   velocity estimator, or with the lab profile's control period and integrator step (which of the two
   conditions does what).
 
 * ``own_profile_calibrated_world`` / ``..._nominal_sigma``: ``own_profile`` (with the logbook's or
   the nominal σ_a,eq) in the material's calibrated world (hsa_core.sim.disturbance.calibrated_world:
-  what hsa_calibrate identified and the adopted static mismatch; EPU: the default world).
+  the rest world, i.e. the adopted static mismatch and the mocap noise bound, plus what
+  hsa_calibrate identified; EPU: the default world with the noise bound).
 
 The world is the default one in every other variant: only the conditions of the run change. Writes
 benchmarks/results/sim_to_real.json.

@@ -57,16 +57,17 @@ def estimates(bags: list[str], replicates: int) -> dict:
 
     out = {}
     for axis, name in enumerate("xy"):
-        bound, _ = mn.upper_bound(mn.observed(bags, axis), SIGMAS, replicates)
-        est, _ = mn.all_noise_estimate(mn.observed(bags, axis, flat_only=True), SIGMAS, replicates)
         windows = mn.observed(bags, axis)
+        flat = mn.observed(bags, axis, flat_only=True)
+        bound, _ = mn.upper_bound(windows, SIGMAS, replicates)
+        est, _ = mn.all_noise_estimate(flat, SIGMAS, replicates)
         out[name] = {
             "upper_bound_95": bound,
             "all_noise_mle": est.value,
             "all_noise_interval_95": [est.low, est.high],
             "windows": len(windows),
             "windows_zero_vertices": sum(n == 0 for n, _ in windows),
-            "windows_flat": len(mn.observed(bags, axis, flat_only=True)),
+            "windows_flat": len(flat),
         }
     return out
 

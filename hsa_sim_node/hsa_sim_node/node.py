@@ -54,7 +54,7 @@ from hsa_core.sensing.mocap import planar_to_world
 from hsa_core.sim.disturbance import WORLDS, named_world
 from hsa_core.sim.lockstep import Barrier
 from hsa_core.sim.playback import Action, Step
-from hsa_core.sim.run_conditions import plant_params, run_disturbance
+from hsa_core.sim.run_conditions import plant_params, rest_strain_shift, run_disturbance
 from hsa_core.sim.sim_lockstep import SimLockstep
 from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World, payload_schedule
 from hsa_msgs.msg import LockstepAck
@@ -228,9 +228,8 @@ class SimNode(Node):
         ids, ticks = list(wiring.motor_ids), list(self._p["initial_ticks"] or wiring.neutral_ticks)
         model = load_model(self._p)
         declared = named_world(self._p["disturbance"], self._p["material"], self._p["seed"])
-        plant_sigma = self._p["plant_sigma_a_eq"]
-        shift = np.asarray(plant_sigma or model.sigma_a_eq, float) - np.asarray(model.sigma_a_eq)
-        disturbance = run_disturbance(declared, self._p["command_latency"], tuple(shift))
+        shift = rest_strain_shift(model, self._p["plant_sigma_a_eq"] or None)
+        disturbance = run_disturbance(declared, self._p["command_latency"], shift)
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"

@@ -82,7 +82,12 @@ from hsa_core.runs.reference import ReferenceRun
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
-from hsa_core.sim.run_conditions import TickEstimator, plant_params, run_disturbance
+from hsa_core.sim.run_conditions import (
+    TickEstimator,
+    plant_params,
+    rest_strain_shift,
+    run_disturbance,
+)
 from hsa_core.sim.world import GRID_NS, MOCAP_PERIOD_NS, World, seconds_to_ns
 from hsa_core.task.planning import Planner, PlanResult
 from hsa_core.task.sequencer_timing import first_point_ns
@@ -176,8 +181,7 @@ class ExperimentConfig:
         ``plant_sigma_a_eq``)."""
         if self.plant_sigma_a_eq is None:
             return (0.0, 0.0)
-        model = np.asarray(self.model().sigma_a_eq, float)
-        return tuple(float(v) for v in np.asarray(self.plant_sigma_a_eq, float) - model)
+        return rest_strain_shift(self.model(), self.plant_sigma_a_eq)
 
     def world(self) -> DisturbanceModel:
         """The world of this run: the disturbance with the run's command latency and plant σ_a,eq

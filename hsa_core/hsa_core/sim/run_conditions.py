@@ -110,6 +110,17 @@ def plant_params(model: HsaParams, payload: float) -> HsaParams:
     return model.replace(m_pl=payload) if payload else model
 
 
+def rest_strain_shift(
+    model: HsaParams, plant_sigma_a_eq: tuple[float, float] | None
+) -> tuple[float, float]:
+    """The plant's σ_a,eq minus the controller's ``model``'s, per rod (0 without
+    ``plant_sigma_a_eq``): :func:`run_disturbance`'s ``rest_strain_shift``."""
+    if plant_sigma_a_eq is None:
+        return (0.0, 0.0)
+    s1, s2 = np.asarray(plant_sigma_a_eq, float) - np.asarray(model.sigma_a_eq, float)
+    return (float(s1), float(s2))
+
+
 def run_disturbance(
     disturbance: DisturbanceModel,
     command_latency: float,

@@ -16,21 +16,36 @@ def stop_all(procs: dict[str, NodeProcess]) -> None:
 
 
 def estimation_graph(
-    ns: str, controller: Sequence[str] = (), **more: tuple[str, Sequence[str]]
+    ns: str,
+    controller: Sequence[str] = (),
+    input_depth: int = 0,
+    **more: tuple[str, Sequence[str]],
 ) -> Iterator[dict[str, NodeProcess]]:
     """mocap_bridge (platform poses on ``<ns>/mocap/platform/pose``), kinematics_node and
     controller_node (FPU, P-satI-D, no driver in the graph, ``controller`` arguments added) in
     ``ns``, diagnostics at 5 Hz, and the ``more`` nodes (key: executable, arguments); a module
-    fixture yields from it."""
+    fixture yields from it. ``input_depth`` > 0 deepens the pipeline's best-effort inputs (pose,
+    ee_pose, state) to that many samples through their QoS overrides, so that a node that stalls
+    on a loaded machine drops none of what a test counts (default: the nodes' own depth, 5)."""
     common = ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ]
+
+    def deep(topic: str) -> list[str]:
+        return ["-p", f"qos_overrides.{ns}/{topic}.subscription.depth:={input_depth}"] * bool(
+            input_depth
+        )
+
+    pose = "mocap/platform/pose"
     procs = start_all(
         {
             "bridge": (
                 "mocap_bridge",
-                [*common, "-p", f"platform_topic:={ns}/mocap/platform/pose"],
+                [*common, "-p", f"platform_topic:={ns}/{pose}", *deep(pose)],
             ),
-            "kinematics": ("kinematics_node", common),
-            "controller": ("controller_node", [*common, "-p", "driver_timeout:=0.0", *controller]),
+            "kinematics": ("kinematics_node", [*common, *deep("ee_pose")]),
+            "controller": (
+                "controller_node",
+                [*common, "-p", "driver_timeout:=0.0", *deep("state"), *controller],
+            ),
             **more,
         }
     )

@@ -23,6 +23,7 @@ from hsa_common import qos
 from hsa_core.sensing import mocap
 from hsa_msgs.msg import ControllerInfo, PlanarPoseStamped, PlanarState, Setpoint
 from hsa_msgs.srv import PlanSetpoint
+from tests.ros.conftest import ParameterClient
 from tests.ros.faults import (
     BEST_EFFORT,
     OFFSET_CHIEE,
@@ -59,9 +60,14 @@ STATUS = {
 @pytest.fixture(scope="module")
 def graph() -> Iterator[dict[str, NodeProcess]]:
     """mocap_bridge, kinematics_node, controller_node (FPU, P-satI-D, every rejection logged: the
-    test counts the lines) and planner_node (static) in /bad."""
+    test counts the lines) and planner_node (static) in /bad. The tests count every injected
+    sample: the inputs hold 1000 samples (5 s of the stream), not 5, so that a node stalled by a
+    loaded machine drops none (a run beside two busy processes once lost the first three)."""
     yield from estimation_graph(
-        NS, ["-p", "rejection_log_period:=0.0"], planner=("planner_node", ["-r", f"__ns:={NS}"])
+        NS,
+        ["-p", "rejection_log_period:=0.0"],
+        input_depth=1000,
+        planner=("planner_node", ["-r", f"__ns:={NS}"]),
     )
 
 
@@ -101,6 +107,13 @@ def _report(diagnostics: DiagnosticsLog, name: str, node) -> dict[str, str]:  # 
 
 
 def test_bad_measurements_never_reach_the_controller(graph, ros_node) -> None:
+    for node, topic in (
+        ("mocap_bridge", "mocap/platform/pose"),
+        ("kinematics_node", "ee_pose"),
+        ("controller_node", "state"),
+    ):  # the fixture's deep inputs are in force (an unknown -p name would pass silently)
+        depth = f"qos_overrides.{NS}/{topic}.subscription.depth"
+        assert ParameterClient(ros_node, f"{NS}/{node}").get(depth) == 1000, node
     infos = Recorder(ros_node, ControllerInfo, f"{NS}/controller_info")
     states = Recorder(ros_node, PlanarState, f"{NS}/state", BEST_EFFORT)
     diagnostics = DiagnosticsLog(ros_node)

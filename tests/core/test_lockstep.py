@@ -3,7 +3,7 @@ leavers."""
 
 from __future__ import annotations
 
-from hsa_core.sim.lockstep import Barrier, Report, ReportPacing
+from hsa_core.sim.lockstep import DISCOVERY_SETTLE, Barrier, Report, ReportPacing
 
 MS = 1_000_000
 
@@ -29,13 +29,13 @@ def graph(**changes: Report) -> Barrier:
 def test_time_starts_only_when_every_expected_participant_is_ready_and_matched() -> None:
     barrier = Barrier(["/bridge", "/kin"])
     barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 0}))
-    assert "waiting for participants ['/kin']" in barrier.start_problem()
+    assert "waiting for participants ['/kin']" in barrier.discovery_problem()
     barrier.report(Report("/kin", 0, ready=False, taken={"/ee": 0}))
-    assert "not ready" in barrier.start_problem()
+    assert "not ready" in barrier.discovery_problem()
     barrier.report(Report("/kin", 0, taken={"/ee": 0}))
-    assert "'/ee' matched 0 of 1" in barrier.start_problem()
+    assert "'/ee' matched 0 of 1" in barrier.discovery_problem()
     barrier.report(Report("/bridge", 0, published={"/ee": 0}, matched={"/ee": 1}))
-    assert barrier.start_problem() is None
+    assert barrier.discovery_problem() is None
 
 
 def test_time_starts_only_when_every_subscription_knows_every_publisher() -> None:
@@ -47,12 +47,31 @@ def test_time_starts_only_when_every_subscription_knows_every_publisher() -> Non
     )
     # the writer knows the reader
     barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 0, "/clock": 1}))
-    assert barrier.start_problem() == "/kin: subscription to '/ee' matched 0 of 1 publishers"
+    assert barrier.discovery_problem() == "/kin: subscription to '/ee' matched 0 of 1 publishers"
     barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 1}))
-    assert barrier.start_problem() is None
+    assert barrier.discovery_problem() is None
     barrier.own_matched = {"/clock": 2}  # the simulator publishes /clock: it must be known too
     barrier.report(Report("/kin", 0, taken={"/ee": 0}, heard={"/ee": 1, "/clock": 0}))
-    assert barrier.start_problem() == "/kin: subscription to '/clock' matched 0 of 1 publishers"
+    assert barrier.discovery_problem() == "/kin: subscription to '/clock' matched 0 of 1 publishers"
+
+
+def test_time_starts_only_once_discovery_has_stayed_complete_and_unchanged() -> None:
+    """Both ends matched is not enough: a recorder's best-effort subscription took none of the
+    first samples sent 9 ms after it matched (a replay's start, on a loaded machine)."""
+    barrier = Barrier(["/kin", "/rec"])
+    barrier.own_matched = {"/pose": 1}
+    barrier.report(Report("/kin", 0, heard={"/pose": 1}))
+    barrier.report(Report("/rec", 0, ready=False))
+    assert "not ready" in barrier.start_problem(10.0)
+    barrier.report(Report("/rec", 0))
+    assert barrier.start_problem(10.25) == "discovery complete 0.000 s ago, settling for 0.5 s"
+    assert barrier.start_problem(10.5) == "discovery complete 0.250 s ago, settling for 0.5 s"
+    # the recorder subscribes to /pose: counts change, the settling starts again
+    barrier.own_matched = {"/pose": 2}
+    barrier.report(Report("/rec", 0, heard={"/pose": 1}))
+    assert barrier.start_problem(10.75).startswith("discovery complete 0.000 s ago")
+    assert barrier.start_problem(10.75 + DISCOVERY_SETTLE / 2) is not None
+    assert barrier.start_problem(10.75 + DISCOVERY_SETTLE) is None
 
 
 def test_the_simulators_own_publishers_must_reach_every_participant_subscription() -> None:
@@ -65,11 +84,16 @@ def test_the_simulators_own_publishers_must_reach_every_participant_subscription
         "/clock": 2,
         "/diagnostics": 0,  # nobody subscribes to /diagnostics
     }
-    assert barrier.start_problem() == "simulator: '/pose' matched 1 of 2 participant subscriptions"
+    assert (
+        barrier.discovery_problem() == "simulator: '/pose' matched 1 of 2 participant subscriptions"
+    )
     barrier.own_matched = {"/pose": 2, "/clock": 1, "/diagnostics": 0}
-    assert barrier.start_problem() == "simulator: '/clock' matched 1 of 2 participant subscriptions"
+    assert (
+        barrier.discovery_problem()
+        == "simulator: '/clock' matched 1 of 2 participant subscriptions"
+    )
     barrier.own_matched = {"/pose": 2, "/clock": 2, "/diagnostics": 0}
-    assert barrier.start_problem() is None
+    assert barrier.discovery_problem() is None
 
 
 def test_a_message_in_flight_holds_the_barrier_until_its_taker_reports() -> None:

@@ -4,7 +4,7 @@ timeouts."""
 
 from __future__ import annotations
 
-from hsa_core.sim.lockstep import Barrier, Report
+from hsa_core.sim.lockstep import DISCOVERY_SETTLE, Barrier, Report
 from hsa_core.sim.playback import Action, LockstepPlayback
 
 MS = 1_000_000
@@ -25,13 +25,17 @@ def kinematics(
     )
 
 
-def started(timeout: float = 5.0) -> tuple[Barrier, LockstepPlayback]:
-    """A playback whose start condition holds (the participant reported, the player's /ee
-    matched)."""
+def started(
+    timeout: float = 5.0, *others: Report, matched: int = 1
+) -> tuple[Barrier, LockstepPlayback]:
+    """A playback whose start condition holds and has settled (the participant and ``others``
+    reported, the player's /ee matched ``matched`` times since DISCOVERY_SETTLE s before 0)."""
     barrier = Barrier(["/kin"])
     barrier.own = {"/ee": 0}
-    barrier.report(kinematics())
+    for r in (kinematics(), *others):
+        barrier.report(r)
     playback = LockstepPlayback(barrier, timeout=timeout)
+    assert playback.step(T0, {"/ee": matched}, now=-DISCOVERY_SETTLE).action == "wait"
     return barrier, playback
 
 
@@ -46,7 +50,10 @@ def test_time_starts_when_the_participants_are_ready_and_take_the_players_topics
         step.action == "wait"
         and step.reason == "simulator: '/ee' matched 0 of 1 participant subscriptions"
     )
-    step = playback.step(T0, {"/ee": 1}, now=0.2)
+    step = playback.step(T0, {"/ee": 1}, now=0.25)
+    assert step.action == "wait" and step.reason.startswith("discovery complete 0.000 s ago")
+    assert playback.step(T0, {"/ee": 1}, now=0.25 + DISCOVERY_SETTLE / 2).action == "wait"
+    step = playback.step(T0, {"/ee": 1}, now=0.25 + DISCOVERY_SETTLE)
     assert (step.action, step.t_ns) == (
         "clock",
         T0,
@@ -102,8 +109,9 @@ def test_a_timer_due_before_the_next_message_gets_its_own_instant() -> None:
 def test_with_a_recorder_the_lead_clock_goes_first_where_a_timer_is_due() -> None:
     """A timer's messages at an instant may reach the recorder before /clock: its lead clock must be
     there first."""
-    barrier, playback = started()
-    barrier.report(Report("/rec", 0, taken={"/ee": 0}, clock_acks=True))
+    barrier, playback = started(
+        5.0, Report("/rec", 0, taken={"/ee": 0}, clock_acks=True), matched=2
+    )
     playback.step(T0, {"/ee": 2}, now=0.0)
     barrier.report(Report("/rec", T0, taken={"/ee": 0}, clock_acks=True))
     barrier.report(kinematics(clock_ns=T0, due=T0 + 25 * MS))
@@ -126,6 +134,7 @@ def test_timer_dues_before_the_first_message_are_not_stepped_through() -> None:
     barrier = Barrier(["/kin"])
     barrier.report(kinematics(due=25 * MS))  # a timer on the grid of simulated time 0
     playback = LockstepPlayback(barrier, timeout=5.0)
+    assert playback.step(T0, {"/ee": 1}, now=-DISCOVERY_SETTLE).action == "wait"
     step = playback.step(T0, {"/ee": 1}, now=0.0)
     assert (step.action, step.t_ns) == ("clock", T0)  # one jump to the bag's first log time
 
@@ -188,10 +197,11 @@ def test_every_step_carries_an_action_member() -> None:
     steps = [playback.step(T0, {"/ee": 1}, now=0.0)]  # the participant has not reported
     barrier.own = {"/ee": 0}
     barrier.report(kinematics())
-    steps.append(playback.step(T0, {"/ee": 1}, now=0.1))
+    playback.step(T0, {"/ee": 1}, now=0.1)  # discovery settling
+    steps.append(playback.step(T0, {"/ee": 1}, now=0.1 + DISCOVERY_SETTLE))
     barrier.report(kinematics(T0))
-    steps.append(playback.step(T0, {"/ee": 1}, now=0.2))
-    steps.append(playback.step(None, {"/ee": 1}, now=0.3))
+    steps.append(playback.step(T0, {"/ee": 1}, now=0.7))
+    steps.append(playback.step(None, {"/ee": 1}, now=0.8))
     stuck = LockstepPlayback(Barrier(["/kin"]), timeout=1.0)
     stuck.step(T0, {}, now=0.0)
     steps.append(stuck.step(T0, {}, now=10.1))  # start-up may take 10 timeouts

@@ -4,7 +4,7 @@ resend, stop when a participant leaves, wall-clock timeouts."""
 
 from __future__ import annotations
 
-from hsa_core.sim.lockstep import Barrier, Report
+from hsa_core.sim.lockstep import DISCOVERY_SETTLE, Barrier, Report
 from hsa_core.sim.sim_lockstep import BUS_BUSY, SimLockstep
 
 MS = 1_000_000
@@ -31,6 +31,7 @@ def started(timeout: float = 5.0) -> tuple[Barrier, SimLockstep]:
     barrier.own = {"/mocap": 0}
     barrier.report(controller())
     sim = SimLockstep(barrier, timeout=timeout)
+    assert step(sim, -DISCOVERY_SETTLE).action in ("wait", "clock")  # discovery settling
     assert step(sim, 0.0).action == "start"
     return barrier, sim
 
@@ -53,7 +54,10 @@ def test_time_starts_when_the_participants_are_ready_and_clock_0_is_resent_meanw
     assert step(sim, 100.01).action == "wait"  # resent at most every 50 ms
     assert step(sim, 100.07).action == "clock"
     barrier.report(controller())
-    assert step(sim, 100.08).action == "start" and barrier.started
+    settling = step(sim, 100.25)
+    assert settling.action == "clock" and settling.reason.startswith("discovery complete 0.000 s")
+    assert step(sim, 100.25 + DISCOVERY_SETTLE / 2).action == "clock"
+    assert step(sim, 100.25 + DISCOVERY_SETTLE).action == "start" and barrier.started
 
 
 def test_samples_between_instants_are_run_without_clock_and_an_instant_comes_every_50_ms() -> None:

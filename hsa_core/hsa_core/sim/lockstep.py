@@ -7,13 +7,17 @@ its earliest timer, the service requests it awaits, and per topic how many messa
 and taken since start. The simulator's own publications are counted in the same way. From the latest
 report of every participant the barrier decides:
 
-* ``start_problem()`` — simulated time may start (None) once every expected participant has
-  reported, is ready, and discovery is complete on both sides of every topic: each publisher (a
-  participant's or the simulator's own, ``own_matched``, /clock included) has matched at least as
-  many subscriptions as participants subscribe to its topic, and each participant's subscriptions
-  have matched at least as many publishers as participants and the simulator have on it (``heard``).
-  DDS matches the two ends separately: a writer that knows a reader sends to it, but a reader that
-  does not know the writer yet drops what arrives, so one side alone loses the first messages;
+* ``discovery_problem()`` — every expected participant has reported, is ready, and discovery is
+  complete on both sides of every topic (None): each publisher (a participant's or the simulator's
+  own, ``own_matched``, /clock included) has matched at least as many subscriptions as participants
+  subscribe to its topic, and each participant's subscriptions have matched at least as many
+  publishers as participants and the simulator have on it (``heard``). DDS matches the two ends
+  separately: a writer that knows a reader sends to it, but a reader that does not know the writer
+  yet drops what arrives, so one side alone loses the first messages;
+* ``start_problem(now)`` — simulated time may start (None) once discovery has stayed complete, with
+  the same match counts, for ``DISCOVERY_SETTLE`` s of wall time: a best-effort sample sent in the
+  first milliseconds after both ends matched can still be lost (seen at the start of a replay: a
+  recorder took none of the first four states published 9 ms after its subscription matched);
 * ``settle_problem()`` — nothing is in flight (None): on every topic, every participant that takes
   it has taken every message published on it, and no service request is unanswered;
 * ``lead_problem(t)`` — every participant with ``clock_acks`` (a recorder, whose log times are its
@@ -43,6 +47,9 @@ from dataclasses import dataclass, field
 
 REPORT_QUIET = 0.002
 """[s] of wall time a participant that ran out of work still waits for more before it reports."""
+
+DISCOVERY_SETTLE = 0.5
+"""[s] of wall time discovery must stay complete and unchanged before simulated time starts."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +82,7 @@ class Barrier:
             str, int
         ] = {}  # the simulator's publishers (/clock too): subscriptions matched
         self.started = False
+        self._discovered: tuple[tuple, float] | None = None  # (match counts, since) once complete
         self.left: list[str] = []  # expected participants that have left: the graph is ending
         self._baseline: dict[
             str, dict[str, int]
@@ -100,8 +108,29 @@ class Barrier:
                 totals[topic] = totals.get(topic, 0) + n
         return totals
 
-    def start_problem(self) -> str | None:
-        """Why simulated time cannot start yet, or None."""
+    def start_problem(self, now: float) -> str | None:
+        """Why simulated time cannot start yet at wall time ``now`` [s], or None."""
+        problem = self.discovery_problem()
+        if problem is not None:
+            self._discovered = None
+            return problem
+        counts = (
+            tuple(sorted(self.own_matched.items())),
+            tuple(
+                (n, tuple(sorted(r.matched.items())), tuple(sorted(r.heard.items())))
+                for n, r in sorted(self.reports.items())
+            ),
+        )
+        if self._discovered is None or self._discovered[0] != counts:
+            self._discovered = (counts, now)
+        waited = now - self._discovered[1]
+        if waited < DISCOVERY_SETTLE:
+            return f"discovery complete {waited:.3f} s ago, settling for {DISCOVERY_SETTLE} s"
+        return None
+
+    def discovery_problem(self) -> str | None:
+        """Why discovery is not complete yet (participants, readiness, both ends of every topic),
+        or None."""
         missing = [n for n in self.expected if n not in self.reports]
         if missing:
             return f"waiting for participants {missing}"

@@ -82,7 +82,7 @@ class LockstepPlayback:
             self._since = now
         if self.phase == START:
             self.barrier.own_matched = dict(matched)
-            problem = self.barrier.start_problem()
+            problem = self.barrier.start_problem(now)
             if problem is not None:
                 return self._wait(problem, now, 10 * self.timeout)
             self.barrier.start()

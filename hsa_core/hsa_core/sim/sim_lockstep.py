@@ -94,7 +94,7 @@ class SimLockstep:
             return Step(Action.STOP, self.instant, f"{self.barrier.left[0]} left")
         if self.phase == START:
             self.barrier.own_matched = dict(matched())
-            problem = self.barrier.start_problem()
+            problem = self.barrier.start_problem(now)
             if problem is not None:
                 return self._wait(problem, now, send_clock=True)
             self.barrier.start()

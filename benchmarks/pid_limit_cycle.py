@@ -3,21 +3,23 @@ switched off at a time.
 
 Runs the offline experiment (hsa_core.sim.experiment.run_experiment, the reference the lockstep ROS
 graph reproduces) on the FPU step list, truncated to ``--duration`` seconds, with the paper's gains,
-the default disturbance (seed 0) and one factor changed per row: measurement noise, measurement
-latency, actuation latency, the servo speed cap, the plant/model mismatch, K_d, the 40 Hz control
-rate, the Savitzky–Golay derivative (replaced by the plant's exact velocity) or given a 0.4 s
-window, all of the disturbance, the speed cap alone, and the plant's hand-tuned damping x3; for
-P-satI-D also the paper's K_d = 0.01. Per run it reports RMSE, e_ss (measured, mean over the steps
-after the first), overshoot, the peak-to-peak of the true x over the last 2 s of each step after the
-first (mean and max), the dominant frequency of x − x_des over the last 4 s of those steps (averaged
-Hann periodograms) and the range φ covers over the last 2 s. ``--full`` adds the full 110 s runs of
-``--full-rows`` (default world, and the September-estimator stand-in). ``linear_analysis`` adds the
-linearised PID x-loop (bending mode, SG response, margins, the amplitude the servo speed cap
-allows). Findings: docs/simulation.md (PID limit cycle). Writes
-benchmarks/results/pid_limit_cycle.json (after every run, so an interrupted run keeps what it
-measured). Usage: python benchmarks/pid_limit_cycle.py --full  (all rows, both laws, 40 s, plus the
-110 s runs; ~20 min on 2 loaded cores); [--laws pid] [--rows default,no_speed_cap] [--append] add to
-the existing JSON.
+the world ``--disturbance`` names (default the declared one; ``calibrated``: the FPU world fitted to
+the real runs; noise seed 0) under the run ``--profile`` (default the lab's) and one factor of it
+changed per row: measurement noise, measurement latency, actuation latency, the servo speed cap, the
+plant/model mismatch, K_d, the 40 Hz control rate, the Savitzky–Golay derivative (replaced by the
+plant's exact velocity) or given a 0.4 s window, all of the disturbance, the speed cap alone, and
+the plant's hand-tuned damping x3; for P-satI-D also the paper's K_d = 0.01. Per run it reports
+RMSE, e_ss (measured, mean over the steps after the first), overshoot, the peak-to-peak of the true
+x over the last 2 s of each step after the first (mean and max), the dominant frequency of x − x_des
+over the last 4 s of those steps (averaged Hann periodograms) and the range φ covers over the last 2
+s. ``--full`` adds the full 110 s runs of ``--full-rows`` (default world, and the
+September-estimator stand-in). ``linear_analysis`` adds the linearised PID x-loop (bending mode, SG
+response, margins, the amplitude the servo speed cap allows; the lab loop only: 40 Hz,
+Savitzky–Golay). Findings: docs/simulation.md (PID limit cycle). Writes
+benchmarks/results/pid_limit_cycle.json or ``--out`` (after every run, so an interrupted run keeps
+what it measured) with the command, world, profile and the machine's load. Usage: python
+benchmarks/pid_limit_cycle.py --full  (all rows, both laws, 40 s, plus the 110 s runs; ~20 min on 2
+loaded cores); [--laws pid] [--rows default,no_speed_cap] [--append] add to the existing JSON.
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ import contextlib
 import dataclasses
 import json
 import math
+import os
 import platform
+import sys
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -38,15 +42,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hsa_core import cli
 from hsa_core.controller.control import default_gains
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.model import kinematics, simulation
 from hsa_core.model.dynamics import forward_dynamics_fn
-from hsa_core.model.params import HsaParams, load_params
+from hsa_core.model.params import load_params
+from hsa_core.runs.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile
 from hsa_core.sensing.estimation import Estimate, derivative_coefficients
 from hsa_core.sim import experiment
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.experiment import ExperimentConfig, ExperimentResult, run_experiment
+from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
+from hsa_core.sim.experiment import ExperimentResult, profile_config, run_experiment
 from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World
 from hsa_core.task.trajectories import TimedReference, step_reference
 
@@ -67,105 +73,105 @@ convergence)."""
 
 @dataclass(frozen=True)
 class Row:
-    """One factor setting: label, what it changes, and how (disturbance, gains, rate, exact
+    """One factor setting: label, what it changes, and how (world, gains, rate, exact
     derivative)."""
 
     name: str
     change: str
     disturbance: DisturbanceModel = field(default_factory=DisturbanceModel)
     kd: float | None = None  # None: the paper's K_d
-    rate: float = 40.0
+    rate: float | None = None  # None: the profile's
     exact_derivative: bool = False
     estimator_window: int = experiment.ESTIMATOR_WINDOW
 
 
-@dataclass(frozen=True)
-class _DampedPlant(DisturbanceModel):
-    """The default disturbance with the plant's damping constants (ζ_b, ζ_sh, ζ_a) scaled: they were
-    hand-tuned."""
-
-    damping_scale: float = 1.0
-
-    def plant_params(self, model: HsaParams) -> HsaParams:
-        """The declared plant with every damping constant times ``damping_scale``."""
-        plant = super().plant_params(model)
-        k = self.damping_scale
-        return plant.replace(
-            zeta_b=np.asarray(plant.zeta_b) * k,
-            zeta_sh=np.asarray(plant.zeta_sh) * k,
-            zeta_a=np.asarray(plant.zeta_a) * k,
-        )
+SG_ROWS = ("exact_derivative", "sg_window_80")
+"""Rows that change the Savitzky–Golay estimator: meaningful only under a profile that uses it."""
 
 
-DEFAULT = DisturbanceModel()
-ROWS = (
-    Row(
-        "default",
-        "the declared world (noise, 6 ms mocap and 2 ms actuation latency, mismatch, 5.76 rad/s "
-        "cap)",
-    ),
-    Row(
-        "no_noise",
-        "pose noise sigma = 0",
-        dataclasses.replace(DEFAULT, pose_noise_std=(0.0, 0.0, 0.0)),
-    ),
-    Row(
-        "no_meas_latency",
-        "mocap latency 6 ms -> 0",
-        dataclasses.replace(DEFAULT, measurement_latency=0.0),
-    ),
-    Row(
-        "no_act_latency",
-        "actuation latency 2 ms -> 0",
-        dataclasses.replace(DEFAULT, actuation_latency=0.0),
-    ),
-    Row(
-        "no_speed_cap",
-        "servo speed cap 5.76 rad/s -> none",
-        dataclasses.replace(DEFAULT, servo_max_speed=math.inf),
-    ),
-    Row(
-        "no_mismatch",
-        "plant = model (stiffness 1, C_eps 1, sigma_a_eq offset 0)",
-        dataclasses.replace(
-            DEFAULT, stiffness_scale=1.0, elongation_scale=1.0, rest_strain_offset=0.0
+def rows(world: DisturbanceModel) -> tuple[Row, ...]:
+    """The factor rows, each one change of ``world`` (the run's named world) or of the loop."""
+    ms = 1e3
+    return (
+        Row(
+            "default",
+            f"the world itself (noise, {world.measurement_latency * ms:g} ms mocap and "
+            f"{world.actuation_latency * ms:g} ms actuation latency, mismatch, "
+            f"{world.servo_max_speed:.2f} rad/s cap)",
+            world,
         ),
-    ),
-    Row("kd_zero", "K_d = 0 (P-I only)", kd=0.0),
-    Row(
-        "kd_0.01",
-        "K_d = 0.01 (P-satI-D only: the paper's own remedy of 2023-10-19 against D-term "
-        "oscillations)",
-        kd=0.01,
-    ),
-    Row("rate_200", "control rate 40 Hz -> 200 Hz (integrator dt follows)", rate=200.0),
-    Row(
-        "exact_derivative",
-        "SG derivative -> plant's exact velocity (no lag, no noise)",
-        exact_derivative=True,
-    ),
-    Row(
-        "all_off",
-        "DisturbanceModel.none(): no noise, latency, mismatch or cap",
-        DisturbanceModel.none(),
-    ),
-    Row(
-        "cap_only",
-        "DisturbanceModel.none() plus the 5.76 rad/s cap",
-        dataclasses.replace(DisturbanceModel.none(), servo_max_speed=DEFAULT.servo_max_speed),
-    ),
-    Row(
-        "sg_window_80",
-        "SG window 20 -> 80 samples (0.4 s: the span of the September runs' 16-sample fit at "
-        "40 Hz; a stand-in for that smoothing spline)",
-        estimator_window=80,
-    ),
-    Row(
-        "damping_x3",
-        "plant damping constants x3 (hand-tuned in the paper, not identified)",
-        _DampedPlant(damping_scale=3.0),
-    ),
-)
+        Row(
+            "no_noise",
+            "pose noise sigma = 0",
+            dataclasses.replace(world, pose_noise_std=(0.0, 0.0, 0.0)),
+        ),
+        Row(
+            "no_meas_latency",
+            f"mocap latency {world.measurement_latency * ms:g} ms -> 0",
+            dataclasses.replace(world, measurement_latency=0.0),
+        ),
+        Row(
+            "no_act_latency",
+            f"actuation latency {world.actuation_latency * ms:g} ms -> 0",
+            dataclasses.replace(world, actuation_latency=0.0),
+        ),
+        Row(
+            "no_speed_cap",
+            f"servo speed cap {world.servo_max_speed:.2f} rad/s -> none",
+            dataclasses.replace(world, servo_max_speed=math.inf),
+        ),
+        Row(
+            "no_mismatch",
+            "plant = model (stiffness 1, C_eps 1, sigma_a_eq offset 0; rod difference, shear "
+            "strain offset 0, shear scale 1)",
+            dataclasses.replace(
+                world,
+                stiffness_scale=1.0,
+                elongation_scale=1.0,
+                rest_strain_offset=0.0,
+                rest_strain_difference=0.0,
+                shear_strain_offset=0.0,
+                shear_scale=1.0,
+            ),
+        ),
+        Row("kd_zero", "K_d = 0 (P-I only)", world, kd=0.0),
+        Row(
+            "kd_0.01",
+            "K_d = 0.01 (P-satI-D only: the paper's own remedy of 2023-10-19 against D-term "
+            "oscillations)",
+            world,
+            kd=0.01,
+        ),
+        Row("rate_200", "control rate -> 200 Hz (integrator dt follows)", world, rate=200.0),
+        Row(
+            "exact_derivative",
+            "SG derivative -> plant's exact velocity (no lag, no noise)",
+            world,
+            exact_derivative=True,
+        ),
+        Row(
+            "all_off",
+            "DisturbanceModel.none(): no noise, latency, mismatch or cap",
+            DisturbanceModel.none(),
+        ),
+        Row(
+            "cap_only",
+            "DisturbanceModel.none() plus the world's speed cap",
+            dataclasses.replace(DisturbanceModel.none(), servo_max_speed=world.servo_max_speed),
+        ),
+        Row(
+            "sg_window_80",
+            "SG window 20 -> 80 samples (0.4 s: the span of the September runs' 16-sample fit at "
+            "40 Hz; a stand-in for that smoothing spline)",
+            world,
+            estimator_window=80,
+        ),
+        Row(
+            "damping_x3",
+            "plant damping constants x3 (hand-tuned in the paper, not identified)",
+            dataclasses.replace(world, damping_scale=3.0 * world.damping_scale),
+        ),
+    )
 
 
 _ee_velocity = jax.jit(lambda plant, q, q_dot: kinematics.end_effector_jacobian(plant, q) @ q_dot)
@@ -274,15 +280,16 @@ def oscillation(result: ExperimentResult) -> dict[str, float]:
     }
 
 
-def linear_analysis() -> dict[str, object]:
-    """Linearised x-loop of the PID at φ = φ_max/2 on the default plant: mode, SG response, margins,
-    rate-limit bound.
+def linear_analysis(world: DisturbanceModel, cycle_hz: float | None) -> dict[str, object]:
+    """Linearised x-loop of the PID at φ = φ_max/2 on ``world``'s plant: mode, SG response,
+    margins, and the rate-limit bound of a cycle at ``cycle_hz`` (left out without one).
 
-    Approximate (continuous-time equivalent of the 40 Hz loop: zero-order hold as (1 −
-    e^(−jωT))/(jωT), the newest mocap sample 10 ms old at a tick (stamp on the 5 ms grid, 6 ms
-    latency), 2 ms actuation latency, x-loop alone)."""
+    Approximate (continuous-time equivalent of the 40 Hz lab loop: zero-order hold as (1 −
+    e^(−jωT))/(jωT), the newest mocap sample at a tick as old as the world's mocap latency rounded
+    up to the 5 ms grid, the world's actuation latency, x-loop alone)."""
     model = load_params("fpu")
-    plant = DEFAULT.plant_params(model)
+    plant = world.plant_params(model)
+    sample_age = MOCAP_PERIOD * math.ceil(world.measurement_latency / MOCAP_PERIOD - 1e-9)
     phi0 = jnp.full(2, float(np.min(np.asarray(model.phi_max))) / 2.0)
     q_ddot = forward_dynamics_fn(plant)
     x0 = jnp.asarray(simulation.steady_state_rollout(plant, phi0)).at[3:].set(0.0)
@@ -304,12 +311,14 @@ def linear_analysis() -> dict[str, object]:
     def loop(f: float, exact: bool, kd: float) -> complex:
         """Open-loop x-loop gain L(j2πf) (negative feedback; instability where L circles −1)."""
         w = 2.0 * math.pi * f
-        derivative = 1j * w * np.exp(-1j * w * 0.004) if exact else sg(w) * np.exp(-1j * w * 0.010)
-        law = (gains.kp + gains.ki / (1j * w)) * np.exp(-1j * w * 0.010) + kd * derivative
+        derivative = (
+            1j * w * np.exp(-1j * w * 0.004) if exact else sg(w) * np.exp(-1j * w * sample_age)
+        )
+        law = (gains.kp + gains.ki / (1j * w)) * np.exp(-1j * w * sample_age) + kd * derivative
         hold = (
             (1.0 - np.exp(-1j * w * period))
             / (1j * w * period)
-            * np.exp(-1j * w * DEFAULT.actuation_latency)
+            * np.exp(-1j * w * world.actuation_latency)
         )
         return p_x(w) * law * hold
 
@@ -330,11 +339,10 @@ def linear_analysis() -> dict[str, object]:
             "gain_at_10hz": float(abs(loop(10.0, exact, kd))),
             "phase_at_10hz_deg": float(np.degrees(np.angle(loop(10.0, exact, kd)))),
         }
-    f_lc = 10.13
-    # amplitude of a full-speed triangle at f_lc [rad]
-    triangle = DEFAULT.servo_max_speed / (4.0 * f_lc)
-    return {
-        "operating_point": "FPU plant (default mismatch), phi = phi_max/2 on both rods, at rest",
+    analysis: dict[str, object] = {
+        "operating_point": "FPU plant of the world, phi = phi_max/2 on both rods, at rest",
+        "sample_age_ms": 1e3 * sample_age,
+        "actuation_latency_ms": 1e3 * world.actuation_latency,
         "bending_mode_hz": float(abs(mode) / (2.0 * math.pi)),
         "bending_mode_damping_ratio": float(-mode.real / abs(mode)),
         "static_dx_dux_mm_per_rad": 1e3 * float(p_x(1e-6).real),
@@ -348,28 +356,36 @@ def linear_analysis() -> dict[str, object]:
             for f in (2, 5, 10, 12)
         },
         "loop": cases,
-        "rate_limit_bound": {
-            "f_hz": f_lc,
-            "max_sinusoid_amplitude_rad": DEFAULT.servo_max_speed / (2.0 * math.pi * f_lc),
+    }
+    if cycle_hz is not None:
+        # amplitude of a full-speed triangle at the cycle's frequency [rad]
+        triangle = world.servo_max_speed / (4.0 * cycle_hz)
+        analysis["rate_limit_bound"] = {
+            "f_hz": cycle_hz,
+            "max_sinusoid_amplitude_rad": world.servo_max_speed / (2.0 * math.pi * cycle_hz),
             "triangle_amplitude_rad": triangle,
             "x_p2p_predicted_mm": 1e3
             * 2.0
-            * abs(p_x(2.0 * math.pi * f_lc))
+            * abs(p_x(2.0 * math.pi * cycle_hz))
             * 8.0
             / math.pi**2
             * triangle,
-        },
-    }
+        }
+    return analysis
 
 
-def run_row(row: Row, law: str, reference: TimedReference) -> dict[str, object]:
-    """Run one (factor, law) pair (on _World) and summarise it."""
+def run_row(
+    row: Row, law: str, reference: TimedReference, profile: RunProfile
+) -> dict[str, object]:
+    """Run one (factor, law) pair under ``profile`` (on _World) and summarise it."""
     gains = default_gains(law, "fpu")
     if row.kd is not None:
         gains = dataclasses.replace(gains, kd=row.kd)
-    config = ExperimentConfig(
-        "fpu", law, reference=reference, rate=row.rate, disturbance=row.disturbance, gains=gains
+    config = profile_config(
+        profile, "fpu", law, reference=reference, disturbance=row.disturbance, gains=gains
     )
+    if row.rate is not None:
+        config = dataclasses.replace(config, rate=row.rate, integrator_dt=None)
     experiment.World, experiment.ESTIMATOR_WINDOW = _World, row.estimator_window
     try:
         with _exact_derivative() if row.exact_derivative else contextlib.nullcontext():
@@ -412,15 +428,23 @@ def _table(records: list[dict[str, object]]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
+def cycle_hz(runs: list[dict[str, object]]) -> float | None:
+    """The dominant frequency of the PID's ``default`` row where it cycles (mean x p2p ≥ 1 mm),
+    else None."""
+    for r in runs:
+        if r["row"] == "default" and r["law"] == "pid" and r["p2p_x_mean_mm"] >= 1.0:
+            return float(r["dominant_frequency_hz"])
+    return None
+
+
+def main(argv: list[str] | None = None) -> None:
     """Run the selected rows for the selected laws, print a markdown table and write the JSON."""
-    configure_jax()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--duration", type=float, default=40.0, help="truncate the FPU step list [s] (110 = all)"
     )
     parser.add_argument("--laws", default="pid,psatid")
-    parser.add_argument("--rows", default=",".join(r.name for r in ROWS))
+    parser.add_argument("--rows", default=",".join(r.name for r in rows(DisturbanceModel())))
     parser.add_argument(
         "--full", action="store_true", help="also run the full 110 s experiment for --full-rows"
     )
@@ -434,26 +458,55 @@ def main() -> None:
         action="store_true",
         help="only (re)compute the linear analysis into the existing JSON",
     )
-    args = parser.parse_args()
+    parser.add_argument(
+        "--disturbance",
+        choices=WORLDS,
+        default="default",
+        help="the FPU world the rows change (hsa_core.sim.disturbance.named_world)",
+    )
+    parser.add_argument(
+        "--profile",
+        type=cli.run_profile,
+        default=None,
+        help=f"run profile (default {DEFAULT_PROFILE}); the linear analysis is the lab loop's",
+    )
+    args = parser.parse_args(argv)
+    profile = args.profile or load_profile(DEFAULT_PROFILE)
+    world = named_world(args.disturbance, "fpu")
+    table = {r.name: r for r in rows(world)}
+    names = [name for name in args.rows.split(",") if name]
+    if unknown := [name for name in names if name not in table]:
+        parser.error(f"unknown row(s) {unknown}; choose from {list(table)}")
+    sg = profile.velocity_estimator is VelocityEstimator.SAVITZKY_GOLAY_20
+    if not sg and (off := [n for n in names if n in SG_ROWS]):
+        parser.error(
+            f"rows {off} change the Savitzky–Golay estimator; profile {profile.name} has none"
+        )
+    configure_jax()
+    lab = sg and profile.rate == 40.0
     if args.analysis_only:
         doc = json.loads(args.out.read_text())
-        doc["linear_analysis"] = linear_analysis()
+        doc["linear_analysis"] = linear_analysis(world, cycle_hz(doc["runs"])) if lab else None
         args.out.write_text(json.dumps(doc, indent=1))
         print(json.dumps(doc["linear_analysis"], indent=1))
         return
-    rows = {r.name: r for r in ROWS}
-    selected = [rows[name] for name in args.rows.split(",") if name]
+    started = time.perf_counter()
+    selected = [table[name] for name in names]
     laws = args.laws.split(",")
     reference = truncated(step_reference("fpu"), args.duration)
     doc: dict[str, object] = {
         "what": __doc__.splitlines()[0],
+        "command": " ".join([Path(sys.argv[0]).name, *(sys.argv[1:] if argv is None else argv)]),
         "machine": platform.node(),
         "date_utc": time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime()),
+        "load_1min_at_start": os.getloadavg()[0],
         "material": "fpu",
-        "seed": DEFAULT.seed,
+        "world": args.disturbance,
+        "profile": profile.name,
+        "seed": world.seed,
         "duration_s": reference.duration,
         "gains": {law: dataclasses.asdict(default_gains(law, "fpu")) for law in laws},
-        "linear_analysis": linear_analysis(),
+        "linear_analysis": None,
         "runs": [],
         "full_runs": [],
     }
@@ -463,16 +516,21 @@ def main() -> None:
         for row in selected:
             if row.name == "kd_0.01" and law == "pid":
                 continue  # a collocated K_d; the PID's K_d has other units
-            record = run_row(row, law, reference)
+            record = run_row(row, law, reference, profile)
             doc["runs"].append(record)
             print(_table([record]).splitlines()[-1], flush=True)
             args.out.write_text(json.dumps(doc, indent=1))
     if args.full:
-        for law, row in ((law, rows[name]) for name in args.full_rows.split(",") for law in laws):
-            record = run_row(row, law, step_reference("fpu"))
+        for law, row in ((law, table[name]) for name in args.full_rows.split(",") for law in laws):
+            record = run_row(row, law, step_reference("fpu"), profile)
             doc["full_runs"].append(record)
             print(_table([record]).splitlines()[-1], flush=True)
             args.out.write_text(json.dumps(doc, indent=1))
+    if lab:
+        doc["linear_analysis"] = linear_analysis(world, cycle_hz(doc["runs"]))
+    doc["wall_s"] = round(time.perf_counter() - started, 1)
+    doc["load_1min_at_end"] = os.getloadavg()[0]
+    args.out.write_text(json.dumps(doc, indent=1))
     print(_table(doc["runs"] + doc["full_runs"]))
 
 

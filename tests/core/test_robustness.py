@@ -14,7 +14,7 @@ from hsa_core.controller.control import ControllerKind
 from hsa_core.model.actuation import MotorMap
 from hsa_core.model.params import load_params
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import DisturbanceModel, calibrated_world
 from hsa_core.sim.experiment import ExperimentConfig
 from hsa_core.task.trajectories import TimedReference, step_reference
 
@@ -111,13 +111,17 @@ def test_the_study_writes_its_table_and_figures(tmp_path, capsys) -> None:
                 "10",
                 "--batch",
                 "2",
+                "--disturbance",
+                "calibrated",
                 "--out",
                 str(tmp_path),
             ]
         )
         == 0
     )
-    summary = json.loads((tmp_path / "robustness.json").read_text())["summary"]["psatid"]
+    doc = json.loads((tmp_path / "robustness.json").read_text())
+    assert (doc["world"], doc["profile"]) == ("calibrated", "lab")
+    summary = doc["summary"]["psatid"]
     assert summary["runs"] == 2 and 0.5 < summary["rmse_mm"]["median"] < 20.0
     rows = (tmp_path / "robustness.csv").read_text().splitlines()
     assert rows[0].startswith("law,plant,stiffness") and len(rows) == 3
@@ -256,3 +260,44 @@ def test_a_short_last_batch_runs_in_the_compiled_shape(monkeypatch) -> None:
         assert records[2][key] == pytest.approx(records[0][key], rel=1e-12, nan_ok=True)
     assert np.isfinite(records[0]["rmse_mm"]) and records[0]["rmse_mm"] != records[1]["rmse_mm"]
     assert worst.record is records[int(np.argmax([r["rmse_mm"] for r in records]))]
+
+
+def test_a_bad_world_or_profile_is_refused_in_one_line(capsys) -> None:
+    for argv, text in (
+        (["--disturbance", "wood"], "argument --disturbance: invalid choice: 'wood'"),
+        (["--profile", "sep2024"], "unknown run profile 'sep2024'"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            robustness.main(argv)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and text in err and len(err.splitlines()) == 1
+
+
+def test_the_named_world_and_profile_reach_every_run(monkeypatch) -> None:
+    """--disturbance calibrated --profile sep2023: the plants are drawn around the calibrated
+    plant, and the runs are in that world under that profile (a spy records, and ends the study)."""
+    seen = []
+
+    class Ran(Exception):
+        pass
+
+    def spy(law, material, plants, disturbance, *rest):  # noqa: ANN001, ANN202 - records
+        seen.append((plants, disturbance, rest[-1]))
+        raise Ran
+
+    monkeypatch.setattr(robustness, "run_law", spy)
+    argv = ["--n", "2", "--laws", "psatid", "--seed", "3"]
+    with pytest.raises(Ran):
+        robustness.main([*argv, "--disturbance", "calibrated", "--profile", "sep2023"])
+    ((plants, disturbance, profile),) = seen
+    assert disturbance == calibrated_world("fpu", seed=3) and profile.name == "sep2023"
+    calibrated, default = (
+        robustness.perturbed_plants(world.plant_params(load_params("fpu")), 2, 0.1, seed=3)
+        for world in (disturbance, DisturbanceModel(seed=3))
+    )
+    for name in ("sigma_a_eq", "sigma_sh_eq", "S_b_hat", "C_eps"):
+        got = np.asarray(getattr(plants.params, name))
+        np.testing.assert_array_equal(got, np.asarray(getattr(calibrated.params, name)))
+    assert not np.array_equal(
+        np.asarray(plants.params.sigma_sh_eq), np.asarray(default.params.sigma_sh_eq)
+    )

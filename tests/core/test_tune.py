@@ -11,7 +11,7 @@ from hsa_core.apps import robustness, tune
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.model.params import load_params
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import DisturbanceModel, calibrated_world
 from hsa_core.sim.experiment import ExperimentConfig
 from hsa_core.task.trajectories import TimedReference, step_reference
 
@@ -70,3 +70,28 @@ def test_bad_arguments_are_refused_in_one_line(capsys) -> None:
         with pytest.raises(SystemExit) as exc:
             tune.main(argv)
         assert exc.value.code == 2 and text in capsys.readouterr().err
+
+
+def test_the_named_world_and_profile_reach_the_tuning_loop(monkeypatch, capsys) -> None:
+    """--disturbance calibrated --profile sep2023 set the world and the set-up of the loop the
+    tuner prepares (the tuning itself is cut short there); a bad world is a one-line refusal."""
+    seen = []
+
+    class Prepared(Exception):
+        pass
+
+    def stop(config):  # noqa: ANN001, ANN202 - records the config, ends the run
+        seen.append(config)
+        raise Prepared
+
+    monkeypatch.setattr(closed_loop, "prepare", stop)
+    with pytest.raises(Prepared):
+        tune.main(["--disturbance", "calibrated", "--profile", "sep2023", "--seed", "2"])
+    (config,) = seen
+    assert config.disturbance == calibrated_world("fpu", seed=2)
+    assert config.profile == "sep2023" and config.rate == pytest.approx(1e3 / 36)
+    assert config.command_latency == pytest.approx(0.011)
+    with pytest.raises(SystemExit) as exc:
+        tune.main(["--disturbance", "wood"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "invalid choice: 'wood'" in err and len(err.splitlines()) == 1

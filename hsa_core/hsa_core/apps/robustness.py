@@ -1,11 +1,13 @@
 """Monte-Carlo robustness of the control laws (``hsa_robustness``): N perturbed plants × laws
 through the JAX loop.
 
-Each plant is the declared simulated plant (:mod:`hsa_core.sim.disturbance`) with its stiffnesses
-(Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh together), its elongation constant C_ε and its axial rest strains σ_a,eq
-each scaled by an independent factor drawn uniformly from [1 − r, 1 + r] (``--range``, default
-0.10), and its own mocap noise seed. The same plants (same generator seed) are used for every law,
-so the laws are compared plant by plant. Runs go through
+Each plant is the simulated plant of the world ``--disturbance`` names (default the declared one;
+``calibrated``: the material's calibrated world, :mod:`hsa_core.sim.disturbance`) with its
+stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh together), its elongation constant C_ε and its axial rest
+strains σ_a,eq each scaled by an independent factor drawn uniformly from [1 − r, 1 + r]
+(``--range``, default 0.10), and its own mocap noise seed. The same plants (same generator seed) are
+used for every law, so the laws are compared plant by plant; the world's noise, latencies and servo
+and the set-up of ``--profile`` (default the lab's) hold for every plant. Runs go through
 :func:`hsa_core.sim.closed_loop.batch_rollout` (batched, split over every JAX device; the plants in
 as few calls of at most ``--batch`` runs as possible, all of one size, a short last call padded to
 it, so the loop compiles once) and each batch is evaluated on the devices in one call, with the
@@ -56,9 +58,10 @@ from hsa_core.controller.control import (
 )
 from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.model.params import HsaParams, load_params
+from hsa_core.runs.profiles import DEFAULT_PROFILE, RunProfile, load_profile
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
+from hsa_core.sim.experiment import ExperimentConfig, profile_config
 from hsa_core.task.trajectories import TimedReference, step_reference
 
 LAWS = ("psatid", "psatid_gc", "pid", "psatid+eei")
@@ -144,15 +147,19 @@ def run_law(
     batch: int,
     reference: TimedReference | None = None,
     gains: CollocatedGains | PidGains | None = None,
+    profile: RunProfile | None = None,
 ) -> tuple[list[dict], Worst]:
-    """Every plant under one law (``gains``: default the paper's): one record per run (factors,
-    metrics, classification) and the worst run. Under :data:`BOUND` only the plants that can reach
-    every setpoint run."""
+    """Every plant under one law (``gains``: default the paper's) in ``disturbance``'s world,
+    under the run ``profile`` (default: the lab's): one record per run (factors, metrics,
+    classification) and the worst run. Under :data:`BOUND` only the plants that can reach every
+    setpoint run."""
     axes = closed_loop.LoopInputs(0, None, 0, None)
     constant_axes = None
+    profile = profile or load_profile(DEFAULT_PROFILE)
     if law == BOUND:
         paper = default_gains(ControllerKind.PSATID, material)
-        config = ExperimentConfig(
+        config = profile_config(
+            profile,
             material,
             ControllerKind.PSATID.value,
             gains=replace(paper, kp=0.0, ki=0.0, kd=0.0),
@@ -163,8 +170,14 @@ def run_law(
         constant_axes = closed_loop.LoopConstants(0, 0, None)
     else:
         kind, ee = _law(law)
-        config = ExperimentConfig(
-            material, kind, ee, gains=gains, reference=reference, disturbance=disturbance
+        config = profile_config(
+            profile,
+            material,
+            kind,
+            ee_integral=ee,
+            gains=gains,
+            reference=reference,
+            disturbance=disturbance,
         )
         spec, inputs, constants = closed_loop.prepare(config)
         plant_index = np.arange(len(plants.seeds))
@@ -325,6 +338,36 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
     return paths
 
 
+def add_world_options(parser: argparse.ArgumentParser) -> None:
+    """The options that place a batched study (``hsa_robustness``, ``hsa_tune``) in a world and a
+    set-up: ``--disturbance`` (a named world, :func:`hsa_core.sim.disturbance.named_world`; the
+    perturbed plants are drawn around its plant) and ``--profile`` (a run profile)."""
+    parser.add_argument(
+        "--disturbance",
+        choices=WORLDS,
+        default="default",
+        help="the world the plants are drawn around (hsa_core.sim.disturbance.named_world): the "
+        "declared default, none, shear or 'calibrated' (the material's world fitted to the real "
+        "runs, docs/simulation.md)",
+    )
+    parser.add_argument(
+        "--profile",
+        type=cli.run_profile,
+        default=None,
+        help=f"run profile (default {DEFAULT_PROFILE}): control rate, integrators' step, velocity "
+        "estimator, command latency (docs/simulation.md, 'Run profiles')",
+    )
+
+
+def world(parser: argparse.ArgumentParser, name: str, material: str, seed: int) -> DisturbanceModel:
+    """The named world of ``material``; a world that cannot be built (e.g. no calibrated world
+    for the material) is a one-line refusal through ``parser``."""
+    try:
+        return named_world(name, material, seed)
+    except ValueError as exc:
+        parser.error(f"argument --disturbance: {exc}")
+
+
 def _law(law: str) -> tuple[str, bool]:
     kind, _, ext = law.partition("+")
     return kind, ext == "eei"
@@ -402,6 +445,7 @@ def main(argv: list[str] | None = None) -> int:
         help="that law's gains from a gains file (e.g. hsa_tune's gains.yaml; repeatable; "
         "default: the paper's)",
     )
+    add_world_options(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/robustness"))
     args = parser.parse_args(argv)
@@ -412,7 +456,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--range must be in [0, 1), got {args.spread}")
     configure_jax()
     use_every_core()
-    disturbance = DisturbanceModel(seed=args.seed)
+    disturbance = world(parser, args.disturbance, args.material, args.seed)
+    profile = args.profile or load_profile(DEFAULT_PROFILE)
     plants = perturbed_plants(
         disturbance.plant_params(load_params(args.material)), args.n, args.spread, args.seed
     )
@@ -432,7 +477,7 @@ def main(argv: list[str] | None = None) -> int:
     for law in args.laws:
         t0 = time.perf_counter()
         rows, worst[law] = run_law(
-            law, args.material, plants, disturbance, args.batch, reference, gains.get(law)
+            law, args.material, plants, disturbance, args.batch, reference, gains.get(law), profile
         )
         records += rows
         print(
@@ -465,6 +510,8 @@ def main(argv: list[str] | None = None) -> int:
                 "plants": args.n,
                 "range": args.spread,
                 "seed": args.seed,
+                "world": args.disturbance,
+                "profile": profile.name,
                 "gains": {
                     law: ({"file": str(path), **dataclasses.asdict(gains[law])})
                     for law, path in args.gains

@@ -23,6 +23,10 @@ the exact gradient of any tracking measure with respect to the gains is zero (do
 would give a direction, but the speed cap and the limit cycles the objective penalises are where it
 and the loop differ most.
 
+**Plants**: :func:`hsa_core.apps.robustness.perturbed_plants` around the plant of the world that
+``--disturbance`` names (default the declared one), in that world and under the run ``--profile``
+(default the lab's).
+
 Output in ``--out``: ``gains.yaml`` (a controller_node parameter file with the tuned gains; given
 after the material's file it replaces the paper's gains: ``./run.sh --gains FILE``, launch argument
 ``gains:=FILE``), ``report.json`` (history, before/after on the batch and on the nominal plant) and
@@ -48,9 +52,9 @@ from hsa_core.apps import batch_metrics, robustness
 from hsa_core.controller.control import CollocatedGains, ControllerKind, PidGains, default_gains
 from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.model.params import load_params
+from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import DisturbanceModel
-from hsa_core.sim.experiment import ExperimentConfig
+from hsa_core.sim.experiment import profile_config
 from hsa_core.task.trajectories import TimedReference, step_reference
 
 WEIGHTS = {"rmse_mm": 1.0, "t_r_s": 0.5, "overshoot_mm": 0.1, "effort_rad": 100.0, "bad": 5.0}
@@ -174,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--batch", type=cli.positive_int, default=40, help="runs per compiled batch"
     )
+    robustness.add_world_options(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/tune"))
     args = parser.parse_args(argv)
@@ -189,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     use_every_core()
     kind = ControllerKind(args.law)
     paper = default_gains(kind, args.material)
-    disturbance = DisturbanceModel(seed=args.seed)
+    disturbance = robustness.world(parser, args.disturbance, args.material, args.seed)
+    profile = args.profile or load_profile(DEFAULT_PROFILE)
     reference = step_reference(args.material)
     keep = reference.t < args.duration
     reference = TimedReference(
@@ -199,7 +205,9 @@ def main(argv: list[str] | None = None) -> int:
         min(args.duration, reference.duration),
     )
     spec, inputs, constants = closed_loop.prepare(
-        ExperimentConfig(args.material, kind.value, reference=reference, disturbance=disturbance)
+        profile_config(
+            profile, args.material, kind.value, reference=reference, disturbance=disturbance
+        )
     )
     plants = robustness.perturbed_plants(
         disturbance.plant_params(load_params(args.material)), args.plants, args.spread, args.seed
@@ -262,7 +270,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args.out.mkdir(parents=True, exist_ok=True)
     note = (
-        f"hsa_tune --material {args.material} --law {args.law}: median RMSE over {args.plants} "
+        f"hsa_tune --material {args.material} --law {args.law} --disturbance {args.disturbance} "
+        f"--profile {profile.name}: median RMSE over {args.plants} "
         f"plants {np.nanmedian(before.rmse_mm):.3f} -> {np.nanmedian(after.rmse_mm):.3f} mm on "
         f"{args.duration:g} s of steps"
     )
@@ -272,6 +281,8 @@ def main(argv: list[str] | None = None) -> int:
         "law": args.law,
         "plants": args.plants,
         "range": args.spread,
+        "world": args.disturbance,
+        "profile": profile.name,
         "duration_s": reference.duration,
         "weights": WEIGHTS,
         "population": args.population,

@@ -1,12 +1,12 @@
 """Entry-point runner shared by every hsa-ros node: environment guard, init, spin, and a shutdown
 that always runs.
 
-``run(MyNode)`` returns the process exit code: 0 after a stop signal or when the node shuts its
-context down, 2 when the parameters are refused at start (the error names the parameter, or the
-parameter file rcl cannot parse), 1 after an uncaught exception or when the launcher that started it
-has already ended. In every case the node's ``on_shutdown()`` hook runs before the process exits —
-the driver turns torque off there. ``run_nodes`` does the same for several nodes in one process
-(:mod:`hsa_common.compose`).
+``run(MyNode)`` ends the process with its exit code: 0 after a stop signal or when the node shuts
+its context down, 2 when the parameters are refused at start (the error names the parameter, or the
+parameter file rcl cannot parse), 1 after an uncaught exception (which propagates) or when the
+launcher that started it has already ended. In every case the node's ``on_shutdown()`` hook runs
+before the process exits — the driver turns torque off there. ``run_nodes`` does the same for
+several nodes in one process (:mod:`hsa_common.compose`).
 
 Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) and SIGQUIT
 (Ctrl-\\) all stop the node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A
@@ -26,11 +26,11 @@ callback error. Nodes without an ``on_shutdown`` hook tear down at a lower CPU p
 simulator's bus answering it) must not queue behind them.
 
 After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its
-Fast DDS shared-memory files from /dev/shm) a node leaves with ``os._exit``: what must persist is
-persisted by then, and the interpreter's own teardown (JAX/XLA) can outlast the launcher's SIGTERM
-on a busy machine (docs/launch.md, "Teardown bounds"). rclpy's shutdown itself is bounded
-(``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so past the limit the
-node prints every thread's stack and a C-level timer ends it with its exit code
+Fast DDS shared-memory files from /dev/shm) a node leaves with ``os._exit``, a refused one too: what
+must persist is persisted by then, and the interpreter's own teardown (JAX/XLA) can outlast the
+launcher's SIGTERM on a busy machine (docs/launch.md, "Teardown bounds"). rclpy's shutdown itself is
+bounded (``TEARDOWN_LIMIT``): it can hang inside the middleware while holding the GIL, so past the
+limit the node prints every thread's stack and a C-level timer ends it with its exit code
 (:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
@@ -48,7 +48,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
-from typing import Protocol, runtime_checkable
+from typing import NoReturn, Protocol, runtime_checkable
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
@@ -94,15 +94,15 @@ _DUMP_LOCK = threading.Lock()
 _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
 
 
-def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
+def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> NoReturn:
     """Create the node with ``node_factory``, spin it until shutdown and end the process with its
-    exit code (see the module docstring); returns only when the node could not be created."""
+    exit code (see the module docstring); only an uncaught exception leaves it."""
     return run_nodes([node_factory], name, args)
 
 
 def run_nodes(
     node_factories: Sequence[Callable[[], Node]], name: str, args: list[str] | None = None
-) -> int:
+) -> NoReturn:
     """:func:`run` for several nodes in one process (:mod:`hsa_common.compose`): one context (one
     DDS participant), one executor; the nodes are created in order and their ``on_shutdown`` hooks
     run in that order; the exit code is the first non-zero ``exit_code`` of the nodes."""
@@ -126,22 +126,22 @@ def run_nodes(
             f"not starting: the launcher (PID {os.environ[parent_death.PARENT_ENV]}) has already "
             "ended"
         )
-        return 1
+        _exit(1)
     nodes: list[Node] = []
     try:
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except RCLError as exc:  # malformed command line or parameter file: rcl names it
             logger.fatal(f"refusing to start: {exc}")
-            return 2
+            _exit(2)
         try:
             for factory in node_factories:
                 nodes.append(factory())
         except ParameterValidationError as exc:
             logger.fatal(f"refusing to start: {exc}")
             _shut_down(nodes)
-            rclpy.try_shutdown()
-            return 2
+            _bounded_teardown(nodes, 2)
+            _exit(2)
         except BaseException:
             # a later node failed or a stop came: the nodes made so far stop first
             _shut_down(nodes)
@@ -150,8 +150,7 @@ def run_nodes(
     except StopBeforeReady:
         logger.info("stopped before ready")
         rclpy.try_shutdown()
-        sys.stderr.flush()
-        os._exit(0)  # skip the interpreter's teardown (JAX/XLA), as after a normal stop
+        _exit(0)
     in_lockstep = any(lockstep.enabled(node) for node in nodes)
     participant = lockstep.Group(
         [
@@ -193,26 +192,38 @@ def run_nodes(
             # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
             os.nice(TEARDOWN_NICE)
         executor.shutdown(timeout_sec=1.0)
-        # the work is done; the middleware's teardown may hang holding the GIL (exit_deadline)
-        with _DUMP_LOCK:
-            _TEARDOWN.set()  # from now on the stop watch leaves this dump alone
-            faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
-        exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, 1 if failed else exit_code(nodes))
-        for node in nodes:
-            node.destroy_node()
-            if isinstance(node, LifecycleNode):
-                # the state machine holds the node handle; rclpy's destroy_node leaves it
-                node._state_machine.destroy_when_not_in_use()
-        rclpy.try_shutdown()
-        faulthandler.cancel_dump_traceback_later()
-    code = exit_code(nodes)
+        _bounded_teardown(nodes, 1 if failed else exit_code(nodes))
+    _exit(exit_code(nodes))
+
+
+def _bounded_teardown(nodes: Sequence[Node], code: int) -> None:
+    """Destroy ``nodes`` and shut rclpy down; the middleware's teardown may hang holding the GIL, so
+    past ``TEARDOWN_LIMIT`` every thread's stack is printed and :mod:`hsa_common.exit_deadline` ends
+    the process with ``code``."""
+    with _DUMP_LOCK:
+        _TEARDOWN.set()  # from now on the stop watch leaves this dump alone
+        faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
+    exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, code)
+    for node in nodes:
+        node.destroy_node()
+        if isinstance(node, LifecycleNode):
+            # the state machine holds the node handle; rclpy's destroy_node leaves it
+            node._state_machine.destroy_when_not_in_use()
+    rclpy.try_shutdown()
+    faulthandler.cancel_dump_traceback_later()
+
+
+def _exit(code: int) -> NoReturn:
+    """End the process with ``code`` once the output is flushed, without the interpreter's teardown
+    (JAX/XLA, which can outlast the launcher's SIGTERM on a busy machine): what must persist is
+    persisted by then."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except OSError:
             # the terminal was closed (EIO) or the launcher is gone (EPIPE): nothing left to tell
             pass
-    os._exit(code)  # the hooks persisted what matters: skip the interpreter's teardown (JAX/XLA)
+    os._exit(code)
 
 
 def _shut_down(nodes: Sequence[Node]) -> None:

@@ -74,3 +74,17 @@ def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -
     assert "stopped before ready" in output and "ready\n" not in output.replace(
         "before ready", ""
     ), output
+
+
+def test_a_refused_node_ends_with_2_without_the_interpreters_teardown() -> None:
+    """A refusal at start leaves like a stop (bounded rclpy teardown, then os._exit): a planner_node
+    that refused a misspelt parameter beside two busy processes once hung for 180 s after its
+    FATAL line and was killed."""
+    proc = start_process([sys.executable, str(PEERS / "refused_stuck_exit.py")])
+    try:
+        output, _ = proc.communicate(timeout=40)  # the hanging exit handler alone lasts 60 s
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, output
+    assert "refusing to start: parameter 'max_iteration'" in output, output

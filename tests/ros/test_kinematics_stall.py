@@ -87,11 +87,14 @@ def kinematics() -> Iterator[NodeProcess]:
 
 
 def test_no_old_state_with_valid_velocity_after_a_stall(kinematics, ros_node) -> None:
-    received: list[tuple[float, PlanarState]] = []  # (arrival [s, node clock], state)
+    # (published [s]: the writer's source timestamp, the same system clock as the stamps; state).
+    # Not the arrival here, which counts this test's own delays too: beside busy processes one
+    # state arrived 1.009 s after its stamp (whether the node or this test was late, unknown).
+    received: list[tuple[float, PlanarState]] = []
     ros_node.create_subscription(
         PlanarState,
         f"{NS}/state",
-        lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
+        lambda m, info: received.append((info["source_timestamp"] * 1e-9, m)),
         BEST_EFFORT,
     )
     feeder = PoseFeeder(ros_node, f"{NS}/ee_pose")
@@ -133,6 +136,9 @@ def test_no_old_state_with_valid_velocity_after_a_stall(kinematics, ros_node) ->
     )
     stamps = [sec(m.header.stamp) for _, m in received]
     assert all(b > a for a, b in zip(stamps, stamps[1:])), "state stamps must increase"
+    assert all(p >= stamp - 0.01 for (p, _), stamp in zip(received, stamps)), (
+        "a state published before its sample: the source timestamps are not on the stamps' clock"
+    )
     fault(
         "ee_pose input stalled 2 s, then the held-back sample",
         "no state from it (counted 'delayed sample')",

@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_core import cli
+from hsa_core.apps import robustness
 from hsa_core.controller.control import default_gains
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.model import kinematics, simulation
@@ -51,7 +51,7 @@ from hsa_core.model.params import load_params
 from hsa_core.runs.profiles import DEFAULT_PROFILE, RunProfile, VelocityEstimator, load_profile
 from hsa_core.sensing.estimation import Estimate, derivative_coefficients
 from hsa_core.sim import experiment
-from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
+from hsa_core.sim.disturbance import DisturbanceModel, named_world
 from hsa_core.sim.experiment import ExperimentResult, profile_config, run_experiment
 from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World
 from hsa_core.task.trajectories import TimedReference, step_reference
@@ -458,18 +458,7 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="only (re)compute the linear analysis into the existing JSON",
     )
-    parser.add_argument(
-        "--disturbance",
-        choices=WORLDS,
-        default="default",
-        help="the FPU world the rows change (hsa_core.sim.disturbance.named_world)",
-    )
-    parser.add_argument(
-        "--profile",
-        type=cli.run_profile,
-        default=None,
-        help=f"run profile (default {DEFAULT_PROFILE}); the linear analysis is the lab loop's",
-    )
+    robustness.add_world_options(parser)  # the FPU world the rows change; the run profile
     args = parser.parse_args(argv)
     profile = args.profile or load_profile(DEFAULT_PROFILE)
     world = named_world(args.disturbance, "fpu")

@@ -346,9 +346,9 @@ def add_world_options(parser: argparse.ArgumentParser) -> None:
         "--disturbance",
         choices=WORLDS,
         default="default",
-        help="the world the plants are drawn around (hsa_core.sim.disturbance.named_world): the "
-        "declared default, none, shear or 'calibrated' (the material's world fitted to the real "
-        "runs, docs/simulation.md)",
+        help="the world (hsa_core.sim.disturbance.named_world; a study's perturbed plants are "
+        "drawn around its plant): the declared default, none, shear or 'calibrated' (the "
+        "material's world fitted to the real runs, docs/simulation.md)",
     )
     parser.add_argument(
         "--profile",

@@ -30,9 +30,9 @@ def estimation_graph(
     common = ["-r", f"__ns:={ns}", *DIAGNOSTICS_5HZ]
 
     def deep(topic: str) -> list[str]:
-        return ["-p", f"qos_overrides.{ns}/{topic}.subscription.depth:={input_depth}"] * bool(
-            input_depth
-        )
+        if not input_depth:
+            return []
+        return ["-p", f"qos_overrides.{ns}/{topic}.subscription.depth:={input_depth}"]
 
     pose = "mocap/platform/pose"
     procs = start_all(

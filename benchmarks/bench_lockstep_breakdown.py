@@ -14,7 +14,7 @@ carry the load they were taken at. Writes the run under ``--key`` in
 benchmarks/results/lockstep_breakdown.json (``--out``; other keys are kept).
 
     .venv/bin/python benchmarks/bench_lockstep_breakdown.py [--setpoint-rate 0.5] [--clock lockstep]
-        [--compose true|false] [--label TEXT] [--key KEY] [--out FILE]
+        [--compose true|false] [--graph FILE] [--label TEXT] [--key KEY] [--out FILE]
 """
 
 from __future__ import annotations
@@ -149,6 +149,9 @@ def main() -> int:
         choices=["true", "false"],
         help="launch argument compose (default: the graph's)",
     )
+    parser.add_argument(
+        "--graph", type=Path, default=GRAPH, help="launch file (a variant of sim.launch.yaml)"
+    )
     parser.add_argument("--sample", type=float, default=0.5, help="[s] /proc sampling period")
     parser.add_argument(
         "--label", default="", help="what this run measures (e.g. the graph's layout)"
@@ -166,7 +169,7 @@ def main() -> int:
     proc = subprocess.Popen(
         [
             str(Path(sys.executable).with_name("hsa_launch")),
-            str(GRAPH),
+            str(args.graph),
             f"clock:={args.clock}",
             f"setpoint_rate:={args.setpoint_rate}",
             f"bag_dir:={work / 'bag'}",

@@ -12,7 +12,7 @@ from std_msgs.msg import Bool
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
-from hsa_sim_node.mx28_emulator import HW_OVERLOAD
+from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
 from tests.ros import driver_harness as dh
 from tests.ros.conftest import wait_until
 from tests.ros.driver_fixtures import drivers, emulator
@@ -23,6 +23,22 @@ __all__ = ["drivers", "emulator"]  # fixtures used by the tests below
 
 # s: request → torque off on every servo (the shutdown requirement; the E-stop must be no slower)
 STOP_BOUND = 0.1
+# the SDK's wait for a status packet (about 34 ms): the emulator answers from a thread of this test
+# process, which a loaded machine can leave unscheduled for longer
+MISSED_STATUS = "There is no status packet"
+
+
+def clear(services: dh.DriverServices, emulator: MX28Emulator) -> tuple[object, float]:
+    """clear_estop as an operator uses it: asked again (at most 5 times) while the answer is a
+    missed status packet, each such refusal leaving torque off; returns the last (response,
+    sent)."""
+    for _ in range(5):
+        response, sent = services.call("clear_estop")
+        if response.success or MISSED_STATUS not in response.message:
+            break
+        assert "E-stop stays engaged" in response.message, response.message
+        assert wait_until(lambda: dh.torque(emulator) == {False}, 2.0), "torque on after a refusal"
+    return response, sent
 
 
 def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_it(
@@ -84,7 +100,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
 
     # 2. clear_estop: torque on holding the present positions, latched False, commands followed
     #    again.
-    response, sent = services.call("clear_estop")
+    response, sent = clear(services, emulator)
     assert response.success, response.message
     on = dh.torque_on_time(emulator, sent)
     assert on is not None and dh.torque(emulator) == {True}
@@ -117,7 +133,7 @@ def test_estop_latches_torque_off_ignores_commands_and_only_the_service_clears_i
     assert latched[-1] is True
     emulator.set_hardware_error(22, 0)  # what a reboot does to the error
     assert wait_until(lambda: bool(driver.log("hardware errors cleared")), 5.0), driver.output()
-    response, sent = services.call("clear_estop")
+    response, sent = clear(services, emulator)
     assert response.success and dh.torque(emulator) == {True}, response.message
     assert wait_until(lambda: latched[-1:] == [False], timeout=10.0)
     fault(
@@ -148,7 +164,7 @@ def test_estop_while_the_bus_is_down_stays_latched_across_the_reconnect(
     assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}, (
         "torque on during E-stop"
     )
-    response, sent = services.call("clear_estop")
+    response, sent = clear(services, emulator)
     assert response.success and dh.torque(emulator) == {True}, response.message
     fault(
         "E-stop with the bus unplugged",

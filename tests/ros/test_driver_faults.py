@@ -80,7 +80,10 @@ def test_corrupt_statuses_silent_servo_and_hardware_error(emulator, drivers, ros
         driver.output()
     )
     detection = dh.torque_off_time(emulator, silenced) - silenced
-    assert dh.torque(emulator) == {False} and driver.log("bus lost")
+    assert dh.torque(emulator) == {False}
+    # the driver's log reaches this test through a pipe and a reader thread, later than the emulator
+    # sees the torque-off
+    assert wait_until(lambda: bool(driver.log("bus lost")), 5.0), driver.output()
     status, values = diagnostics.wait(
         BUS, lambda s, v: s.level == DiagnosticStatus.ERROR, after_ns=now_ns(ros_node)
     )

@@ -138,6 +138,7 @@ def test_markers_follow_the_state_and_setpoint_at_the_rate_limit(
     )
     goal.header.stamp = stamp(T0_NS - 10**9)
     setpoints.publish(goal)
+    deadline = time.monotonic() + 60.0  # a budget of its own, after the subscription wait
     while not received:  # a new setpoint is drawn at once, with its own stamp while no state exists
         assert time.monotonic() < deadline, "no MarkerArray after the setpoint"
         time.sleep(0.05)

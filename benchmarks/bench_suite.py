@@ -89,7 +89,7 @@ def main() -> int:
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print(json.dumps(result, indent=1))
     if done.returncode != 0:
-        print(log[-5000:], file=sys.stderr)
+        print(log, file=sys.stderr)
     return done.returncode
 
 

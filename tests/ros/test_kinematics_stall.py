@@ -88,8 +88,7 @@ def kinematics() -> Iterator[NodeProcess]:
 
 def test_no_old_state_with_valid_velocity_after_a_stall(kinematics, ros_node) -> None:
     # (published [s]: the writer's source timestamp, the same system clock as the stamps; state).
-    # Not the arrival here, which counts this test's own delays too: beside busy processes one
-    # state arrived 1.009 s after its stamp (whether the node or this test was late, unknown).
+    # Not the arrival here, which counts this test's own delays too.
     received: list[tuple[float, PlanarState]] = []
     ros_node.create_subscription(
         PlanarState,

@@ -149,7 +149,7 @@ def run_nodes(
         starting.clear()
     except StopBeforeReady:
         logger.info("stopped before ready")
-        rclpy.try_shutdown()
+        _bounded_teardown(nodes, 0)
         _exit(0)
     in_lockstep = any(lockstep.enabled(node) for node in nodes)
     participant = lockstep.Group(

@@ -64,7 +64,13 @@ def test_outage_holds_freezes_reports_and_resumes(graph, ros_node, outage: float
         ), "the controller never tracked the streamed pose"
         tracked_from = len(infos)
         wait_until(lambda: False, 1.0)  # one second of tracking: the integrator state grows
-        baseline = diagnostics.wait(CONTROL, after_ns=ros_node.get_clock().now().nanoseconds)[1]
+        # read while tracking: a stall of the test's own stream can put the controller in HOLD
+        # just before the pause, and that entry must not be counted as the outage's
+        baseline = diagnostics.wait(
+            CONTROL,
+            lambda s, v: v["mode"] == "tracking",
+            after_ns=ros_node.get_clock().now().nanoseconds,
+        )[1]
         last, first = stream.pause(outage)
         assert wait_until(
             lambda: any(

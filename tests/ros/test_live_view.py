@@ -694,7 +694,7 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
     progress = [json.loads(p)["text"] for _, _, p in session.received["/live/progress"]]
     assert any(
         text.startswith("step 2/2 · tracking") and text.endswith("finished") for text in progress
-    ), progress
+    ), (len(progress), sorted(set(progress))[:20], progress[-5:])
     tracking = [json.loads(p) for _, _, p in session.received["/live/tracking"]]
     targets = {(m["p_des"]["x"], m["p_des"]["y"]) for m in tracking}
     assert {(0.0, 0.112), (0.004, 0.114)} <= {

@@ -132,12 +132,15 @@ def law_on_robot(real, period: float, integrator_dt: float, kd: float | None = N
 # ------------------------------------------------------------------ the September command queue
 class DriverQueue:
     """The September driver (module docstring): per-motor keep-last-``depth`` topics fed on change
-    at the ticks, one server; per cycle one message per non-empty topic, then one pending poll; each
-    transaction ``transaction`` [s]. :meth:`tick` takes a tick's goals and returns the writes the
-    driver makes until ``until`` [s] as (time [s], goal vector in force)."""
+    at the ticks, one server; per cycle one message per non-empty topic, then one pending poll (one
+    request per tick; none with ``polls`` False); each transaction ``transaction`` [s].
+    :meth:`tick` takes a tick's goals and returns the writes the driver makes until ``until`` [s]
+    as (time [s], goal vector in force)."""
 
-    def __init__(self, first: np.ndarray, transaction: float, depth: int = DEPTH) -> None:
-        self.transaction, self.depth = transaction, depth
+    def __init__(
+        self, first: np.ndarray, transaction: float, depth: int = DEPTH, polls: bool = True
+    ) -> None:
+        self.transaction, self.depth, self.with_polls = transaction, depth, polls
         self.published = np.asarray(first).copy()  # what the control node last published
         self.in_force = np.asarray(first).copy()  # what the driver last wrote
         self.topics: list[list[tuple[float, int]]] = [[] for _ in first]
@@ -152,7 +155,7 @@ class DriverQueue:
                 self.topics[m].append((t, int(goal)))
                 del self.topics[m][: -self.depth]
                 self.published[m] = goal
-        self.polls = min(self.polls + 1, self.depth)
+        self.polls = min(self.polls + 1, self.depth) if self.with_polls else 0
         self.cursor = max(self.cursor, t)
         writes = []
         while self.cursor < until and (self.polls or any(self.topics)):
@@ -169,7 +172,7 @@ class DriverQueue:
         return writes
 
 
-def queued_world(transaction: float, period: float):
+def queued_world(transaction: float, period: float, polls: bool = True):
     """A ``World`` class whose goals go through a :class:`DriverQueue` (``write_goals`` at a tick
     publishes; the driver's writes reach the bus at their own times)."""
     from hsa_core.sim.world import World, seconds_to_ns
@@ -179,7 +182,9 @@ def queued_world(transaction: float, period: float):
             at = self.t_ns if at_ns is None else int(at_ns)
             goals = np.asarray(ticks, dtype=np.int64)
             if not hasattr(self, "driver"):
-                self.driver = DriverQueue(np.rint(self.goal).astype(np.int64), transaction)
+                self.driver = DriverQueue(
+                    np.rint(self.goal).astype(np.int64), transaction, polls=polls
+                )
             for when, vector in self.driver.tick(at * 1e-9, goals, at * 1e-9 + period):
                 super().write_goals(vector.astype(np.float64), seconds_to_ns(when))
 
@@ -222,7 +227,7 @@ def progress_times(p: np.ndarray, start: np.ndarray, p_des: np.ndarray) -> np.nd
     return np.array([GRID[np.argmax(s >= lv)] if np.any(s >= lv) else np.nan for lv in LEVELS])
 
 
-def open_loop(real, world, period: float, transaction: float | None) -> tuple:
+def open_loop(real, world, period: float, transaction: float | None, polls: bool = True) -> tuple:
     """The robot's commanded φ into the run's world at ``period`` ticks → (t, p (n, 2), ages)."""
     from hsa_core.model.wiring import load_wiring
     from hsa_core.sim.experiment import replay_config
@@ -232,7 +237,7 @@ def open_loop(real, world, period: float, transaction: float | None) -> tuple:
     config = dataclasses.replace(replay_config(real), disturbance=world)
     model = config.model()
     motor_map = load_wiring().motor_map(model)
-    cls = World if transaction is None else queued_world(transaction, period)
+    cls = World if transaction is None else queued_world(transaction, period, polls)
     w = cls(plant_params(model, config.payload), config.world(), motor_map)
     tr, phr = _robot_phi(real)
     ticks = np.arange(0.0, real.t[-1], period)
@@ -302,6 +307,7 @@ def closed_loop(real, world, transaction: float | None = None, **config) -> dict
     levels = [str(v) for v in LEVELS]
     return {
         "D_mm": round(c.deviation * 1e3, 3),
+        "D_per_step_mm": np.round(sim_to_real.step_deviations(sim, robot) * 1e3, 2).tolist(),
         "D_by_window_mm": {k: round(v * 1e3, 3) for k, v in window_rms(p_sim, p_robot).items()},
         "phi_sim_minus_robot_rms_rad": {
             k: round(v / np.sqrt(2.0), 4) for k, v in window_rms(phi_sim, phi_robot).items()
@@ -379,12 +385,13 @@ def main() -> int:
     for bag in FPU_RUNS[:2]:
         real = runs[bag]
         period = round(tick_period(real.phi.t), 3)
-        cases = {"calibrated": (calibrated, None)}
+        cases = {"calibrated": (calibrated, None, True)}
         for ms in args.transaction_ms:
-            cases[f"calibrated + queue {ms:g} ms"] = (calibrated, ms * 1e-3)
-            cases[f"rest world + queue {ms:g} ms"] = (rest, ms * 1e-3)
-        for name, (world, tx) in cases.items():
-            t, p, ages = open_loop(real, world, period, tx)
+            cases[f"calibrated + queue {ms:g} ms"] = (calibrated, ms * 1e-3, True)
+            cases[f"rest world + queue {ms:g} ms"] = (rest, ms * 1e-3, True)
+        cases["calibrated + queue 16 ms, no polls"] = (calibrated, 0.016, False)
+        for name, (world, tx, polls) in cases.items():
+            t, p, ages = open_loop(real, world, period, tx, polls)
             row = compare_open_loop(real, t, p)
             row["write_age_s"] = {
                 "median": round(float(np.median(ages)), 3),

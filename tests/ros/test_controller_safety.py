@@ -259,15 +259,24 @@ def test_a_failed_torque_on_is_retried_and_the_controller_does_not_track_meanwhi
         assert wait_until(lambda: sum(m.state == TRACKING for m in infos.since()) > 20, 30.0), (
             controller.output()
         )
-        # torque off, the bus quiet: the next status is the activation's
-        transition(Transition.TRANSITION_DEACTIVATE)
-        deactivated = time.monotonic()
-        assert torque(emulator) == {False}
-        emulator.corrupt_next_statuses(1)
-        transition(Transition.TRANSITION_ACTIVATE)
-        assert wait_until(lambda: bool(driver.log("torque stays off: torque-on failed")), 5.0), (
-            driver.output()
-        )
+        # torque off, the bus quiet: the next status is normally the activation's. On a loaded
+        # machine another exchange can take the corrupted status first and the torque-on then
+        # succeeds; the scenario is set up again, at most three times.
+        failed, held = "torque stays off: torque-on failed", "torque on, holding"
+        for _ in range(3):
+            transition(Transition.TRANSITION_DEACTIVATE)
+            deactivated = time.monotonic()
+            assert torque(emulator) == {False}
+            n_failed, n_held = len(driver.log(failed)), len(driver.log(held))
+            emulator.corrupt_next_statuses(1)
+            transition(Transition.TRANSITION_ACTIVATE)
+            assert wait_until(
+                lambda: len(driver.log(failed)) > n_failed or len(driver.log(held)) > n_held, 10.0
+            ), driver.output()
+            if len(driver.log(failed)) > n_failed:
+                break
+        else:
+            raise AssertionError(f"the corrupted status never hit the torque-on\n{driver.output()}")
         assert torque(emulator) == {False}
         status, values = diagnostics.wait(
             CONTROL,

@@ -125,7 +125,20 @@ def test_poison_setpoints_are_refused_and_control_stays_finite(controller, ros_n
         valid = setpoint()
         valid.trajectory_index = 8
         sp_pub.publish(valid)  # a valid setpoint after the poison is tracked
-        time.sleep(0.5)
+        # 20 commands and the valid setpoint tracked, however late a loaded machine delivers them
+        wait_until(
+            lambda: (
+                len(cmds) - n_cmds > 20
+                and any(
+                    m.state == TRACKING
+                    and sec(m.header.stamp) > after_poison
+                    and m.setpoint.trajectory_index == 8
+                    for m in infos.since(n_infos)
+                )
+            ),
+            timeout=30.0,
+            poll=0.2,
+        )
         report = diagnostics.wait(
             CONTROL,
             lambda s, v: (

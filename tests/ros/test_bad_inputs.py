@@ -101,6 +101,11 @@ def _delta(now: dict[str, str], before: dict[str, str], key: str) -> int:
     return int(now.get(key, 0)) - int(before.get(key, 0))
 
 
+def _rejections(now: dict[str, str], before: dict[str, str], prefix: str) -> int:
+    """Growth of every counter whose key starts with ``prefix`` between two reports."""
+    return sum(_delta(now, before, key) for key in now if key.startswith(prefix))
+
+
 def _report(diagnostics: DiagnosticsLog, name: str, node) -> dict[str, str]:  # noqa: ANN001 - rclpy node
     """Values of the first report of ``name`` issued from now on."""
     return diagnostics.wait(name, after_ns=node.get_clock().now().nanoseconds)[1]
@@ -168,10 +173,32 @@ def test_bad_measurements_never_reach_the_controller(graph, ros_node) -> None:
         # rates
         state_pub.publish(_state(ros_node, [math.nan, 0.15, 0.0], 0.0))
         state_pub.publish(_state(ros_node, [0.0, 0.15, 0.0], math.nan))
-        time.sleep(0.5)
-        after = {
-            name: _report(diagnostics, name, ros_node) for name in (BRIDGE, KINEMATICS, CONTROL)
+        # every rejection counted and enough of the stream through, however late a loaded machine
+        # delivers them
+        injected = {  # status -> (prefix of its rejection counters, rejections injected)
+            BRIDGE: ("rejected_", 6),
+            KINEMATICS: ("rejected: ", 2),
+            CONTROL: ("rejected_states ", 2),
         }
+        after = {
+            name: diagnostics.wait(
+                name,
+                lambda s, v, name=name: (
+                    _rejections(v, before[name], injected[name][0]) >= injected[name][1]
+                ),
+                after_ns=ros_node.get_clock().now().nanoseconds,
+                timeout=30.0,
+            )[1]
+            for name in (BRIDGE, KINEMATICS, CONTROL)
+        }
+        wait_until(
+            lambda: (
+                len(states) - n_states > 102  # the two direct states aside
+                and sum(m.state == ControllerInfo.STATE_TRACKING for m in infos.since(n_infos)) > 20
+            ),
+            timeout=30.0,
+            poll=0.2,
+        )
     finally:
         stream.close()
 
@@ -313,8 +340,24 @@ def test_bad_setpoints_are_refused_and_the_previous_one_stays(graph, ros_node) -
             sp_pub.publish(msg)
             time.sleep(0.2)
         last_sent = ros_node.get_clock().now().nanoseconds * 1e-9
-        time.sleep(0.3)
-        report = _report(diagnostics, CONTROL, ros_node)
+        # every refusal counted and tracking seen after the last one, however late they arrive
+        report = diagnostics.wait(
+            CONTROL,
+            lambda s, v: _delta(v, base, "rejected_setpoints") >= len(malformed),
+            after_ns=ros_node.get_clock().now().nanoseconds,
+            timeout=30.0,
+        )[1]
+        wait_until(
+            lambda: (
+                len(infos) - n_infos > 20
+                and any(
+                    m.state == ControllerInfo.STATE_TRACKING and sec(m.header.stamp) > last_sent
+                    for m in infos.since(n_infos)
+                )
+            ),
+            timeout=30.0,
+            poll=0.2,
+        )
     finally:
         stream.close()
     assert (

@@ -36,11 +36,13 @@ from hsa_bag.storage import read_metadata
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_msgs.msg import PlanarState, Setpoint
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
+from tests.ros.faults import DiagnosticsLog
 
 pytestmark = pytest.mark.ros
 
 UINT32 = "std_msgs/msg/UInt32"
+RECORDING = "bag_recorder: recording"
 
 
 @pytest.fixture
@@ -210,10 +212,12 @@ def test_split_bag_closed_by_sigterm(ros_node: Node, recorder, tmp_path: Path) -
     pub = ros_node.create_publisher(UInt32, "/counter", 100)
     proc = recorder(bag, "topics:=[/counter]", "max_bag_duration:=0.5")
     wait_recorded(ros_node, ["/counter"])
+    diagnostics = DiagnosticsLog(ros_node)
     thread, sent = counter_stream(pub, 100.0, 2.0)
     thread.start()
     thread.join()
-    time.sleep(1.0)
+    # every message taken by the recorder, however late a loaded machine delivers them
+    diagnostics.wait(RECORDING, lambda s, v: int(v["messages"]) >= len(sent), timeout=30.0)
     os.killpg(proc.pid, signal.SIGTERM)
     assert proc.wait(timeout=30) == 0
 
@@ -251,7 +255,8 @@ def test_sigkill_leaves_bag_readable_up_to_the_last_flush(
     wait_recorded(ros_node, ["/counter"])
     thread, sent = counter_stream(pub, rate, 3.0)
     thread.start()
-    time.sleep(2.6)
+    # 2.6 s of the stream's schedule, however late a loaded machine runs its thread
+    assert wait_until(lambda: len(sent) >= round(2.6 * rate), 30.0)
     # 1 s slack for a loaded machine
     sent_before_last_flush = len(sent) - round((flush_period + 1.0) * rate)
     os.killpg(proc.pid, signal.SIGKILL)

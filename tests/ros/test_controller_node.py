@@ -25,7 +25,7 @@ from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_controller_node import scheduling
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -142,6 +142,11 @@ def _last_tracking(infos: list[ControllerInfo]) -> ControllerInfo:
     return tracking[-1]
 
 
+def _newest(recorder: Recorder) -> object:
+    """The last message ``recorder`` received, decoded."""
+    return deserialize_message(recorder.raw[-1], recorder.msg_type)
+
+
 def _stamp(t) -> tuple[int, int]:  # noqa: ANN001 - builtin_interfaces/Time
     return (t.sec, t.nanosec)
 
@@ -166,9 +171,12 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         while len(cmds) == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert len(cmds) > 0, "no phi_cmd once ready states arrive"
-        time.sleep(2.2)  # then 2 s of steady ticking are measured
-        now = _sec(ros_node.get_clock().now().to_msg())
+        # then 2 s of steady ticking are measured, in the node's stamps: however late a loaded
+        # machine delivers them, until the newest command is stamped 2.2 s after the first
+        first = _sec(cmds.since()[0].header.stamp)
+        wait_until(lambda: _sec(_newest(cmds).header.stamp) >= first + 2.2, 30.0, poll=0.1)
         sent_cmds = cmds.since()
+        now = _sec(sent_cmds[-1].header.stamp)
         recent = [
             _sec(m.header.stamp) for m in sent_cmds if now - 2.0 <= _sec(m.header.stamp) < now
         ]
@@ -194,8 +202,17 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         n_cmds, n_infos = len(cmds), len(infos)
         feeder.running.clear()
         last_sent = feeder.last
-        time.sleep(1.0)
-        stopped_at = _sec(ros_node.get_clock().now().to_msg()) - 1.0
+
+        def quiet_for(seconds: float) -> bool:
+            """A tick stamped ``seconds`` after the newest state of the last tracking tick."""
+            ticks = infos.since(n_infos)
+            tracking = [m for m in ticks if m.state == ControllerInfo.STATE_TRACKING]
+            return bool(tracking) and any(
+                _sec(m.header.stamp) > _sec(tracking[-1].state_stamp) + seconds for m in ticks
+            )
+
+        # a second of the node's ticks without states, however late a loaded machine delivers them
+        assert wait_until(lambda: quiet_for(1.0), 30.0, poll=0.1), "the controller stopped ticking"
         new_infos = infos.since(n_infos)
         last = _last_tracking(new_infos)
         held = [
@@ -215,7 +232,7 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         for m in held_cmds:
             np.testing.assert_array_equal(m.phi, last.phi_des_sat)
             assert _stamp(m.source_stamp) == _stamp(last.state_stamp)
-        late = [m for m in new_cmds if _sec(m.header.stamp) > stopped_at + 0.5]
+        late = [m for m in new_cmds if _sec(m.header.stamp) > _sec(last.state_stamp) + 0.5]
         assert not late, "commands must stop after hold_timeout"
 
         n_infos = len(infos)
@@ -254,10 +271,19 @@ def test_gain_updates_are_validated(controllers, ros_node) -> None:
     feeder = Feeder(ros_node, "/c40")
     try:
         feeder.running.set()
-        time.sleep(1.0)
+        # a tracking tick before and one after the change, however late a loaded machine delivers
+        # them
+        assert wait_until(
+            lambda: any(m.state == ControllerInfo.STATE_TRACKING for m in infos.since()),
+            30.0,
+            poll=0.1,
+        ), "no tracking tick"
         before = _last_tracking(infos.since())
         assert _set(ros_node, "/c40", "kp", 0.25).successful
-        time.sleep(0.5)
+        changed = _sec(ros_node.get_clock().now().to_msg())
+        assert wait_until(
+            lambda: _sec(_last_tracking(infos.since()).header.stamp) > changed, 30.0, poll=0.1
+        ), "no tracking tick after the gain change"
         after = _last_tracking(infos.since())
         # the integrator runs on: it keeps its sign and grows, it was not reset by the gain change
         assert np.all(np.sign(after.e_int) == np.sign(before.e_int))

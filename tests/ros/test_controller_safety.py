@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import math
+import re
 import signal
 import threading
 import time
@@ -125,7 +126,20 @@ def test_poison_setpoints_are_refused_and_control_stays_finite(controller, ros_n
         valid = setpoint()
         valid.trajectory_index = 8
         sp_pub.publish(valid)  # a valid setpoint after the poison is tracked
-        time.sleep(0.5)
+        # 20 commands and the valid setpoint tracked, however late a loaded machine delivers them
+        wait_until(
+            lambda: (
+                len(cmds) - n_cmds > 20
+                and any(
+                    m.state == TRACKING
+                    and sec(m.header.stamp) > after_poison
+                    and m.setpoint.trajectory_index == 8
+                    for m in infos.since(n_infos)
+                )
+            ),
+            timeout=30.0,
+            poll=0.2,
+        )
         report = diagnostics.wait(
             CONTROL,
             lambda s, v: (
@@ -293,9 +307,13 @@ def test_a_failed_torque_on_is_retried_and_the_controller_does_not_track_meanwhi
         )
     finally:
         feeder.close()
-    assert torque(emulator) == {True} and driver.log("after 1 failed torque-on attempts"), (
-        driver.output()
-    )
+    # one corrupted status fails the first attempt; a loaded machine may make the test process's
+    # emulator miss the driver's status timeout on a retry too: one retry or more
+    assert torque(emulator) == {True} and [
+        line
+        for line in driver.log("failed torque-on attempts")
+        if re.search(r"after [1-9]\d* failed torque-on attempts", line)
+    ], driver.output()
     assert back - deactivated >= 0.9, (
         f"torque back {back - deactivated:.3f} s after the failure: not the retry"
     )

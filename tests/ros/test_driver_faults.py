@@ -184,13 +184,13 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     # "bus lost (<cause>)" once per loss; the torque-off attempt of a loss may add "torque off (bus
     # lost) not confirmed", depending on whether the port failed before or during that write (seen
     # beside two busy processes)
-    assert wait_until(lambda: len(driver.log("bus lost (")) == 2, 2.0), driver.output()
+    assert wait_until(lambda: len(driver.log("bus lost (")) == 2, 30.0), driver.output()
     for dxl_id in dh.IDS:
         emulator.poke(dxl_id, dh.ADDR_TORQUE, 0)
     emulator.set_present_ticks(21, dh.NEUTRAL[21] + 8192)
     replugged = time.monotonic()
     emulator.replug()
-    assert wait_until(lambda: len(driver.log("bus reconnected")) == 2, 5.0), driver.output()
+    assert wait_until(lambda: len(driver.log("bus reconnected")) == 2, 30.0), driver.output()
     time.sleep(0.3)
     assert dh.torque_on_time(emulator, replugged) is None and dh.torque(emulator) == {False}
     status, _ = diagnostics.wait(
@@ -231,15 +231,18 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     # hold: after command_timeout (0.1 s) nothing more is written, torque stays on at the last goal.
     # (Each command is written when it arrives, so the last goal write marks when the driver got the
     # last command.)
+    n_holds = len(driver.log("holding the last goal"))
     last = stream(0.5, 0.5)
-    time.sleep(0.3)
+    # the watchdog has fired, however late a loaded machine delivered the last commands
+    assert wait_until(lambda: len(driver.log("holding the last goal")) > n_holds, 30.0), (
+        driver.output()
+    )
     quiet = time.monotonic()
     time.sleep(0.5)
     writes = dh.goal_writes(emulator, quiet)
     assert writes == [] and dh.torque(emulator) == {True}, (
         f"{len(writes)} goal writes after the commands stopped"
     )
-    assert driver.log("holding the last goal")
     status, _ = diagnostics.wait(
         CONTROL, lambda s, v: "expired (hold)" in v["watchdog"], after_ns=now_ns(ros_node)
     )
@@ -276,10 +279,14 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     assert dh.torque_on_time(emulator, quiet) is None and dh.torque(emulator) == {False}
     resumed = time.monotonic()
     stream(0.2, 0.3)
+    # torque back on on every servo, however late a loaded machine delivers the commands (not
+    # the torque now: the watchdog relaxes again 0.1 s after the last of them)
+    assert wait_until(lambda: dh.torque_on_time(emulator, resumed) is not None, 30.0), (
+        driver.output()
+    )
     on = dh.torque_on_time(emulator, resumed)
-    assert on is not None and dh.torque(emulator) == {True}, driver.output()
     target = dh.NEUTRAL[21] + math.trunc(0.2 * dh.TICKS_PER_RAD)
-    assert wait_until(lambda: abs(emulator.goal_ticks()[21] - target) <= 1, 2.0), (
+    assert wait_until(lambda: abs(emulator.goal_ticks()[21] - target) <= 1, 30.0), (
         emulator.goal_ticks()
     )
     fault(

@@ -15,7 +15,7 @@ from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core.sensing.mocap import world_to_planar
 from hsa_msgs.msg import PlanarActuation
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
 from tests.ros.faults import DiagnosticsLog
 
 pytestmark = pytest.mark.ros
@@ -54,25 +54,27 @@ def planar(msg: PoseStamped) -> np.ndarray:
     return world_to_planar(BASE, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
 
 
-def collect(node, topic: str, seconds: float) -> list[PoseStamped]:
+def collect(node, topic: str, count: int) -> list[PoseStamped]:
+    """The first ``count`` messages of ``topic`` from the second one on, however late they come."""
     received: list[PoseStamped] = []
     subscription = node.create_subscription(PoseStamped, topic, received.append, qos.SENSOR)
-    deadline = time.monotonic() + 20.0
-    while not received and time.monotonic() < deadline:
-        time.sleep(0.02)
+    assert wait_until(lambda: received, 20.0), f"nothing on {topic}"
     received.clear()
-    time.sleep(seconds)
+    wait_until(lambda: len(received) >= count, 60.0)
     node.destroy_subscription(subscription)
     return list(received)
 
 
 def test_resting_plant_is_published_at_the_mocap_rate(sim, ros_node) -> None:
-    poses = collect(ros_node, "/mocap/platform/pose", 3.0)
-    assert len(poses) > 0.6 * 200 * 3.0, f"only {len(poses)} poses in 3 s"
+    poses = collect(ros_node, "/mocap/platform/pose", 360)
+    assert len(poses) >= 360, f"only {len(poses)} poses in 60 s"
     stamps = [p.header.stamp.sec + 1e-9 * p.header.stamp.nanosec for p in poses]
     assert all(b > a for a, b in zip(stamps, stamps[1:])) and poses[-1].header.frame_id == "world"
+    # one sample per mocap period (200 Hz) in the node's own stamps; a pose lost by the loaded
+    # observer only widens a few gaps
+    assert np.median(np.diff(stamps)) == pytest.approx(1 / 200, rel=0.01), "not 200 Hz"
     np.testing.assert_allclose(planar(poses[-1]), REST_FPU, atol=2e-5)
-    base = collect(ros_node, "/mocap/base/pose", 0.5)[-1].pose.position
+    base = collect(ros_node, "/mocap/base/pose", 1)[-1].pose.position
     assert (base.x, base.y, base.z) == pytest.approx(BASE)
 
 

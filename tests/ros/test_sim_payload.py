@@ -4,8 +4,6 @@ simulated time on."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped
@@ -14,7 +12,7 @@ from rclpy.time import Time
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core.sensing.mocap import world_to_planar
-from tests.ros.conftest import start_process, stop_process, wait_for_line
+from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
 from tests.ros.faults import DiagnosticsLog
 
 pytestmark = pytest.mark.ros
@@ -68,7 +66,18 @@ def test_the_platform_moves_down_from_the_scheduled_instant(tmp_path, ros_node) 
         array = next(a for a in diagnostics.arrays if status in a.status)
         origin = Time.from_msg(array.header.stamp).nanoseconds * 1e-9 - float(values["sim_time"])
         diagnostics.wait("sim_node: world", lambda s, v: float(v["payload"]) == MASS, timeout=60.0)
-        time.sleep(1.5)
+        # more than 50 loaded poses, however late a loaded machine delivers them
+        wait_until(
+            lambda: (
+                sum(
+                    Time.from_msg(p.header.stamp).nanoseconds * 1e-9 - origin > LOAD_AT + 0.5
+                    for p in list(poses)
+                )
+                > 50
+            ),
+            timeout=60.0,
+            poll=0.2,
+        )
     finally:
         assert stop_process(proc) == 0
     stamped = [

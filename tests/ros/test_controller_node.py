@@ -174,7 +174,9 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
         # then 2 s of steady ticking are measured, in the node's stamps: however late a loaded
         # machine delivers them, until the newest command is stamped 2.2 s after the first
         first = _sec(cmds.since()[0].header.stamp)
-        wait_until(lambda: _sec(_newest(cmds).header.stamp) >= first + 2.2, 30.0, poll=0.1)
+        assert wait_until(
+            lambda: _sec(_newest(cmds).header.stamp) >= first + 2.2, 30.0, poll=0.1
+        ), "fewer than 2.2 s of commands in 30 s"
         sent_cmds = cmds.since()
         now = _sec(sent_cmds[-1].header.stamp)
         recent = [

@@ -80,21 +80,31 @@ def law_on_robot(real, period: float, integrator_dt: float, kd: float | None = N
     """RMS [rad] of φ_law − φ_robot per window (module docstring), pooled over both rods and the
     steps whose pre-step φ is unsaturated; and of the robot's φ minus its pre-step value. ``kd``
     replaces the run's derivative gain."""
+    from hsa_core.controller.control import (
+        ControllerState,
+        ControlReference,
+        Measurement,
+        task_space_pid,
+    )
+    from hsa_core.model.params import load_params
+    from hsa_core.sensing.estimation import derivative_coefficients
+    from hsa_core.sim.run_conditions import SPLINE_ORDER, SPLINE_WINDOW
+
     g = real.conditions.gains
     g = g if kd is None else dataclasses.replace(g, kd=kd)
-    phi_ss = 100.0 * np.pi / 180.0  # φ_max / 2 of the FPU (p&c §3.5)
+    params = load_params(real.conditions.material)
+    phi_ss = np.asarray(params.phi_max) / 2.0  # per rod
     mix = np.array([[1.0, 1.0], [-1.0, 1.0]])
     ticks = np.arange(0.0, real.t[-1], period)
     p = _interp(ticks, real.pee.t, np.stack([real.pee["px"], real.pee["py"]], axis=1) * 1e-3)
     p_des = real.p_des[np.clip(np.searchsorted(real.t, ticks, side="right") - 1, 0, None)]
     e = p_des - p
+    # the September stand-in on uniform ticks: the cubic over the last SPLINE_WINDOW ticks
+    c = derivative_coefficients(np.arange(1 - SPLINE_WINDOW, 1.0), SPLINE_ORDER) / period
     v = np.zeros_like(p)
-    for k in range(15, len(ticks)):
-        tau = (ticks[k - 15 : k + 1] - ticks[k]) / period
-        v[k] = (
-            np.linalg.lstsq(np.vander(tau, 4, increasing=True), p[k - 15 : k + 1], rcond=None)[0][1]
-            / period
-        )
+    for k in range(SPLINE_WINDOW - 1, len(ticks)):
+        v[k] = c @ p[k - SPLINE_WINDOW + 1 : k + 1]
+    nan3 = np.full(3, np.nan)
     tr, phr = _robot_phi(real)
     sq: dict = {w: [] for w in WINDOWS}
     moved: dict = {w: [] for w in WINDOWS}
@@ -108,13 +118,15 @@ def law_on_robot(real, period: float, integrator_dt: float, kd: float | None = N
         u0 = np.linalg.solve(mix, phr[j0] - phi_ss)
         e_int = (u0 - g.kp * e[i0] + g.kd * v[i0]) / g.ki
         tt, out = [], []
+        state = ControllerState(e_int, np.zeros(2))
         for i in range(i0, len(ticks)):
             if ticks[i] > b + 9.3:
                 break
-            u = g.kp * e[i] + g.ki * e_int - g.kd * v[i]
-            e_int = e_int + e[i] * integrator_dt
+            ref = ControlReference(np.append(p_des[i], 0.0), *[nan3] * 6)  # the PID reads chiee^d
+            meas = Measurement(nan3, nan3, np.append(p[i], 0.0), np.append(v[i], 0.0))
+            phi, state, _ = task_space_pid(params, g, ref, state, meas, integrator_dt)
             tt.append(ticks[i])
-            out.append(np.clip(phi_ss + mix @ u, 0.0, 2 * phi_ss))
+            out.append(np.asarray(phi))
         tt, out = np.asarray(tt), np.asarray(out)
         for w in WINDOWS:
             m = (tr >= b + w[0]) & (tr < b + w[1])
@@ -297,8 +309,7 @@ def closed_loop(real, world, transaction: float | None = None, **config) -> dict
     tr, phr = _robot_phi(real)
     phi_sim = _aligned(log.t, log.phi_sat, s_starts)
     phi_robot = _aligned(tr, phr, r_starts)
-    p_sim = _aligned(log.t, log.chiee[:, :2], s_starts)
-    p_robot = _aligned(real.t, real.p, r_starts)
+    p_sim, p_robot = sim_to_real.aligned_responses(sim), sim_to_real.aligned_responses(robot)
     times_sim, times_robot = [], []
     for k, s in enumerate(r_starts[:10]):
         p_des = real.p_des[np.searchsorted(real.t, s + 0.05)]
@@ -317,25 +328,11 @@ def closed_loop(real, world, transaction: float | None = None, **config) -> dict
             "robot": dict(zip(levels, np.round(np.nanmedian(times_robot, 0), 3).tolist())),
         },
         "overshoot_median": {
-            "sim": round(
-                float(np.median([_overshoot(p, r_starts, real, k) for k, p in enumerate(p_sim)])), 3
-            ),
-            "robot": round(
-                float(np.median([_overshoot(p, r_starts, real, k) for k, p in enumerate(p_robot)])),
-                3,
-            ),
+            name: round(float(np.median(sim_to_real.overshoots(run))) * 1e3, 3)
+            for name, run in (("sim", sim), ("robot", robot))
         },
         "wall_s": round(wall, 1),
     }
-
-
-def _overshoot(p: np.ndarray, starts: np.ndarray, real, k: int) -> float:
-    """[mm] how far the aligned response ``p`` of step k+1 goes past its setpoint along the step."""
-    s = starts[k]
-    p_des = real.p_des[np.searchsorted(real.t, s + 0.05)]
-    before = real.p_des[np.searchsorted(real.t, s - 0.05)]
-    d = (p_des - before) / np.linalg.norm(p_des - before)
-    return max(0.0, float(np.max((p - p_des) @ d))) * 1e3
 
 
 def main() -> int:

@@ -4,10 +4,14 @@ Clones the committed ``--ref`` (default HEAD) of this checkout into a temporary 
 ``./test.sh`` there as ``.ci/run`` does (bootstrap included: a fresh virtual environment from the
 package cache), optionally beside ``--burners`` processes that keep a core busy each, and writes
 the wall time, pytest's own time and the outcome under ``--key`` in
-benchmarks/results/suite.json (``--out``; other keys are kept). The user's package and JAX
-compilation caches are not cleared (a first run on a new machine also downloads the wheels).
+benchmarks/results/suite.json (``--out``; other keys are kept). The user's package cache is not
+cleared (a first run on a new machine also downloads the wheels). The JAX compilation and result
+cache is the user's (``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``: warm after an earlier
+run on the machine, as on a CI runner that keeps its home), or with ``--cold-cache`` an empty one,
+as on a new machine.
 
-    .venv/bin/python benchmarks/bench_suite.py [--burners 2] [--key KEY] [--ref REV] [--out FILE]
+    .venv/bin/python benchmarks/bench_suite.py [--burners 2] [--cold-cache] [--key KEY] [--ref REV]
+        [--out FILE]
 """
 
 from __future__ import annotations
@@ -37,6 +41,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--burners", type=int, default=0, help="busy processes beside the suite")
     parser.add_argument("--ref", default="HEAD", help="the commit to clone (committed work only)")
+    parser.add_argument(
+        "--cold-cache", action="store_true", help="an empty JAX cache, as on a new machine"
+    )
     parser.add_argument("--key", default="run", help="key of this run in the results file")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "suite.json")
     args = parser.parse_args()
@@ -56,13 +63,16 @@ def main() -> int:
         burners = [
             subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(args.burners)
         ]
+        env = {**os.environ, "CI": "true"}
+        if args.cold_cache:
+            env["HSA_JAX_CACHE_DIR"] = str(Path(tmp) / "jax_cache")
         load_before = os.getloadavg()[0]
         started = time.monotonic()
         try:
             done = subprocess.run(
                 [str(clone / "test.sh")],
                 cwd=clone,
-                env={**os.environ, "CI": "true"},
+                env=env,
                 capture_output=True,
                 text=True,
             )
@@ -77,6 +87,7 @@ def main() -> int:
         "commit": commit.stdout.strip(),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
         "burners": args.burners,
+        "jax_cache": "cold (empty)" if args.cold_cache else "the user's",
         "load_average_1min_before_after": [round(load_before, 1), round(os.getloadavg()[0], 1)],
         "exit_status": done.returncode,
         "outcome": summary,

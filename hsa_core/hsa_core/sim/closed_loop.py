@@ -305,8 +305,11 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         )
 
     def tick(c: _Carry, j: Array) -> tuple[_Carry, TickLog]:
-        """Control tick j at t = j·period, then the instants up to the next tick."""
+        """The instants since the previous tick (from t = 0 for the first), then control tick j at
+        t = j·period: the instant is traced once, the instants after the last tick, which no log row
+        sees, are not run."""
         t = j * period
+        c = jax.lax.fori_loop(t - period, t, lambda i, cc: instant(cc, i), c)
         if at_ticks:  # the September stand-in: the newest state enters its fit at every tick
             taken, _ = tick_take(
                 TickWindow(c.window, c.stamps, c.count),
@@ -357,7 +360,6 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
             pending_at=c.pending_at.at[slot].set(jnp.where(run, t + lat_a, c.pending_at[slot])),
             writes=c.writes + run,
         )
-        c = jax.lax.fori_loop(t, t + period, lambda i, cc: instant(cc, i), c)
         return c, log
 
     window = (
@@ -378,8 +380,6 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         jnp.zeros(6),
         jnp.asarray(-jnp.inf),
     )
-    # the instants before the first tick
-    c = jax.lax.fori_loop(0, period, lambda i, cc: instant(cc, i), c)
     _, log = jax.lax.scan(tick, c, jnp.arange(1, spec.n_ticks))
     return log
 

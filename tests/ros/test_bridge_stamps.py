@@ -12,6 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from rclpy.time import Time
 
@@ -90,31 +91,51 @@ def _started(ros_node, bridge: NodeProcess) -> tuple[MocapStream, Recorder, Diag
     return stream, poses, diagnostics
 
 
+def _future_window(
+    stream: MocapStream, poses: Recorder, diagnostics: DiagnosticsLog, node: Node
+) -> tuple[int, list[int], list[int], dict[str, str], dict[str, str]]:
+    """Inject one pose stamped FUTURE_NS after a regular sample and wait (30 s bound each) until
+    the stream has sent past the next FUTURE_NS and the bridge has published a sample from after
+    it. Return the regular sample's stamp, the genuine stamps of the window, the bridge's output
+    stamps since the injection and its reports before and after."""
+    injected: list[int] = []
+    before = _report(diagnostics, node)
+    n_poses = len(poses)
+
+    def future(stamp: int) -> PoseStamped:
+        injected.append(stamp)
+        return pose_msg(stamp + FUTURE_NS, *stream.world)
+
+    stream.inject(future)
+    assert wait_until(lambda: injected, 30.0)
+    s = injected[0]
+    # on the old code every genuine sample of this window was refused
+    assert wait_until(lambda: stream.sent[-1] > s + FUTURE_NS, 30.0)
+    assert wait_until(lambda: any(_stamp(m) > s + FUTURE_NS for m in poses.since(n_poses)), 30.0), (
+        "the bridge published nothing after the window"
+    )
+    after = _report(diagnostics, node)
+    genuine = [t for t in stream.sent if s < t <= s + FUTURE_NS]
+    return s, genuine, [_stamp(m) for m in poses.since(n_poses)], before, after
+
+
 def test_one_future_stamp_does_not_blind_the_bridge(bridge, ros_node) -> None:
     stream, poses, diagnostics = _started(ros_node, bridge)
-    injected: list[int] = []
     try:
-        before = _report(diagnostics, ros_node)
-        n_poses = len(poses)
-
-        def future(stamp: int) -> PoseStamped:
-            injected.append(stamp)
-            return pose_msg(stamp + FUTURE_NS, *stream.world)
-
-        stream.inject(future)
-        assert wait_until(lambda: injected, 2.0)
-        time.sleep(0.6)  # > 0.4 s: on the old code every genuine sample of this window was refused
-        after = _report(diagnostics, ros_node)
+        # the window must hold >= 60 genuine samples: the test's own 200 Hz stream can fall short
+        # when a loaded machine deschedules the test process, and then the window is set up again
+        # (at most three times)
+        for _ in range(3):
+            s, genuine, out, before, after = _future_window(stream, poses, diagnostics, ros_node)
+            if len(genuine) >= 60:
+                break
     finally:
         stream.close()
-    s = injected[0]
-    genuine = [t for t in stream.sent if s < t <= s + FUTURE_NS]
-    out = [_stamp(m) for m in poses.since(n_poses)]
     assert _delta(after, before, "rejected_future") == 1, after
     assert _delta(after, before, "rejected_out_of_order") == 0, after
     assert s + FUTURE_NS not in out, "the future-stamped pose was published"
     published = [t for t in genuine if t in out]
-    assert len(genuine) >= 60, f"the stream sent only {len(genuine)} samples in 0.4 s"
+    assert len(genuine) >= 60, f"the stream sent only {len(genuine)} samples in 0.4 s, 3 times"
     following = [t for t in out if t > s]
     assert following and following[0] in genuine[:2], (
         "the first or second genuine sample after the future stamp must be published: "
@@ -153,9 +174,14 @@ def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -
         for k in range(n_wrong):
             stream.inject(in_frame(("map", "")[k % 2]))
             time.sleep(0.005)
-        assert wait_until(lambda: len(wrong) == n_wrong, 5.0)
-        time.sleep(0.3)
-        after = _report(diagnostics, ros_node)
+        assert wait_until(lambda: len(wrong) == n_wrong, 30.0)
+        # the first report that counts them all, however late a loaded machine delivers them
+        after = diagnostics.wait(
+            BRIDGE,
+            lambda s, v: _delta(v, before, "rejected_frame") >= n_wrong,
+            after_ns=ros_node.get_clock().now().nanoseconds,
+            timeout=30.0,
+        )[1]
     finally:
         stream.close()
     out = {_stamp(m) for m in poses.since(n_poses)}
@@ -164,7 +190,9 @@ def test_wrong_frame_is_dropped_counted_and_logged_throttled(bridge, ros_node) -
     assert "frame_id" in after["last_rejection"], after["last_rejection"]
     assert {m.header.frame_id for m in poses.since(n_poses)} == {"hsa_base"}
 
-    # 200 drops in about 1 s: the bridge logs a drop at most once per 5 s
+    # 200 drops in about 1 s: the bridge logs a drop at most once per 5 s (its output reaches this
+    # test through a pipe and a reader thread)
+    assert wait_until(lambda: bool(bridge.log(DROP_LOG)), 30.0), bridge.output()
     times = [float(re.search(r"\[(\d+\.\d+)\]", line).group(1)) for line in bridge.log(DROP_LOG)]
     assert times and all(b - a >= 4.9 for a, b in zip(times, times[1:])), bridge.log(DROP_LOG)
     fault(

@@ -355,7 +355,13 @@ def _outage(emulator, drivers: list[DriverProcess], controller: NodeProcess, ros
         killed = ros_node.get_clock().now().nanoseconds * 1e-9
         n_killed = len(infos)
         status = diagnostics.wait(CONTROL, lambda s, v: v["mode"] == "driver lost", timeout=10.0)[0]
-        time.sleep(2.0)  # a 2 s outage while the states keep coming
+        time.sleep(2.0)  # an outage of 2 s at least while the states keep coming
+        # and until more than 40 ticks stamped 0.5 s after the kill have arrived: a loaded machine
+        # delays them
+        assert wait_until(
+            lambda: sum(sec(m.header.stamp) > killed + 0.5 for m in infos.since(n_killed)) > 40,
+            30.0,
+        ), controller.output()
         after_kill = infos.since(n_killed)
         left = min(sec(m.header.stamp) for m in after_kill if m.state != TRACKING) - killed
         lost = [m for m in after_kill if sec(m.header.stamp) > killed + 0.5]

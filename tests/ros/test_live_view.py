@@ -274,13 +274,15 @@ class Session:
         self.channels: dict[str, dict] = {}
         # (arrival, log time, payload)
         self.received: dict[str, list[tuple[float, int, bytes]]] = defaultdict(list)
+        self.closed_by_server = False
 
 
 async def watch(
     port: int, session: Session, subscribed: threading.Event, done: threading.Event
 ) -> None:
     """Connect, read serverInfo and advertise, subscribe to every channel, collect message data
-    until ``done``."""
+    until ``done`` or until the server closes the connection (then every frame it sent has been
+    read, and ``session.closed_by_server`` is set)."""
     async with websockets.connect(
         f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None
     ) as ws:
@@ -312,7 +314,8 @@ async def watch(
             except TimeoutError:
                 continue
             except websockets.ConnectionClosed:
-                return  # the graph ended and its server closed the connection
+                session.closed_by_server = True  # the graph ended and its server closed it
+                return
             if (
                 isinstance(frame, bytes) and frame[0] == 0x01
             ):  # message data: sub id u32, log time u64, payload
@@ -683,6 +686,10 @@ def test_the_live_view_of_a_running_sim_graph(tmp_path: Path, viewer_check) -> N
         client.start()
         assert subscribed.wait(60.0), "no advertise from the live view"
         graph.wait(timeout=300.0)  # the graph ends by itself when the sequencer is done
+        # the client reads on until the server's close: on a loaded machine it lags seconds behind
+        # the graph, and the last progress texts are among the frames it has yet to read
+        client.join(timeout=60.0)
+        assert session.closed_by_server, "the live view did not close the viewer's connection"
     finally:
         done.set()
         stop_process(graph)

@@ -55,7 +55,8 @@ def planar(msg: PoseStamped) -> np.ndarray:
 
 
 def collect(node, topic: str, count: int) -> list[PoseStamped]:
-    """The first ``count`` messages of ``topic`` from the second one on, however late they come."""
+    """The messages of ``topic`` from the second one on, once ``count`` of them have arrived
+    (however late they come; 60 s bound)."""
     received: list[PoseStamped] = []
     subscription = node.create_subscription(PoseStamped, topic, received.append, qos.SENSOR)
     assert wait_until(lambda: received, 20.0), f"nothing on {topic}"

@@ -4,8 +4,8 @@ out of work.
 ``Participant(node)`` wraps the node's publishers, subscriptions, service servers and clients to
 count messages per topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the
 barrier's own topic and the node's private parameter/lifecycle services are not counted), and
-publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner has found no callback ready
-for a moment (:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`), spinning
+publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner finds no callback ready
+(:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`), spinning
 a :class:`LockstepExecutor`. The
 decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in docs/simulation.md. A node may add
 a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder: every selected topic

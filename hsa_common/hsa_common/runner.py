@@ -272,13 +272,13 @@ def spin_lockstep(
     stop: list[int],
     errors: MiddlewareErrors | None = None,
 ) -> None:
-    """Run ready callbacks one at a time; when none has been ready for a moment
+    """Run ready callbacks one at a time; when none is ready
     (:class:`hsa_core.sim.lockstep.ReportPacing`), report to the simulator (if a participant: one
     node's or a composed process's). ``errors`` (if given) is checked after each callback."""
     pacing = ReportPacing(period=SPIN_PERIOD)
     while not stop and rclpy.ok():
         try:
-            handler, entity, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
+            handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=pacing.timeout())
         except TimeoutException:
             pacing.timed_out()
             if participant is not None:
@@ -286,7 +286,7 @@ def spin_lockstep(
             continue
         except (ShutdownException, ConditionReachedException):
             return
-        pacing.ran(getattr(entity, "topic_name", None) == lockstep.LEAD_TOPIC)
+        pacing.ran()
         handler()
         if errors is not None:
             errors.check()

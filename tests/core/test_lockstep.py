@@ -178,24 +178,17 @@ def test_an_expected_participant_leaving_marks_the_end_of_the_graph() -> None:
     assert barrier.left == ["/kin"] and "/kin" not in barrier.reports
 
 
-def test_a_participant_reports_once_it_has_been_out_of_work_for_the_quiet_time() -> None:
-    """After each callback the executor waits the quiet time (a burst a little apart gives one
-    report), then reports and waits a period at a time; no poll before the quiet wait."""
-    pacing = ReportPacing(quiet=0.002, period=0.02)
-    assert pacing.timeout() == 0.002
-    for _ in range(3):  # a burst: every callback within the quiet time of the previous one
+def test_a_participant_reports_as_soon_as_no_callback_is_ready() -> None:
+    """After each callback the executor polls (timeout 0) and reports when nothing is ready; then
+    it waits a period at a time, reporting after each."""
+    pacing = ReportPacing(period=0.02)
+    assert pacing.timeout() == 0.0  # a fresh spin reports at its first poll
+    for _ in range(3):  # a burst: every callback is followed by a poll
         pacing.ran()
-        assert pacing.timeout() == 0.002
+        assert pacing.timeout() == 0.0
     pacing.timed_out()  # the report
     assert pacing.timeout() == 0.02  # then every period while idle
     pacing.timed_out()
     assert pacing.timeout() == 0.02
-    eager = ReportPacing(quiet=0.0, period=0.02)
-    eager.ran()
-    assert eager.timeout() == 0.0
-    eager.timed_out()
-    assert eager.timeout() == 0.02
-    pacing.ran(last=True)  # the lead clock: nothing follows it in its instant
+    pacing.ran()  # work again
     assert pacing.timeout() == 0.0
-    pacing.ran()
-    assert pacing.timeout() == 0.002

@@ -45,9 +45,6 @@ import enum
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
-REPORT_QUIET = 0.002
-"""[s] of wall time a participant that ran out of work still waits for more before it reports."""
-
 DISCOVERY_SETTLE = 0.5
 """[s] of wall time discovery must stay complete and unchanged before simulated time starts."""
 
@@ -214,35 +211,29 @@ class Barrier:
 class Spin(enum.Enum):
     """Where a participant's executor stands (:class:`ReportPacing`)."""
 
-    BUSY = "busy"  # the lead clock's callback just ran: report as soon as nothing else is ready
-    QUIET = "quiet"  # a callback just ran: wait a little for more work before reporting
+    BUSY = "busy"  # a callback just ran: report as soon as nothing else is ready
     IDLE = "idle"  # reported: wait for work, reporting again after each ``period`` without any
 
 
 class ReportPacing:
-    """When a participant reports (the runner's lockstep spin): once it has run out of work for
-    ``quiet`` s, not after every callback. A burst of messages that arrive a little apart (a mocap
-    sample through bridge, kinematics and controller, a tick's messages from several nodes) then
-    gives one report instead of one per message; a report shows the counts at the moment it is
-    made, so a later one is never less true. ``quiet`` 0 reports each time no callback is ready.
-    After a callback the executor waits up to ``quiet`` at once (a ready callback ends that wait
-    as early as a poll would): one wait per callback, not a poll and then a wait. After the lead
-    clock, which nothing else follows in its instant, it reports without waiting."""
+    """When a participant reports (the runner's lockstep spin): as soon as no callback is ready
+    after one ran (a poll), then again after every ``period`` of waiting without work. A report
+    shows the counts at the moment it is made, so a later one is never less true."""
 
-    def __init__(self, quiet: float = REPORT_QUIET, period: float = 0.02) -> None:
-        self.quiet = quiet
+    def __init__(self, period: float = 0.02) -> None:
         self.period = period
-        self.state = Spin.QUIET
+        self.state = Spin.BUSY
 
     def timeout(self) -> float:
         """[s] how long the executor may wait for a ready callback now."""
-        return {Spin.BUSY: 0.0, Spin.QUIET: self.quiet, Spin.IDLE: self.period}[self.state]
+        return 0.0 if self.state is Spin.BUSY else self.period
 
-    def ran(self, last: bool = False) -> None:
-        """A callback ran (``last``: the lead clock's; the report need not wait)."""
-        self.state = Spin.BUSY if last else Spin.QUIET
+    def ran(self) -> None:
+        """A callback ran: poll for the next one, and report if none is ready."""
+        self.state = Spin.BUSY
 
     def timed_out(self) -> None:
-        """No callback was ready within :meth:`timeout` (the quiet time, or a period while idle):
-        the participant reports now, and waits a period for work from then on."""
+        """No callback was ready within :meth:`timeout` (at once after a callback, or within a
+        period while idle): the participant reports now, and waits a period for work from then
+        on."""
         self.state = Spin.IDLE

@@ -41,7 +41,6 @@ that hold the barrier.
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -208,13 +207,6 @@ class Barrier:
         return min(dues) if dues else None
 
 
-class Spin(enum.Enum):
-    """Where a participant's executor stands (:class:`ReportPacing`)."""
-
-    BUSY = "busy"  # a callback just ran: report as soon as nothing else is ready
-    IDLE = "idle"  # reported: wait for work, reporting again after each ``period`` without any
-
-
 class ReportPacing:
     """When a participant reports (the runner's lockstep spin): as soon as no callback is ready
     after one ran (a poll), then again after every ``period`` of waiting without work. A report
@@ -222,18 +214,18 @@ class ReportPacing:
 
     def __init__(self, period: float = 0.02) -> None:
         self.period = period
-        self.state = Spin.BUSY
+        self.idle = False  # reported since the last callback: wait a period at a time for work
 
     def timeout(self) -> float:
         """[s] how long the executor may wait for a ready callback now."""
-        return 0.0 if self.state is Spin.BUSY else self.period
+        return self.period if self.idle else 0.0
 
     def ran(self) -> None:
         """A callback ran: poll for the next one, and report if none is ready."""
-        self.state = Spin.BUSY
+        self.idle = False
 
     def timed_out(self) -> None:
         """No callback was ready within :meth:`timeout` (at once after a callback, or within a
         period while idle): the participant reports now, and waits a period for work from then
         on."""
-        self.state = Spin.IDLE
+        self.idle = True

@@ -3,10 +3,11 @@ out of work.
 
 ``Participant(node)`` wraps the node's publishers, subscriptions, service servers and clients to
 count messages per topic (services as ``srv:<name>``; /clock, /rosout, /parameter_events, the
-barrier's own topic and the node's private parameter/lifecycle services are not counted), and
-publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner finds no callback ready
-(:func:`hsa_common.runner.run`, :class:`hsa_core.sim.lockstep.ReportPacing`), spinning
-a :class:`LockstepExecutor`. The
+barrier's own topic and the node's private parameter/lifecycle services are not counted), and its
+timers and clock subscriptions to count the callbacks that can change its report (``activity``),
+and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner finds no callback ready
+(:func:`hsa_common.runner.spin_lockstep`, :class:`hsa_core.sim.lockstep.ReportPacing`), spinning
+rclpy's events executor (or, with ``HSA_EXECUTOR=single``, a :class:`LockstepExecutor`). The
 decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in docs/simulation.md. A node may add
 a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder: every selected topic
 subscribed). A node whose log times are simulated time (the recorder) reads them from a
@@ -350,6 +351,10 @@ class Take:
 class Reporter(Protocol):
     """What the runner's lockstep spin needs: a report whenever the process has run out of work."""
 
+    @property
+    def activity(self) -> int:
+        """Callbacks run so far that can change a report (the events-executor spin's idle test)."""
+
     def idle(self, leaving: bool = False) -> None:
         """The process found nothing to run (``leaving``: it stops): report if anything changed."""
 
@@ -375,12 +380,18 @@ class Participant:
             node.create_publisher(LockstepAck, ACK_TOPIC, ACK_QOS) if publish_acks else None
         )
         self._since: set[str] = set()  # topics taken since the last report
+        self.activity = 0  # callbacks run that can change the report (events-executor spin)
         self.triggers: Counter[str] = Counter()  # reports per cause (topics taken, timer, clock)
         self.instrument()
 
     def instrument(self) -> None:
-        """Wrap every publisher, subscription, service and client not wrapped yet (nodes may create
-        them later)."""
+        """Wrap every publisher, subscription, service, client and timer not wrapped yet (nodes may
+        create them later)."""
+        for timer in self.node.timers:
+            if id(timer) in self._wrapped or getattr(timer, "lockstep_wall", False):
+                continue
+            self._wrapped.add(id(timer))
+            timer.callback = self._active(timer.callback)
         for pub in self.node.publishers:
             topic = pub.topic_name
             if id(pub) in self._wrapped or topic in UNCOUNTED:
@@ -390,7 +401,12 @@ class Participant:
             self.published.setdefault(topic, 0)
             pub.publish = self._counting(pub.publish, self.published, topic)
         for sub in self.node.subscriptions:
-            if id(sub) in self._wrapped or sub.topic_name in UNCOUNTED:
+            if id(sub) in self._wrapped:
+                continue
+            if sub.topic_name in UNCOUNTED:
+                if sub.topic_name in ("/clock", LEAD_TOPIC):  # the clock moves: timers, clock_acks
+                    self._wrapped.add(id(sub))
+                    sub.callback = self._active(sub.callback)
                 continue
             self._wrapped.add(id(sub))
             self.taken.setdefault(sub.topic_name, 0)
@@ -415,9 +431,18 @@ class Participant:
             self.published.setdefault(name, 0)
             client.call_async = self._calling(client.call_async, name)
 
-    @staticmethod
-    def _counting(fn: Any, counter: Counter[str], topic: str, since: set[str] | None = None) -> Any:
+    def _active(self, fn: Any) -> Any:
+        def active(*args: Any, **kwargs: Any) -> Any:
+            self.activity += 1
+            return fn(*args, **kwargs)
+
+        return active
+
+    def _counting(
+        self, fn: Any, counter: Counter[str], topic: str, since: set[str] | None = None
+    ) -> Any:
         def counted(*args: Any, **kwargs: Any) -> Any:
+            self.activity += 1
             counter[topic] += 1
             if since is not None:
                 since.add(topic)
@@ -436,6 +461,7 @@ class Participant:
         return call
 
     def _answered(self, _future: Any) -> None:
+        self.activity += 1
         self.pending -= 1
 
     def report(self, leaving: bool = False) -> Report:
@@ -516,6 +542,11 @@ class Group:
 
     def __init__(self, participants: Sequence[Participant]) -> None:
         self.participants = tuple(participants)
+
+    @property
+    def activity(self) -> int:
+        """Callbacks run so far that can change a report (see :meth:`Participant.instrument`)."""
+        return sum(p.activity for p in self.participants)
 
     def idle(self, leaving: bool = False) -> None:
         """Every participant reports (see :meth:`Participant.idle`)."""

@@ -34,8 +34,9 @@ limit the node prints every thread's stack and a C-level timer ends it with its 
 (:mod:`hsa_common.exit_deadline`).
 
 Lockstep (parameter ``lockstep: true``, with ``use_sim_time``): the node joins the simulator's
-barrier (:mod:`hsa_common.lockstep`) — a :class:`~hsa_common.lockstep.LockstepExecutor` runs one
-ready callback at a time and, whenever none is ready, the node reports to the simulator. A node
+barrier (:mod:`hsa_common.lockstep`) — the same executor runs one ready callback at a time
+(``HSA_EXECUTOR=single``: :class:`~hsa_common.lockstep.LockstepExecutor`, rclpy's Python executor
+with a lean wait) and, whenever none is ready, the node reports to the simulator. A node
 can end the process with a code of its own by setting ``exit_code`` before it shuts its context
 down (the simulator does, when a barrier times out).
 """
@@ -160,7 +161,7 @@ def run_nodes(
             and not (isinstance(node, Coordinator) and node.lockstep_coordinator)
         ]
     )
-    executor = lockstep.LockstepExecutor() if in_lockstep else make_executor()
+    executor = make_executor(lockstep_spin=in_lockstep)
     for node in nodes:
         executor.add_node(node)
     errors = MiddlewareErrors(nodes[0])  # a malformed message: one throttled line per process
@@ -274,7 +275,10 @@ def spin_lockstep(
 ) -> None:
     """Run ready callbacks one at a time; when none is ready
     (:class:`hsa_core.sim.lockstep.ReportPacing`), report to the simulator (if a participant: one
-    node's or a composed process's). ``errors`` (if given) is checked after each callback."""
+    node's or a composed process's). ``errors`` (if given) is checked after each callback. The
+    events executor takes :func:`spin_lockstep_events`."""
+    if not isinstance(executor, Executor):
+        return spin_lockstep_events(executor, participant, stop, errors)
     pacing = ReportPacing(period=SPIN_PERIOD)
     while not stop and rclpy.ok():
         try:
@@ -294,6 +298,30 @@ def spin_lockstep(
             raise handler.exception()
 
 
+def spin_lockstep_events(
+    executor: object,
+    participant: lockstep.Reporter | None,
+    stop: list[int],
+    errors: MiddlewareErrors | None = None,
+) -> None:
+    """:func:`spin_lockstep` on rclpy's events executor, whose ``spin_once`` runs at most one
+    callback and says nothing of it: the process is idle once a ``spin_once`` ran no callback that
+    can change a report (the participants' ``activity`` count did not move). A callback's exception
+    leaves ``spin_once``."""
+    pacing = ReportPacing(period=SPIN_PERIOD)
+    while not stop and rclpy.ok():
+        before = participant.activity if participant is not None else 0
+        executor.spin_once(timeout_sec=pacing.timeout())  # type: ignore[attr-defined]
+        if errors is not None:
+            errors.check()
+        if participant is not None and participant.activity != before:
+            pacing.ran()
+            continue
+        pacing.timed_out()
+        if participant is not None:
+            participant.idle()
+
+
 def watch_stop() -> None:
     """Arm the stuck-stop report: a thread that learns of the first stop signal from the
     interpreter's wakeup fd, which the C-level handler writes even while the main thread is blocked
@@ -311,14 +339,15 @@ def watch_stop() -> None:
     threading.Thread(target=watch, name="stop-watch", daemon=True).start()
 
 
-def make_executor() -> Executor:
+def make_executor(lockstep_spin: bool = False) -> Executor:
     """The executor named by HSA_EXECUTOR: 'events' (rclpy's C++ EventsExecutor, the default) or
-    'single'."""
+    'single' (rclpy's Python executor; for a lockstep spin its lean variant,
+    :class:`hsa_common.lockstep.LockstepExecutor`)."""
     kind = os.environ.get("HSA_EXECUTOR", "events")
     if kind == "events":
         return EventsExecutor()
     if kind == "single":
-        return SingleThreadedExecutor()
+        return lockstep.LockstepExecutor() if lockstep_spin else SingleThreadedExecutor()
     raise ValueError(f"HSA_EXECUTOR must be 'events' or 'single', not {kind!r}")
 
 

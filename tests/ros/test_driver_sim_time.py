@@ -1,6 +1,6 @@
 """dynamixel_driver with use_sim_time on a test-published /clock (issue 11): the command watchdog
-runs on simulated time. The real driver process (on rclpy's SingleThreadedExecutor: the
-EventsExecutor's timers do not follow a ROS clock, rclcpp#2457) and dynamixel_sdk on the emulated
+runs on simulated time. The real driver process, on each executor the runner offers (rclpy's events
+executor, the default, and its Python executor: ``HSA_EXECUTOR``), and dynamixel_sdk on the emulated
 MX-28 bus; the test owns /clock and steps it one 10 ms instant at a time, waiting for the driver's
 read of that instant (``motor_states`` stamped with it) before it looks at the bus, so nothing
 depends on how fast the loaded machine runs the driver.
@@ -78,7 +78,8 @@ class StateStamps:
         return wait_until(lambda: ns in self.stamps, timeout=timeout)
 
 
-def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
+@pytest.mark.parametrize("executor", ["events", "single"])
+def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node, executor: str) -> None:
     clock = SimClock(ros_node)
     emulator: MX28Emulator | None = None
     try:
@@ -90,7 +91,7 @@ def test_watchdog_runs_on_simulated_time(tmp_path, drivers, ros_node) -> None:
             driver := DriverProcess(
                 str(tmp_path / "ttyDXL"),
                 ("use_sim_time:=true", "watchdog_action:=relax", f"command_timeout:={TIMEOUT_S}"),
-                env={"HSA_EXECUTOR": "single"},
+                env={"HSA_EXECUTOR": executor},
             ).wait_ready()
         )
         assert wait_until(lambda: bool(driver.log("bus not ready")), timeout=30.0), driver.output()

@@ -381,6 +381,9 @@ class Participant:
         )
         self._since: set[str] = set()  # topics taken since the last report
         self.activity = 0  # callbacks run that can change the report (events-executor spin)
+        self._seen = -1  # activity at the last report made with simulated time running
+        self._timers: tuple = ()  # the node's timers at that report
+        self._running = False  # the node clock has moved from 0 (readiness no longer matters)
         self.triggers: Counter[str] = Counter()  # reports per cause (topics taken, timer, clock)
         self.instrument()
 
@@ -452,6 +455,7 @@ class Participant:
 
     def _calling(self, call_async: Any, topic: str) -> Any:
         def call(*args: Any, **kwargs: Any) -> Any:
+            self.activity += 1
             self.published[topic] += 1
             self.pending += 1
             future = call_async(*args, **kwargs)
@@ -475,6 +479,7 @@ class Participant:
             remaining = timer.time_until_next_call()
             if remaining is not None:
                 dues.append(now + remaining)
+        self._running = now != 0
         if (
             now == 0 or self._ready is None
         ):  # readiness only matters before simulated time starts: graph queries cost
@@ -505,7 +510,11 @@ class Participant:
         """The runner found nothing to run: publish the report if anything but the clock changed."""
         if self._ack_pub is None:
             return
+        timers = tuple(self.node.timers)
+        if not leaving and self.activity == self._seen and timers == self._timers:
+            return  # nothing ran since a report with simulated time running: the same report
         r = self.report(leaving)
+        self._seen, self._timers = (self.activity if self._running else -1), timers
         if leaving:  # what the reports cost (benchmarks/bench_lockstep_breakdown.py)
             causes = json.dumps(dict(self.triggers))
             self.node.get_logger().info(f"lockstep: reports by cause {causes}")

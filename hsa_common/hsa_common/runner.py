@@ -309,7 +309,7 @@ def spin_lockstep_events(
     can change a report (the participants' ``activity`` count did not move). A callback's exception
     leaves ``spin_once``."""
     pacing = ReportPacing(period=SPIN_PERIOD)
-    while not stop and rclpy.ok():
+    while not stop:
         before = participant.activity if participant is not None else 0
         executor.spin_once(timeout_sec=pacing.timeout())  # type: ignore[attr-defined]
         if errors is not None:
@@ -317,6 +317,8 @@ def spin_lockstep_events(
         if participant is not None and participant.activity != before:
             pacing.ran()
             continue
+        if not rclpy.ok():  # a shutdown ends the executor's work: the next spin_once runs nothing
+            return
         pacing.timed_out()
         if participant is not None:
             participant.idle()

@@ -1,8 +1,8 @@
 """The runner's lockstep spin (``hsa_common.runner.spin_lockstep``) on both executors it runs
 (``HSA_EXECUTOR``: rclpy's events executor, the default, and its Python executor), in the test
 process: a participant reports once it has run the last callback of a burst, with every message
-counted; a timer on simulated time runs when /clock moves and its next due time reaches the report;
-a callback's exception ends the spin."""
+counted; a timer on simulated time runs when /clock moves and its next due time reaches the report,
+as does a new timer's; a callback's exception ends the spin."""
 
 from __future__ import annotations
 
@@ -151,6 +151,11 @@ def test_a_timer_on_simulated_time_runs_when_the_clock_moves(spin: Callable) -> 
             poll=0.05,
         ), (t_ns, [r.next_due for r in s.reports])
     assert ticks == [100_000_000, 250_000_000]
+    # a timer made while nothing runs (here by the test's thread) still reaches the next report
+    s.node.create_timer(0.01, lambda: None)
+    assert wait_until(lambda: s.reports[-1].next_due == 260_000_000, timeout=30.0), [
+        r.next_due for r in s.reports
+    ]
     assert not s.error, s.error
 
 

@@ -19,8 +19,8 @@ from rclpy.time import Time
 from hsa_common import qos
 from hsa_common.launcher import find_executable
 from hsa_core.sensing import mocap
+from hsa_msgs.msg import Setpoint
 from tests.ros.conftest import CollectedProcess, start_process
-from tests.ros.test_controller_node import _setpoint
 from tests.ros.test_mocap_bridge import pose_msg, wait_until
 
 __all__ = [
@@ -77,9 +77,18 @@ class Recorder:
         return [deserialize_message(b, self.msg_type) for b in self.raw[start:]]
 
 
-def setpoint() -> object:
-    """The FPU worked-example Setpoint message (exact model)."""
-    return _setpoint()
+def setpoint() -> Setpoint:
+    """The FPU worked example of planning_and_control.md §2.2 (exact model) as a Setpoint
+    message."""
+    msg = Setpoint(phi_ss=np.array([1.9846028, 1.6323408]), optimality_error=1e-16)
+    msg.header.frame_id = "hsa_base"
+    msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta = 0.00479247, 0.12781018, -0.066980133
+    msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax = (
+        -1.1352565,
+        0.0080816386,
+        0.30410104,
+    )
+    return msg
 
 
 def sec(stamp: object) -> float:

@@ -26,6 +26,7 @@ from hsa_common.launcher import find_executable
 from hsa_controller_node import scheduling
 from hsa_msgs.msg import ControllerInfo, PlanarActuation, PlanarState, Setpoint
 from tests.ros.conftest import start_process, stop_process, wait_for_line, wait_until
+from tests.ros.faults import Recorder, setpoint
 
 pytestmark = pytest.mark.ros
 
@@ -71,19 +72,6 @@ def controllers() -> Iterator[dict[str, tuple[subprocess.Popen, list[str]]]]:
         assert stop_process(proc) == 0
 
 
-def _setpoint() -> Setpoint:
-    """The FPU worked example of planning_and_control.md §2.2 (exact model)."""
-    msg = Setpoint(phi_ss=np.array([1.9846028, 1.6323408]), optimality_error=1e-16)
-    msg.header.frame_id = "hsa_base"
-    msg.chiee_des.x, msg.chiee_des.y, msg.chiee_des.theta = 0.00479247, 0.12781018, -0.066980133
-    msg.q_des.kappa_be, msg.q_des.sigma_sh, msg.q_des.sigma_ax = (
-        -1.1352565,
-        0.0080816386,
-        0.30410104,
-    )
-    return msg
-
-
 class Feeder:
     """Publishes a fixed, ready state near the setpoint at 200 Hz to namespace ns while `running` is
     set."""
@@ -118,22 +106,6 @@ class Feeder:
         self.thread.join(timeout=2.0)
 
 
-class Recorder:
-    """Raw subscription, decoded only when read: keeps the observing test process fast enough for
-    200 Hz."""
-
-    def __init__(self, node, msg_type: type, topic: str) -> None:  # noqa: ANN001 - rclpy node
-        self.msg_type = msg_type
-        self.raw: list[bytes] = []
-        node.create_subscription(msg_type, topic, self.raw.append, 500, raw=True)
-
-    def __len__(self) -> int:
-        return len(self.raw)
-
-    def since(self, start: int = 0) -> list:
-        return [deserialize_message(b, self.msg_type) for b in self.raw[start:]]
-
-
 def _last_tracking(infos: list[ControllerInfo]) -> ControllerInfo:
     """The last info of a tracking tick (a starved feeder can cause an occasional hold on a loaded
     machine)."""
@@ -160,7 +132,7 @@ def test_rate_source_stamp_hold_and_resume(controllers, ros_node, ns: str) -> No
     rate = RATES[ns]
     cmds = Recorder(ros_node, PlanarActuation, f"{ns}/phi_cmd")
     infos = Recorder(ros_node, ControllerInfo, f"{ns}/controller_info")
-    ros_node.create_publisher(Setpoint, f"{ns}/setpoint", qos.LATCHED).publish(_setpoint())
+    ros_node.create_publisher(Setpoint, f"{ns}/setpoint", qos.LATCHED).publish(setpoint())
     feeder = Feeder(ros_node, ns)
     try:
         time.sleep(1.0)
@@ -269,7 +241,7 @@ def test_gain_updates_are_validated(controllers, ros_node) -> None:
         assert not result.successful and name in result.reason
 
     infos = Recorder(ros_node, ControllerInfo, "/c40/controller_info")
-    ros_node.create_publisher(Setpoint, "/c40/setpoint", qos.LATCHED).publish(_setpoint())
+    ros_node.create_publisher(Setpoint, "/c40/setpoint", qos.LATCHED).publish(setpoint())
     feeder = Feeder(ros_node, "/c40")
     try:
         feeder.running.set()

@@ -503,8 +503,9 @@ class Servos:
         decision = self.sup.check_watchdog(now, timeout, self._p["watchdog_action"])
         if decision.event in (WatchdogEvent.HOLD, WatchdogEvent.RELAX):
             relax = decision.event is WatchdogEvent.RELAX
+            age = now - (self.sup.commands.command_time or now)
             self._log.warning(
-                f"no phi_cmd for > {timeout} s: "
+                f"no phi_cmd for {age:.3f} s (> {timeout} s): "
                 + ("relaxing (torque off)" if relax else "holding the last goal")
             )
         if decision.torque_off:

@@ -210,6 +210,12 @@ def test_unplug_replug_and_refusal_of_unsafe_positions(emulator, drivers, ros_no
     )
 
 
+def watchdog_ages(driver: dh.DriverProcess, action: str) -> list[float]:
+    """[s] the command ages the driver logged when its watchdog took ``action``."""
+    lines = driver.log(action)
+    return [float(line.split("no phi_cmd for ")[1].split(" s")[0]) for line in lines]
+
+
 def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     emulator, drivers, ros_node
 ) -> None:
@@ -237,6 +243,7 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     assert wait_until(lambda: len(driver.log("holding the last goal")) > n_holds, 30.0), (
         driver.output()
     )
+    assert all(age > 0.1 for age in watchdog_ages(driver, "holding the last goal")), driver.output()
     quiet = time.monotonic()
     time.sleep(0.5)
     writes = dh.goal_writes(emulator, quiet)
@@ -270,6 +277,9 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     assert 0.1 - 0.01 <= expiry < 0.1 + 0.1, (
         f"relaxed {expiry:.3f} s after the last goal write (timeout 0.1 s)"
     )
+    # never early on the driver's own clock, from the command's arrival
+    ages = watchdog_ages(driver, "relaxing (torque off)")
+    assert ages and all(age > 0.1 for age in ages), driver.output()
     status, _ = diagnostics.wait(
         CONTROL, lambda s, v: "relaxed" in v["watchdog"], after_ns=now_ns(ros_node)
     )

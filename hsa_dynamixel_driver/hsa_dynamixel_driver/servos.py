@@ -503,7 +503,8 @@ class Servos:
         decision = self.sup.check_watchdog(now, timeout, self._p["watchdog_action"])
         if decision.event in (WatchdogEvent.HOLD, WatchdogEvent.RELAX):
             relax = decision.event is WatchdogEvent.RELAX
-            age = now - (self.sup.commands.command_time or now)
+            taken = self.sup.commands.command_time
+            age = now - (now if taken is None else taken)
             self._log.warning(
                 f"no phi_cmd for {age:.3f} s (> {timeout} s): "
                 + ("relaxing (torque off)" if relax else "holding the last goal")

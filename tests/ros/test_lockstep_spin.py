@@ -66,8 +66,8 @@ class Spin:
 
 @pytest.fixture(params=["events", "single"])
 def spin(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable]:
-    """Build a :class:`Spin` whose participant is made by ``make(node)`` (the node is created here,
-    ``use_sim_time`` as given), under each executor."""
+    """``make(setup, sim_time)``: a :class:`Spin` whose participant node is created here
+    (``use_sim_time`` as given) and given its entities by ``setup(node)``, under each executor."""
     monkeypatch.setenv("HSA_EXECUTOR", request.param)
     rclpy.init()
     peer_context = Context()

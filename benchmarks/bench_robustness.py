@@ -61,7 +61,7 @@ def main() -> int:
     parser.add_argument(
         "--out", type=Path, default=ROOT / "benchmarks" / "results" / "robustness_256.json"
     )
-    parser.add_argument("--disturbance", default="default", help="the named world (default)")
+    parser.add_argument("--disturbance", default="declared", help="the named world (declared)")
     parser.add_argument("--profile", default="lab", help="the run profile (lab)")
     parser.add_argument("--materials", default=",".join(MATERIALS), help="fpu,epu")
     parser.add_argument("--laws", default="psatid,psatid_gc,pid,psatid+eei", help="and the bound")

@@ -458,7 +458,8 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="only (re)compute the linear analysis into the existing JSON",
     )
-    robustness.add_world_options(parser)  # the FPU world the rows change; the run profile
+    # the FPU world the rows change (default the declared one, of pid_limit_cycle.json); the profile
+    robustness.add_world_options(parser, world="declared")
     args = parser.parse_args(argv)
     profile = args.profile or load_profile(DEFAULT_PROFILE)
     world = named_world(args.disturbance, "fpu")

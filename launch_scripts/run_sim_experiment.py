@@ -38,7 +38,7 @@ from hsa_core.analysis import metrics
 from hsa_core.apps.tune import gains_yaml
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.runs.profiles import DEFAULT_PROFILE, load_profile
-from hsa_core.sim.disturbance import WORLDS
+from hsa_core.sim.disturbance import DEFAULT_WORLD, WORLDS
 from hsa_core.sim.experiment import replay_config
 from hsa_core.sim.run_conditions import graph_arguments, run_schedule
 
@@ -194,8 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--disturbance",
         choices=WORLDS,
-        default="default",
-        help="the world (hsa_core.sim.disturbance.named_world); calibrated: fitted to the robot",
+        default=DEFAULT_WORLD,
+        help="the world (hsa_core.sim.disturbance.named_world); calibrated (the default): fitted "
+        "to the robot; declared: the hand-declared model",
     )
     parser.add_argument(
         "--setpoint-rate",

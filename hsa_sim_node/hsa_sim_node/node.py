@@ -147,16 +147,16 @@ SPECS = (
     ParamSpec(
         "disturbance",
         "none",
-        "none: plant = model, exact poses; default: hsa_core DisturbanceModel(); shear: the default"
-        " with half the shear stiffness; calibrated: the material's world fitted to the real runs"
-        " (hsa_core.sim.disturbance.named_world)",
+        "none: plant = model, exact poses; calibrated: the material's world fitted to the real"
+        " runs (the launch files' default); declared: hsa_core DisturbanceModel(); shear: the"
+        " declared world with half the shear stiffness (hsa_core.sim.disturbance.named_world)",
         choices=WORLDS,
         read_only=True,
     ),
     ParamSpec(
         "seed",
         0,
-        "seed of the pose noise (disturbance 'default')",
+        "seed of the pose noise (every world but none)",
         low=0,
         high=2**31 - 1,
         read_only=True,

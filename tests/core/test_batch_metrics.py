@@ -99,7 +99,9 @@ def test_closed_loop_runs_match_the_python_metrics(
         broken = np.array(inputs.noise)
         broken[len(broken) // 2] = np.nan
         runs += [
-            inputs._replace(plant=plant, noise=closed_loop.noise(config.disturbance, spec, seed=7)),
+            inputs._replace(
+                plant=plant, noise=closed_loop.noise(config.base_world(), spec, seed=7)
+            ),
             inputs._replace(gains=jax.tree_util.tree_map(lambda g: g * 10.0, inputs.gains)),
             inputs._replace(noise=broken),
         ]

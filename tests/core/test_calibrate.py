@@ -20,11 +20,11 @@ from hsa_core.task.trajectories import TimedReference, step_reference
 
 
 def synthetic_run(truth: DisturbanceModel) -> calibrate.PreparedRun:
-    """A 3 s FPU P-satI-D run with one step at 0.5 s whose 'robot' is the simulation in the world
-    ``truth``."""
+    """A 3 s FPU P-satI-D run (in the declared world) with one step at 0.5 s whose 'robot' is the
+    simulation in the world ``truth``."""
     ref = step_reference("fpu")
     reference = TimedReference(np.array([0.0, 0.5]), ref.p_des[1:3], "two_points", 3.0)
-    config = ExperimentConfig("fpu", "psatid", reference=reference)
+    config = ExperimentConfig("fpu", "psatid", reference=reference, disturbance=DisturbanceModel())
     spec, inputs, constants = closed_loop.prepare(config)
     run = calibrate.PreparedRun("synthetic", config, spec, inputs, constants, None, "", (1,), 2.0)
     robot = calibrate.simulate(run, [truth])[0]
@@ -91,6 +91,7 @@ def test_a_diverged_plant_is_no_candidate_even_when_the_estimator_hides_it() -> 
         reference=reference,
         rate=1000.0 / 36,
         velocity_estimator=VelocityEstimator.SMOOTHING_SPLINE_16,
+        disturbance=DisturbanceModel(),
     )
     spec, inputs, constants = closed_loop.prepare(config)
     run = calibrate.PreparedRun("x", config, spec, inputs, constants, None, "", (1,), 0.3)
@@ -113,10 +114,13 @@ def test_parameters_map_to_their_grid_and_bounds() -> None:
 
 def test_a_run_s_command_latency_adds_to_every_candidate_s_latency() -> None:
     """A run whose controller side adds a command latency (a profile's): each candidate world's
-    actuation latency is the world's plus the run's, as in the offline experiment."""
+    actuation latency is the world's plus the run's, as in the offline experiment (the declared
+    world's own latency: 2 ms)."""
     ref = step_reference("fpu")
     reference = TimedReference(np.array([0.0]), ref.p_des[1:2], "one_point", 1.0)
-    config = ExperimentConfig("fpu", "psatid", reference=reference, command_latency=0.011)
+    config = ExperimentConfig(
+        "fpu", "psatid", reference=reference, command_latency=0.011, disturbance=DisturbanceModel()
+    )
     spec, inputs, constants = closed_loop.prepare(config)
     run = calibrate.PreparedRun("x", config, spec, inputs, constants, None, "", (1,), 1.0)
     assert int(inputs.actuation_latency_ms) == 13

@@ -117,9 +117,11 @@ def test_a_world_parameter_reaches_both_paths() -> None:
 def test_the_profile_s_command_latency_reaches_both_paths() -> None:
     """The September profile's command latency (tick → goal on the bus) adds to the world's
     actuation latency in the offline experiment and the batched loop alike (equal logs), and
-    changes the run."""
+    changes the run (in the declared world, whose own latency is 2 ms)."""
     september = profiles.load_profile("sep2023")
-    config = profile_config(september, "fpu", "psatid", reference=short(seconds=2.0))
+    config = profile_config(
+        september, "fpu", "psatid", reference=short(seconds=2.0), disturbance=DisturbanceModel()
+    )
     assert september.command_latency_ms > 0
     assert config.command_latency == pytest.approx(september.command_latency_ms * 1e-3)
     spec, inputs, constants = closed_loop.prepare(config)
@@ -133,9 +135,14 @@ def test_the_profile_s_command_latency_reaches_both_paths() -> None:
 def test_a_plant_sigma_a_eq_reaches_both_paths_and_the_plant_only() -> None:
     """A run's plant σ_a,eq beyond the controller's model (ExperimentConfig.plant_sigma_a_eq, the
     PID replay) moves the plant's rest strains in the offline experiment and the batched loop
-    alike (equal logs); the controller's model keeps its own."""
+    alike (equal logs); the controller's model keeps its own (the declared world: one rest-strain
+    offset for both rods)."""
     config = ExperimentConfig(
-        "fpu", "pid", reference=short(seconds=2.0), plant_sigma_a_eq=(1.03, 1.02)
+        "fpu",
+        "pid",
+        reference=short(seconds=2.0),
+        plant_sigma_a_eq=(1.03, 1.02),
+        disturbance=DisturbanceModel(),
     )
     spec, inputs, constants = closed_loop.prepare(config)
     nominal = np.asarray(load_params("fpu").sigma_a_eq)
@@ -203,7 +210,7 @@ ref = step_reference("fpu")
 reference = TimedReference(ref.t[:1], ref.p_des[:1], ref.name, 3.0)
 config = ExperimentConfig("fpu", "psatid", reference=reference)
 spec, inputs, constants = closed_loop.prepare(config)
-noise = np.stack([closed_loop.noise(config.disturbance, spec, seed=s) for s in range(4)])
+noise = np.stack([closed_loop.noise(config.base_world(), spec, seed=s) for s in range(4)])
 axes = closed_loop.LoopInputs(None, None, 0, None)
 logs = closed_loop.batch_rollout(spec, inputs._replace(noise=noise), constants, axes)
 one = closed_loop.compiled(spec, inputs._replace(noise=noise[3]), constants)
@@ -234,15 +241,17 @@ def test_the_batch_is_split_over_every_device() -> None:
 
 def test_the_run_s_sigma_a_eq_reaches_the_controller_s_model_and_the_plant() -> None:
     """σ_a,eq calibrated before a run (hsa_core.runs.reference conditions): the model's, and the
-    plant's plus the offset."""
+    plant's plus the declared world's offset."""
     config = ExperimentConfig(
-        "fpu", "psatid", reference=short(seconds=10.0), sigma_a_eq=(1.02, 1.03)
+        "fpu",
+        "psatid",
+        reference=short(seconds=10.0),
+        sigma_a_eq=(1.02, 1.03),
+        disturbance=DisturbanceModel(),
     )
     spec, inputs, constants = closed_loop.prepare(config)
     np.testing.assert_allclose(constants.model.sigma_a_eq, [1.02, 1.03])
-    np.testing.assert_allclose(
-        inputs.plant.sigma_a_eq, np.add([1.02, 1.03], config.disturbance.rest_strain_offset)
-    )
+    np.testing.assert_allclose(inputs.plant.sigma_a_eq, np.add([1.02, 1.03], 0.005))
     # default: nominal
     np.testing.assert_allclose(ExperimentConfig("fpu").model().sigma_a_eq, [1.0, 1.0])
 

@@ -15,7 +15,7 @@ from hsa_core.controller.control import CollocatedGains, PidGains
 from hsa_core.runs import profiles, reference
 from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sim import experiment
-from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.sim.disturbance import calibrated_world
 from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
 from hsa_core.task.trajectories import TimedReference, step_reference
 
@@ -59,7 +59,7 @@ def test_the_lab_profile_is_today_s_default_bit_for_bit() -> None:
 
 def test_the_cli_without_a_profile_runs_the_lab_default() -> None:
     """hsa_experiment --material fpu --controller psatid,pid builds exactly the configs it built
-    before profiles."""
+    before profiles, in the world its --disturbance default names."""
     args = argparse.Namespace(
         run=None,
         profile=None,
@@ -71,10 +71,10 @@ def test_the_cli_without_a_profile_runs_the_lab_default() -> None:
         duration=None,
         kd=None,
         rate=None,
-        disturbance="default",
+        disturbance="calibrated",
         seed=0,
     )
-    dist = DisturbanceModel(seed=0)
+    dist = calibrated_world("fpu", seed=0)
     configs = experiment._configs(args)
     assert [dataclasses.replace(c, reference=None) for c in configs] == [
         ExperimentConfig("fpu", law, False, None, 40.0, dist) for law in ("psatid", "pid")

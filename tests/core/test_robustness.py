@@ -213,9 +213,11 @@ def test_the_batched_noise_is_each_seeds_noise() -> None:
         ControllerKind.PSATID, False, None, 25, 6, 400, 5, 395, MotorMap(phi_max=1.0), 0.025
     )
     seeds = np.array([0, 7, 2**31 - 2])
-    batch = closed_loop.noise_batch(config.disturbance, spec, seeds)
+    batch = closed_loop.noise_batch(config.base_world(), spec, seeds)
     for i, seed in enumerate(seeds):
-        assert np.array_equal(batch[i], closed_loop.noise(config.disturbance, spec, seed=int(seed)))
+        assert np.array_equal(
+            batch[i], closed_loop.noise(config.base_world(), spec, seed=int(seed))
+        )
 
 
 def test_a_short_last_batch_runs_in_the_compiled_shape(monkeypatch) -> None:

@@ -27,10 +27,11 @@ from hsa_core.sim.disturbance import (
     WORLD_DIR,
     DisturbanceModel,
     calibrated_world,
+    default_world,
     named_world,
     rest_world,
 )
-from hsa_core.sim.experiment import main
+from hsa_core.sim.experiment import ExperimentConfig, main
 from hsa_core.sysid import static_mismatch
 from hsa_core.sysid.static_mismatch import FieldStatus, StaticMap
 from hsa_core.task.planning import static_equilibrium
@@ -233,7 +234,7 @@ def test_a_fit_starts_from_the_rest_world_of_its_runs_material() -> None:
         calibrate.candidate_inputs(run, [DisturbanceModel()])
     assert calibrate.base_world(fpu + epu) == (
         DisturbanceModel(),
-        "default (the runs are of several materials)",
+        "declared (the runs are of several materials)",
     )
 
 
@@ -264,27 +265,48 @@ def test_epu_has_no_calibrated_world_but_its_rest_world_and_an_unknown_material_
 
 
 def test_a_run_names_its_world_and_an_unknown_name_is_refused() -> None:
-    assert named_world("default", "fpu", seed=3) == DisturbanceModel(seed=3)
+    assert named_world("declared", "fpu", seed=3) == DisturbanceModel(seed=3)
     assert named_world("none", "fpu") == DisturbanceModel.none()
     assert named_world("shear", "epu", seed=2) == DisturbanceModel.shear_mismatch(2)
     assert named_world("calibrated", "fpu", seed=4) == calibrated_world("fpu", seed=4)
     assert calibrated_world("fpu", seed=4).seed == 4
     with pytest.raises(ValueError, match="unknown world 'wood'"):
         named_world("wood", "fpu")
+    with pytest.raises(ValueError, match="'default' is now 'declared'"):
+        named_world("default", "fpu")
+
+
+def test_the_default_world_is_the_calibrated_one_where_a_material_has_one(tmp_path) -> None:
+    """A run that names no world gets the material's calibrated world (FPU: the September
+    latency); a parameter file without a calibration gets the declared world."""
+    assert default_world("fpu", seed=5) == calibrated_world("fpu", seed=5)
+    assert default_world("fpu").actuation_latency > 0.1
+    assert default_world("epu") == calibrated_world("epu")
+    own = tmp_path / "fpu.yaml"  # a lab's own parameter file, named like a packaged material
+    own.write_text("{}")
+    assert default_world(str(own), seed=1) == DisturbanceModel(seed=1)
+    assert ExperimentConfig("fpu").base_world() == calibrated_world("fpu")
+    assert ExperimentConfig("epu", disturbance=DisturbanceModel.none()).base_world() == (
+        DisturbanceModel.none()
+    )
 
 
 def test_hsa_experiment_replays_a_run_in_the_calibrated_world(tmp_path: Path, capsys) -> None:
+    """``--disturbance`` names the world; without it the run is in the calibrated one."""
     logs = {}
-    for world in ("default", "calibrated"):
-        out = tmp_path / world
-        argv = ["--run", "20230925_093236", "--disturbance", world, "--duration", "1"]
+    for world in ("declared", "calibrated", ""):
+        out = tmp_path / (world or "unnamed")
+        argv = ["--run", "20230925_093236", "--duration", "1"]
+        argv += ["--disturbance", world] if world else []
         assert main([*argv, "--quiet", "--no-figures", "--out", str(out)]) == 0
         (run_dir,) = out.iterdir()
         logs[world] = RunLog.load_npz(run_dir / "log.npz")
     # the calibrated FPU plant rests elsewhere (its rest strains and shear differ): so does the
     # measured pose from the first tick on
-    gap = np.abs(logs["calibrated"].chiee[0, :2] - logs["default"].chiee[0, :2])
+    gap = np.abs(logs["calibrated"].chiee[0, :2] - logs["declared"].chiee[0, :2])
     assert gap.max() > 1e-4
+    np.testing.assert_array_equal(logs[""].chiee, logs["calibrated"].chiee)
+    np.testing.assert_array_equal(logs[""].phi_sat, logs["calibrated"].phi_sat)
     with pytest.raises(SystemExit) as refused:
         main(["--run", "20230925_093236", "--disturbance", "wood"])
     assert refused.value.code == 2

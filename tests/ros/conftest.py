@@ -271,9 +271,9 @@ def write_step_sequence(path: Path, steps: int) -> None:
 @pytest.fixture(scope="session")
 def sim_step_bag(tmp_path_factory) -> Path:
     """The bag of one sim graph run (launch_scripts/sim.launch.yaml, FPU, P-satI-D,
-    clock:=lockstep, default disturbance) on the first SIM_STEPS FPU steps of SIM_STEP_PERIOD s
-    each, run until the sequencer has played them (exit 0); the modules that check such a run
-    (sim in the loop, replay) share it."""
+    clock:=lockstep, the default world: calibrated) on the first SIM_STEPS FPU steps of
+    SIM_STEP_PERIOD s each, run until the sequencer has played them (exit 0); the modules that
+    check such a run (sim in the loop, replay) share it."""
     work = tmp_path_factory.mktemp("sim_steps")
     bag = work / "bag"
     config = work / "sequencer.yaml"

@@ -2,7 +2,7 @@
 and controller.
 
 The campaign tests/ros/data/identify_sim/campaign.yaml is recorded with
-launch_scripts/identify.launch.yaml (sim:=true, clock:=lockstep, disturbance:=default): three short
+launch_scripts/identify.launch.yaml (sim:=true, clock:=lockstep, disturbance:=declared): three short
 staircases (elongation, rod1, rod2) played by excitation_player through the real driver, payloads
 hung by hsa_sim_node's `payload_schedule` while the motors hold. The three graphs run at the same
 time, each in its own ROS domain; lockstep makes every bag a deterministic function of its arguments
@@ -96,7 +96,7 @@ def _graph(
             *GRAPH_STOP,
             "sim:=true",
             "clock:=lockstep",
-            "disturbance:=default",
+            "disturbance:=declared",
             "kind:=staircase",
             f"mode:={mode}",
             f"n_levels:={n_levels}",
@@ -227,7 +227,7 @@ def test_the_identified_constants_are_the_simulated_plants(identified) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class _SimulatorPlant(DisturbanceModel):
-    """The declared default disturbance, with the simulator's plant whatever model the controller is
+    """The declared world, with the simulator's plant whatever model the controller is
     given."""
 
     plant: HsaParams | None = None

@@ -1,6 +1,6 @@
 """Sim-in-the-loop: the whole graph of launch_scripts/sim.launch.yaml (simulator, real driver on the
 emulated bus, mocap bridge, kinematics, planner, controller, sequencer, recorder) in lockstep
-simulated time, on a shortened FPU step schedule with P-satI-D and the default disturbance.
+simulated time, on a shortened FPU step schedule with P-satI-D in the default (calibrated) world.
 
 Lockstep makes the graph a deterministic function of its configuration, whatever the machine load:
 * it equals the ROS-free offline experiment (same world, estimator, planner and controller code,

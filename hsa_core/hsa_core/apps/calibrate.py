@@ -170,7 +170,7 @@ def candidate_inputs(run: PreparedRun, worlds: list[DisturbanceModel]) -> closed
     """The loop inputs of ``run`` in each of ``worlds`` (stacked; the noise and gains of the run
     shared: a world whose mocap noise, seed or latency differs from the run's is refused)."""
     shared = ("pose_noise_std", "seed", "measurement_latency")
-    own = run.config.disturbance
+    own = run.config.base_world()
     for w in worlds:
         if any(getattr(w, n) != getattr(own, n) for n in shared):
             raise ValueError(
@@ -242,13 +242,13 @@ def deviations(run: PreparedRun, worlds: list[DisturbanceModel]) -> np.ndarray:
 def base_world(bags: tuple[str, ...]) -> tuple[DisturbanceModel, str]:
     """The world a fit of the runs ``bags`` starts from and keeps what it does not fit of, and its
     name: the rest world of the runs' material (its adopted static mismatch and the mocap noise
-    bound, both from the robot at rest) when they share one, else the default."""
+    bound, both from the robot at rest) when they share one, else the declared world."""
     materials = {reference.load_run(b).conditions.material for b in bags}
     if len(materials) == 1:
         material = materials.pop()
         name = f"{material} rest world (config/world/{material}_static.yaml, mocap_noise.yaml)"
         return rest_world(material), name
-    return DisturbanceModel(), "default (the runs are of several materials)"
+    return DisturbanceModel(), "declared (the runs are of several materials)"
 
 
 def pooled(d: np.ndarray) -> np.ndarray:

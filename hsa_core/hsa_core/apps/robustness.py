@@ -1,10 +1,10 @@
 """Monte-Carlo robustness of the control laws (``hsa_robustness``): N perturbed plants × laws
 through the JAX loop.
 
-Each plant is the simulated plant of the world ``--disturbance`` names (default the declared one;
-``calibrated``: the material's calibrated world, :mod:`hsa_core.sim.disturbance`) with its
-stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh together), its elongation constant C_ε and its axial rest
-strains σ_a,eq each scaled by an independent factor drawn uniformly from [1 − r, 1 + r]
+Each plant is the simulated plant of the world ``--disturbance`` names (default ``calibrated``, the
+material's calibrated world; ``declared``: the hand-declared one, :mod:`hsa_core.sim.disturbance`)
+with its stiffnesses (Ŝ_b, Ŝ_sh, Ŝ_a, S_b,sh together), its elongation constant C_ε and its axial
+rest strains σ_a,eq each scaled by an independent factor drawn uniformly from [1 − r, 1 + r]
 (``--range``, default 0.10), and its own mocap noise seed. The same plants (same generator seed) are
 used for every law, so the laws are compared plant by plant; the world's noise, latencies and servo
 and the set-up of ``--profile`` (default the lab's) hold for every plant. Runs go through
@@ -60,7 +60,7 @@ from hsa_core.jaxsetup import configure_jax, use_every_core
 from hsa_core.model.params import HsaParams, load_params
 from hsa_core.runs.profiles import DEFAULT_PROFILE, RunProfile, load_profile
 from hsa_core.sim import closed_loop
-from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
+from hsa_core.sim.disturbance import DEFAULT_WORLD, WORLDS, DisturbanceModel, named_world
 from hsa_core.sim.experiment import ExperimentConfig, profile_config
 from hsa_core.task.trajectories import TimedReference, step_reference
 
@@ -338,17 +338,18 @@ def figures(records: list[dict], worst: dict[str, Worst], out: Path, material: s
     return paths
 
 
-def add_world_options(parser: argparse.ArgumentParser) -> None:
+def add_world_options(parser: argparse.ArgumentParser, world: str = DEFAULT_WORLD) -> None:
     """The options that place a batched study (``hsa_robustness``, ``hsa_tune``) in a world and a
-    set-up: ``--disturbance`` (a named world, :func:`hsa_core.sim.disturbance.named_world`; the
-    perturbed plants are drawn around its plant) and ``--profile`` (a run profile)."""
+    set-up: ``--disturbance`` (a named world, :func:`hsa_core.sim.disturbance.named_world`, default
+    ``world``; the perturbed plants are drawn around its plant) and ``--profile`` (a run
+    profile)."""
     parser.add_argument(
         "--disturbance",
         choices=WORLDS,
-        default="default",
-        help="the world (hsa_core.sim.disturbance.named_world; a study's perturbed plants are "
-        "drawn around its plant): the declared default, none, shear or 'calibrated' (the "
-        "material's world fitted to the real runs, docs/simulation.md)",
+        default=world,
+        help=f"the world (default {world}; hsa_core.sim.disturbance.named_world; a study's "
+        "perturbed plants are drawn around its plant): 'calibrated' (the material's world fitted "
+        "to the real runs, docs/simulation.md), 'declared', none or shear",
     )
     parser.add_argument(
         "--profile",

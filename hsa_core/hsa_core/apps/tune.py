@@ -24,8 +24,8 @@ would give a direction, but the speed cap and the limit cycles the objective pen
 and the loop differ most.
 
 **Plants**: :func:`hsa_core.apps.robustness.perturbed_plants` around the plant of the world that
-``--disturbance`` names (default the declared one), in that world and under the run ``--profile``
-(default the lab's).
+``--disturbance`` names (default the material's calibrated world), in that world and under the run
+``--profile`` (default the lab's).
 
 Output in ``--out``: ``gains.yaml`` (a controller_node parameter file with the tuned gains; given
 after the material's file it replaces the paper's gains: ``./run.sh --gains FILE``, launch argument

@@ -1,8 +1,8 @@
-"""The declared disturbance model between the simulated plant and the controller's model (offline
-and sim node).
+"""The worlds between the simulated plant and the controller's model (offline, batched and sim
+node): the declared disturbance model and the worlds calibrated on it.
 
-It was fixed before any closed-loop result was looked at, from published sensor and hardware facts,
-and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
+The declared model was fixed before any closed-loop result was looked at, from published sensor and
+hardware facts, and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
 
 * **Measurement noise** — white Gaussian noise on the mocap planar pose, σ = (0.1 mm, 0.1 mm, 1
   mrad) per sample. OptiTrack rigid-body jitter is of the order of 0.1 mm; 1 mrad is 0.1 mm over a
@@ -38,8 +38,9 @@ and is not tuned to make a figure pass. Defaults (``DisturbanceModel()``):
 
 :func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
 identified (``config/world/<material>.yaml``) and the adopted static mismatch
-(``config/world/<material>_static.yaml``) over the default; what no fit identified keeps its
-default.
+(``config/world/<material>_static.yaml``) over the declared world; what no fit identified keeps
+its declared value. It is the **default world** (:func:`default_world`) of every run that names
+none; the declared world stays available by name (``declared``).
 
 ``DisturbanceModel.none()`` switches everything off (ideal plant = model, perfect instantaneous
 sensing, ideal servos; goals are still whole ticks, as on the bus).
@@ -181,20 +182,33 @@ def calibrated_world(material: str, seed: int = 0) -> DisturbanceModel:
     return dataclasses.replace(rest_world(material, seed), **values)
 
 
-WORLDS = ("default", "none", "shear", "calibrated")
+WORLDS = ("calibrated", "declared", "none", "shear")
 """The worlds a run can name (``hsa_experiment --disturbance``, sim_node's ``disturbance``)."""
+
+DEFAULT_WORLD = "calibrated"
+"""The world every run gets unless it names another: the one held against the real robot."""
 
 
 def named_world(name: str, material: str, seed: int = 0) -> DisturbanceModel:
-    """The world ``name`` of :data:`WORLDS` for ``material`` with noise seed ``seed``: the declared
-    default, none, the shear scenario, or the material's :func:`calibrated_world`; ValueError (one
-    line) for another name."""
-    if name == "default":
+    """The world ``name`` of :data:`WORLDS` for ``material`` with noise seed ``seed``: the
+    material's :func:`calibrated_world`, the declared world (``DisturbanceModel``'s defaults),
+    none, or the shear scenario; ValueError (one line) for another name."""
+    if name == "calibrated":
+        return calibrated_world(material, seed)
+    if name == "declared":
         return DisturbanceModel(seed=seed)
     if name == "none":
         return DisturbanceModel.none()
     if name == "shear":
         return DisturbanceModel.shear_mismatch(seed)
-    if name == "calibrated":
-        return calibrated_world(material, seed)
-    raise ValueError(f"unknown world {name!r}: one of {', '.join(WORLDS)}")
+    hint = (
+        " ('default' is now 'declared'; the default is 'calibrated')" if name == "default" else ""
+    )
+    raise ValueError(f"unknown world {name!r}: one of {', '.join(WORLDS)}{hint}")
+
+
+def default_world(material: str, seed: int = 0) -> DisturbanceModel:
+    """The world of a run that names none: the material's :func:`calibrated_world` where it has
+    one (``<material>.yaml``), else the declared world (a lab's own parameter file)."""
+    calibrated = material.isidentifier() and (WORLD_DIR / f"{material}.yaml").is_file()
+    return named_world(DEFAULT_WORLD if calibrated else "declared", material, seed)

@@ -81,7 +81,13 @@ from hsa_core.runs.profiles import (
 from hsa_core.runs.reference import ReferenceRun
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
-from hsa_core.sim.disturbance import WORLDS, DisturbanceModel, named_world
+from hsa_core.sim.disturbance import (
+    DEFAULT_WORLD,
+    WORLDS,
+    DisturbanceModel,
+    default_world,
+    named_world,
+)
 from hsa_core.sim.run_conditions import (
     TickEstimator,
     plant_params,
@@ -117,7 +123,7 @@ class ExperimentConfig:
     ee_integral: bool = False
     reference: TimedReference | None = None  # default: the material's 11-step list
     rate: float = 40.0
-    disturbance: DisturbanceModel = field(default_factory=DisturbanceModel)
+    disturbance: DisturbanceModel | None = None  # None: the material's default_world
     start_delay: float = 0.0
     planner: str | None = None  # default planner of the material
     # default: the paper's gains for the law and material
@@ -183,10 +189,15 @@ class ExperimentConfig:
             return (0.0, 0.0)
         return rest_strain_shift(self.model(), self.plant_sigma_a_eq)
 
+    def base_world(self) -> DisturbanceModel:
+        """The world this run names: ``disturbance``, or the material's
+        :func:`~hsa_core.sim.disturbance.default_world`."""
+        return default_world(self.material) if self.disturbance is None else self.disturbance
+
     def world(self) -> DisturbanceModel:
-        """The world of this run: the disturbance with the run's command latency and plant σ_a,eq
-        (:func:`hsa_core.sim.run_conditions.run_disturbance`)."""
-        return run_disturbance(self.disturbance, self.command_latency, self.rest_strain_shift)
+        """The world of this run: :meth:`base_world` with the run's command latency and plant
+        σ_a,eq (:func:`hsa_core.sim.run_conditions.run_disturbance`)."""
+        return run_disturbance(self.base_world(), self.command_latency, self.rest_strain_shift)
 
     @property
     def name(self) -> str:
@@ -619,11 +630,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--disturbance",
         choices=WORLDS,
-        default="default",
+        default=DEFAULT_WORLD,
         help=(
-            "the world (hsa_core.sim.disturbance): the declared default, none, 'shear' (the "
-            "default with half the shear stiffness) or 'calibrated' (the material's world fitted "
-            "to the real runs, docs/simulation.md)"
+            "the world (hsa_core.sim.disturbance): 'calibrated' (the default: the material's world "
+            "fitted to the real runs, docs/simulation.md), 'declared' (the hand-declared model), "
+            "none, or 'shear' (the declared world with half the shear stiffness)"
         ),
     )
     parser.add_argument("--seed", type=int, default=0)

@@ -193,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--disturbance",
+        type=cli.world_name,
         choices=WORLDS,
         default=DEFAULT_WORLD,
         help="the world (hsa_core.sim.disturbance.named_world); calibrated (the default): fitted "

@@ -71,6 +71,20 @@ def run_profile(text: str) -> RunProfile:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def world_name(text: str) -> str:
+    """argparse type of --disturbance: a name of hsa_core.sim.disturbance.WORLDS; the old name
+    'default' is refused with what replaced it."""
+    from hsa_core.sim.disturbance import WORLDS
+
+    if text == "default":
+        raise argparse.ArgumentTypeError(
+            "'default' is now 'declared' (the hand-declared world); the default is 'calibrated'"
+        )
+    if text not in WORLDS:
+        raise argparse.ArgumentTypeError(f"unknown world {text!r}: one of {', '.join(WORLDS)}")
+    return text
+
+
 def reference_run(text: str) -> ReferenceRun:
     """argparse type of --run: a packaged real run of the paper (hsa_core.runs.reference,
     imported on use: it loads JAX)."""

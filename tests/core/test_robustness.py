@@ -266,7 +266,8 @@ def test_a_short_last_batch_runs_in_the_compiled_shape(monkeypatch) -> None:
 
 def test_a_bad_world_or_profile_is_refused_in_one_line(capsys) -> None:
     for argv, text in (
-        (["--disturbance", "wood"], "argument --disturbance: invalid choice: 'wood'"),
+        (["--disturbance", "wood"], "argument --disturbance: unknown world 'wood'"),
+        (["--disturbance", "default"], "argument --disturbance: 'default' is now 'declared'"),
         (["--profile", "sep2024"], "unknown run profile 'sep2024'"),
     ):
         with pytest.raises(SystemExit) as exc:

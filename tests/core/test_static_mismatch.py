@@ -310,7 +310,11 @@ def test_hsa_experiment_replays_a_run_in_the_calibrated_world(tmp_path: Path, ca
     with pytest.raises(SystemExit) as refused:
         main(["--run", "20230925_093236", "--disturbance", "wood"])
     assert refused.value.code == 2
-    assert "invalid choice: 'wood'" in capsys.readouterr().err
+    assert "unknown world 'wood'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # the old name of the declared world
+        main(["--run", "20230925_093236", "--disturbance", "default"])
+    assert refused.value.code == 2
+    assert "'default' is now 'declared'" in capsys.readouterr().err
 
 
 def test_hsa_calibrate_static_writes_the_report_and_the_world_only_when_asked(

@@ -345,6 +345,7 @@ def add_world_options(parser: argparse.ArgumentParser, world: str = DEFAULT_WORL
     profile)."""
     parser.add_argument(
         "--disturbance",
+        type=cli.world_name,
         choices=WORLDS,
         default=world,
         help=f"the world (default {world}; hsa_core.sim.disturbance.named_world; a study's "

@@ -629,6 +629,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--disturbance",
+        type=cli.world_name,
         choices=WORLDS,
         default=DEFAULT_WORLD,
         help=(

@@ -237,6 +237,7 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=Path("out") / time.strftime("run_%Y%m%d-%H%M%S")
     )
     args = parser.parse_args(argv)
+    cli.run_with_images(parser, args)
     if args.run is not None and args.profile is not None:
         parser.error("--run replays a run with its own profile; --profile does not apply")
 
@@ -283,9 +284,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     eei = "_eei" if args.ee_integral else ""
     name = f"{launch_args['material']}_{launch_args['controller']}{eei}_ros"
-    result = analyze(
-        bag, args.out, duration=None if args.setpoint_rate else 110.0, csv=True, npz=True, name=name
-    )
+    if args.run is not None:  # the run's own length, as the offline experiment's metrics
+        duration: float | None = args.run.timed_reference().duration
+    else:
+        duration = None if args.setpoint_rate else 110.0
+    result = analyze(bag, args.out, duration=duration, csv=True, npz=True, name=name)
     print(result.report)
     print(f"[run] bag: {bag.resolve()}")
     print(f"[run] metrics.txt, run.csv, run.npz and figures/: {args.out.resolve()}")

@@ -4,12 +4,14 @@ with exit 2."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 if TYPE_CHECKING:
+    from hsa_core.runs.catalogue import Replayable
     from hsa_core.runs.profiles import RunProfile
-    from hsa_core.runs.reference import ReferenceRun
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -85,22 +87,39 @@ def world_name(text: str) -> str:
     return text
 
 
-def reference_run(text: str) -> ReferenceRun:
-    """argparse type of --run: a packaged real run of the paper (hsa_core.runs.reference,
-    imported on use: it loads JAX)."""
-    from hsa_core.runs.reference import load_run
+def paper_run(text: str) -> Replayable:
+    """argparse type of --run: a run of the paper (hsa_core.runs.catalogue, imported on use: it
+    loads JAX); a contour run's image folder is added by :func:`run_with_images`."""
+    from hsa_core.runs.catalogue import replayable
 
     try:
-        return load_run(text)
+        return replayable(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def run_with_images(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Give ``args.run`` the folder ``--image-dir`` and check that a contour run's image is there
+    (a one-line refusal through ``parser`` where it is not)."""
+    from hsa_core.runs.catalogue import CataloguedRun
+
+    run = args.run
+    if not isinstance(run, CataloguedRun) or run.contour is None:
+        if args.image_dir is not None:
+            parser.error("--image-dir applies to a contour run of --run only")
+        return
+    args.run = dataclasses.replace(run, image_dir=args.image_dir)
+    try:
+        args.run.image_path()
+    except ValueError as exc:
+        parser.error(f"argument --run: {exc}")
 
 
 def add_run_conditions(parser: argparse.ArgumentParser) -> None:
     """The run-condition options of every CLI that runs the closed loop (``hsa_experiment``,
     ``run_sim_experiment.py``): ``--profile``, ``--run``, ``--payload``, ``--sigma-a-eq``."""
+    from hsa_core.runs.catalogue import run_names
     from hsa_core.runs.profiles import DEFAULT_PROFILE, profile_names
-    from hsa_core.runs.reference import run_names
 
     parser.add_argument(
         "--profile",
@@ -112,11 +131,18 @@ def add_run_conditions(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--run",
-        type=reference_run,
+        type=paper_run,
         default=None,
-        help="replay a real run of the paper with its own conditions (profile, material, law, "
-        "gains, sigma_a_eq, payload, setpoints at its real step instants): "
+        help="replay a run of the paper with its own conditions (profile, material, law, gains, "
+        "sigma_a_eq, payload, setpoints; a packaged run's at its real step instants): "
         f"{', '.join(run_names())}",
+    )
+    parser.add_argument(
+        "--image-dir",
+        type=Path,
+        default=None,
+        help="folder holding the original image of a contour run of --run (star.png, "
+        "tud_flame.jpeg, mit_csail.png, bat.png of tud-phi/hsa-planar-control, assets/)",
     )
     parser.add_argument(
         "--payload",

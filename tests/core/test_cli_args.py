@@ -28,7 +28,7 @@ REPO = Path(__file__).parents[2]
         (["--profile", "sep2024"], "unknown run profile 'sep2024'; known: lab, sep2023, oct2023"),
         (
             ["--run", "20230925_000000"],
-            "unknown reference run '20230925_000000'; known: 20230925_092200, ",
+            "unknown run of the paper '20230925_000000'; known: 20230925_092200, ",
         ),
     ],
 )

@@ -67,7 +67,12 @@ PLAYER = find_executable("hsa_bag", "bag_player")
         ),
         (
             [str(LAUNCH / "run_sim_experiment.py"), "--run", "nope"],
-            "unknown reference run 'nope'; known: 2023",
+            "unknown run of the paper 'nope'; known: 2023",
+        ),
+        (
+            [str(LAUNCH / "run_sim_experiment.py"), "--run", "20230925_102428"],
+            "contour of tud_flame.jpeg (tud-phi/hsa-planar-control, assets/; not packaged): no "
+            "--image-dir given",
         ),
         (
             [str(LAUNCH / "run_sim_experiment.py"), "--run", "20230925_093236", "--profile", "lab"],

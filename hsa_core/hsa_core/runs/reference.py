@@ -34,15 +34,16 @@ STEP_THRESHOLD = 0.5e-3
 
 @dataclass(frozen=True)
 class RunConditions:
-    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod, payload [kg],
-    date and the run profile of its period (hsa_core.runs.profiles: control period, integrator step,
-    velocity estimator, bus)."""
+    """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod (None where the
+    logbook's value is not known: the material's nominal), payload [kg], date and the run profile
+    of its period (hsa_core.runs.profiles: control period, integrator step, velocity estimator,
+    bus)."""
 
     bag: str
     material: str
     law: ControllerKind
     gains: CollocatedGains | PidGains
-    sigma_a_eq: tuple[float, float]
+    sigma_a_eq: tuple[float, float] | None
     payload: float
     date: datetime.date
     profile: RunProfile
@@ -146,7 +147,7 @@ def load_run(bag: str) -> ReferenceRun:
     table = _conditions_table()
     if bag not in table:
         raise ValueError(f"unknown reference run {bag!r}; known: {', '.join(sorted(table))}")
-    conditions = _conditions(bag, table[bag])
+    conditions = conditions_of(bag, table[bag])
     varphi = DATA_DIR / f"{bag}_varphi.csv"
     return ReferenceRun(
         conditions,
@@ -164,8 +165,9 @@ def _conditions_table() -> dict[str, dict]:
     return {str(k): v for k, v in yaml.safe_load((DATA_DIR / "runs.yaml").read_text()).items()}
 
 
-def _conditions(bag: str, entry: dict) -> RunConditions:
-    """Typed conditions of one runs.yaml entry (its ``profile`` names a packaged run profile)."""
+def conditions_of(bag: str, entry: dict) -> RunConditions:
+    """Typed conditions of one run's entry (runs.yaml, paper_runs.yaml; its ``profile`` names a
+    packaged run profile, its ``sigma_a_eq`` may be null)."""
     law = ControllerKind(entry["law"])
     gains = (
         PidGains(**entry["gains"])
@@ -177,13 +179,13 @@ def _conditions(bag: str, entry: dict) -> RunConditions:
         if isinstance(entry["date"], datetime.date)
         else datetime.date.fromisoformat(entry["date"])
     )
-    sigma = tuple(float(v) for v in entry["sigma_a_eq"])
+    sigma = entry["sigma_a_eq"]
     return RunConditions(
         bag,
         str(entry["material"]),
         law,
         gains,
-        (sigma[0], sigma[1]),
+        None if sigma is None else (float(sigma[0]), float(sigma[1])),
         float(entry["payload"]),
         date,
         load_profile(str(entry["profile"])),

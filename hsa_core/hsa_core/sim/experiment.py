@@ -27,10 +27,11 @@ configuration and seed both produce the same ticks to float round-off:
 
 A run profile (hsa_core.runs.profiles) sets the conditions of a period: :func:`profile_config`
 applies one (rate, integrator step, velocity estimator, σ_a,eq, payload), :func:`replay_config` a
-reference run's own (hsa_core.runs.reference: its profile, law, gains, σ_a,eq and real step
-instants). With the ``smoothing_spline_16`` estimator the kinematics node's estimator is replaced by
-the September stand-in: at every tick the newest mocap state enters a 16-sample cubic end-point fit
-on the true stamps, and the state it gives goes to the tick. A payload is the plant's (it hangs at
+paper run's own (hsa_core.runs.catalogue: its profile, law, gains, σ_a,eq, payload and setpoints;
+the real step instants of a packaged reference run). With the ``smoothing_spline_16`` estimator the
+kinematics node's estimator is replaced by the September stand-in: at every tick the newest mocap
+state enters a 16-sample cubic end-point fit on the true stamps, and the state it gives goes to the
+tick. A payload is the plant's (it hangs at
 rest with it from t = 0); the controller's model keeps the material's.
 
 t = 0 of the metrics is the first tick that sends a command (experiments.md §4); the run ends
@@ -72,13 +73,13 @@ from hsa_core.controller.supervision import (
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.model.params import HsaParams, load_params
 from hsa_core.model.wiring import load_wiring
+from hsa_core.runs.catalogue import Replayable
 from hsa_core.runs.profiles import (
     DEFAULT_PROFILE,
     RunProfile,
     VelocityEstimator,
     load_profile,
 )
-from hsa_core.runs.reference import ReferenceRun
 from hsa_core.runs.runlog import RunLog
 from hsa_core.sensing.estimation import SavitzkyGolayDifferentiator, configuration_from_pose
 from hsa_core.sim.disturbance import (
@@ -232,17 +233,18 @@ def profile_config(
 
 
 def replay_config(
-    run: ReferenceRun,
+    run: Replayable,
     *,
     sigma_a_eq: tuple[float, float] | None = None,
     payload: float | None = None,
     **options: object,
 ) -> ExperimentConfig:
-    """A paper run replayed with its own conditions: its profile, material, law, gains, σ_a,eq and
-    payload, and its setpoints at the real step instants (``sigma_a_eq`` / ``payload`` override the
-    run's). A PID run (its law needs no plan) whose σ_a,eq leaves a setpoint without a plan keeps
-    that σ_a,eq in the plant (``plant_sigma_a_eq``) and gives the controller's model the material's
-    nominal one, so the sequencer passes every setpoint as the original did."""
+    """A paper run (:func:`hsa_core.runs.catalogue.replayable`) replayed with its own conditions:
+    its profile, material, law, gains, σ_a,eq and payload, and its setpoints at their instants (the
+    real step instants of a packaged run; ``sigma_a_eq`` / ``payload`` override the run's). A PID
+    run (its law needs no plan) whose σ_a,eq leaves a setpoint without a plan keeps that σ_a,eq in
+    the plant (``plant_sigma_a_eq``) and gives the controller's model the material's nominal one,
+    so the sequencer passes every setpoint as the original did."""
     cond = run.conditions
     config = profile_config(
         cond.profile,
@@ -643,6 +645,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-figures", action="store_true")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
+    cli.run_with_images(parser, args)
     if args.run is not None:
         given = [
             name

@@ -26,10 +26,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from hsa_core.model.params import HsaParams
+from hsa_core.runs.catalogue import CataloguedRun, Replayable
 from hsa_core.runs.profiles import RunProfile
-from hsa_core.runs.reference import ReferenceRun
 from hsa_core.sensing.estimation import derivative_coefficients
 from hsa_core.sim.disturbance import DisturbanceModel
+from hsa_core.task.trajectories import CONTOUR_RATE
 
 SPLINE_WINDOW, SPLINE_ORDER, SPLINE_GAP_FACTOR = 16, 3, 5.0
 """Samples, degree and gap factor (× the control period) of the September 2023 stand-in
@@ -151,7 +152,7 @@ def graph_arguments(
     sigma_a_eq: tuple[float, float] | None = None,
     plant_sigma_a_eq: tuple[float, float] | None = None,
     payload: float | None = None,
-    run: ReferenceRun | None = None,
+    run: Replayable | None = None,
 ) -> dict[str, str]:
     """Launch arguments of sim.launch.yaml for ``profile`` (a real ``run``: its profile, material,
     law, σ_a,eq and payload); ``sigma_a_eq`` / ``payload`` override the profile's or the run's,
@@ -182,11 +183,27 @@ def _strains(sigma: tuple[float, float] | None) -> str:
     return "[]" if sigma is None else f"[{float(sigma[0])!r}, {float(sigma[1])!r}]"
 
 
-def run_schedule(run: ReferenceRun) -> dict[str, object]:
-    """A real run's setpoints as setpoint_sequencer parameters: ``points`` [m] (flat x, y),
-    ``times`` [s] (point k's instant after point 0: the real step instants) and ``rate`` [Hz] (the
-    last point lasts 1/rate, to the end of the real run), as :meth:`ReferenceRun.timed_reference`
-    gives them to the offline experiment."""
+def run_schedule(run: Replayable) -> dict[str, object]:
+    """A paper run's setpoints as setpoint_sequencer parameters, as its ``timed_reference`` gives
+    them to the offline experiment. A step run: ``points`` [m] (flat x, y), ``times`` [s] (point
+    k's instant after point 0: the real step instants where known) and ``rate`` [Hz] (the last
+    point lasts 1/rate, to the end of the run). A contour run: the sequencer's own contour
+    parameters (the same pipeline, :func:`hsa_core.task.trajectories.contour_reference`) at 8 Hz."""
+    contour = run.contour if isinstance(run, CataloguedRun) else None
+    if contour is not None:
+        return {
+            "trajectory": "contour",
+            "image_path": str(run.image_path()),
+            "centroid": list(contour.centroid),
+            "radius": contour.r_max,
+            "contour_k": contour.k,
+            "image_threshold": contour.threshold,
+            "image_invert": contour.invert,
+            "image_crop_square": contour.crop_square,
+            "image_flip": contour.flip,
+            "direction": "traced",
+            "rate": CONTOUR_RATE,
+        }
     reference = run.timed_reference()
     times = [float(t) for t in reference.t]
     return {

@@ -179,8 +179,8 @@ SPECS = (
     ParamSpec(
         "payload",
         0.0,
-        "[kg] the plant's point payload from t = 0, at rest with it (a run's condition; "
-        "hsa_core.sim.run_conditions.plant_params)",
+        "[kg] the plant's point payload from t = 0, at rest with it, at the paper's payload CoG "
+        "(a run's condition; hsa_core.sim.run_conditions.plant_params)",
         low=0.0,
         high=10.0,
         read_only=True,

@@ -141,7 +141,10 @@ def test_the_batched_loop_s_traced_window_is_the_tick_estimator() -> None:
     assert ready.index(True) == 17 and not any(ready[18:33]) and ready[33:] == [True, True]
 
 
-def test_a_payload_is_the_plants_only() -> None:
+def test_a_payload_is_the_plants_only_at_the_papers_payload_cog() -> None:
     model = load_params("fpu")
     assert plant_params(model, 0.0) is model
-    assert float(plant_params(model, 0.15).m_pl) == 0.15
+    plant = plant_params(model, 0.15)
+    assert float(plant.m_pl) == 0.15
+    np.testing.assert_array_equal(plant.CoG_pl, [0.0, -0.0255])  # model.md §2, payload runs
+    np.testing.assert_array_equal(model.CoG_pl, [0.0, 0.0])

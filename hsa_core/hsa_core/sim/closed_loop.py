@@ -54,6 +54,7 @@ from hsa_core.sim.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, Experimen
 from hsa_core.sim.run_conditions import (
     SPLINE_WINDOW,
     TickWindow,
+    plant_params,
     tick_rates,
     tick_take,
     tick_window,
@@ -205,9 +206,8 @@ def prepare(
         config.velocity_estimator,
         goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS),
     )
-    plant_model = model.replace(m_pl=config.payload) if config.payload else model
     inputs = LoopInputs(
-        dist.plant_params(plant_model),
+        dist.plant_params(plant_params(model, config.payload)),
         gains,
         jnp.asarray(noise(dist, spec)),
         jnp.asarray(servo_speed(dist.servo_max_speed)),

@@ -105,10 +105,14 @@ class TickEstimator:
         return (rates[:3], rates[3:]) if taken and ready else None
 
 
+PAYLOAD_COG = (0.0, -0.0255)
+"""[m] the CoG of the paper's payloads (0.2 and 0.4 kg) in the EE frame (spec model.md §2)."""
+
+
 def plant_params(model: HsaParams, payload: float) -> HsaParams:
-    """The plant's parameters: ``model`` carrying the point payload ``payload`` [kg] (0: the model
-    as it is)."""
-    return model.replace(m_pl=payload) if payload else model
+    """The plant's parameters: ``model`` carrying a run's point payload ``payload`` [kg] at the
+    paper's payload CoG :data:`PAYLOAD_COG` (0: the model as it is)."""
+    return model.replace(m_pl=payload, CoG_pl=np.asarray(PAYLOAD_COG)) if payload else model
 
 
 def rest_strain_shift(

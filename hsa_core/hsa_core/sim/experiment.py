@@ -31,8 +31,8 @@ paper run's own (hsa_core.runs.catalogue: its profile, law, gains, σ_a,eq, payl
 the real step instants of a packaged reference run). With the ``smoothing_spline_16`` estimator the
 kinematics node's estimator is replaced by the September stand-in: at every tick the newest mocap
 state enters a 16-sample cubic end-point fit on the true stamps, and the state it gives goes to the
-tick. A payload is the plant's (it hangs at
-rest with it from t = 0); the controller's model keeps the material's.
+tick. A payload is the plant's (it hangs at rest with it from t = 0, at the paper's payload CoG);
+the controller's model keeps the material's.
 
 t = 0 of the metrics is the first tick that sends a command (experiments.md §4); the run ends
 ``reference.duration`` later. The log holds the tracking ticks (as hsa_bag.analysis reads a bag);

@@ -94,4 +94,4 @@ def test_the_named_world_and_profile_reach_the_tuning_loop(monkeypatch, capsys) 
     with pytest.raises(SystemExit) as exc:
         tune.main(["--disturbance", "wood"])
     err = capsys.readouterr().err
-    assert exc.value.code == 2 and "invalid choice: 'wood'" in err and len(err.splitlines()) == 1
+    assert exc.value.code == 2 and "unknown world 'wood'" in err and len(err.splitlines()) == 1

@@ -76,14 +76,11 @@ def run_profile(text: str) -> RunProfile:
 def world_name(text: str) -> str:
     """argparse type of --disturbance: a name of hsa_core.sim.disturbance.WORLDS; the old name
     'default' is refused with what replaced it."""
-    from hsa_core.sim.disturbance import WORLDS
+    from hsa_core.sim.disturbance import world_name_problem
 
-    if text == "default":
-        raise argparse.ArgumentTypeError(
-            "'default' is now 'declared' (the hand-declared world); the default is 'calibrated'"
-        )
-    if text not in WORLDS:
-        raise argparse.ArgumentTypeError(f"unknown world {text!r}: one of {', '.join(WORLDS)}")
+    problem = world_name_problem(text)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
     return text
 
 

@@ -29,9 +29,9 @@ def test_a_contour_replay_in_the_graph_equals_the_offline_replay(tmp_path: Path)
     disc = np.full((100, 100, 3), 255, np.uint8)
     cv2.circle(disc, (50, 50), 25, (0, 0, 0), -1)
     cv2.imwrite(str(images / "mit_csail.png"), disc)
-    run = replayable(BAG, image_dir=images)
-    offline = run_experiment(replay_config(run))
-    assert 10 <= len(replay_config(run).reference.t) <= 30  # a short run: a few contour points
+    config = replay_config(replayable(BAG, image_dir=images))
+    assert 10 <= len(config.reference.t) <= 30  # a short run: a few contour points
+    offline = run_experiment(config)
 
     out = tmp_path / "out"
     proc = start_process(

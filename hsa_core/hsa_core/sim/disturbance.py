@@ -201,10 +201,17 @@ def named_world(name: str, material: str, seed: int = 0) -> DisturbanceModel:
         return DisturbanceModel.none()
     if name == "shear":
         return DisturbanceModel.shear_mismatch(seed)
-    hint = (
-        " ('default' is now 'declared'; the default is 'calibrated')" if name == "default" else ""
-    )
-    raise ValueError(f"unknown world {name!r}: one of {', '.join(WORLDS)}{hint}")
+    raise ValueError(world_name_problem(name))
+
+
+def world_name_problem(name: str) -> str | None:
+    """Why ``name`` names no world of :data:`WORLDS` (one line), None where it does; the old name
+    'default' is told what replaced it."""
+    if name in WORLDS:
+        return None
+    if name == "default":
+        return "'default' is now 'declared' (the hand-declared world); the default is 'calibrated'"
+    return f"unknown world {name!r}: one of {', '.join(WORLDS)}"
 
 
 def default_world(material: str, seed: int = 0) -> DisturbanceModel:

@@ -277,9 +277,11 @@ def test_watchdog_holds_or_relaxes_and_resumes_on_fresh_commands(
     assert 0.1 - 0.01 <= expiry < 0.1 + 0.1, (
         f"relaxed {expiry:.3f} s after the last goal write (timeout 0.1 s)"
     )
-    # never early on the driver's own clock, from the command's arrival
+    # never early on the driver's own clock, from the command's arrival (its log line reaches this
+    # process after the bus has seen the torque go off: a loaded machine delays it)
+    assert wait_until(lambda: watchdog_ages(driver, "relaxing (torque off)"), 30.0), driver.output()
     ages = watchdog_ages(driver, "relaxing (torque off)")
-    assert ages and all(age > 0.1 for age in ages), driver.output()
+    assert all(age > 0.1 for age in ages), driver.output()
     status, _ = diagnostics.wait(
         CONTROL, lambda s, v: "relaxed" in v["watchdog"], after_ns=now_ns(ros_node)
     )

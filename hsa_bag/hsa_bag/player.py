@@ -68,7 +68,7 @@ from hsa_common import convert, lockstep, parent_death, rosenv
 from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_core.sim.lockstep import Barrier
 from hsa_core.sim.playback import Action, LockstepPlayback
-from hsa_msgs.msg import LockstepAck
+from hsa_msgs.msg import LockstepAck, LockstepLead
 
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ACK_TIMEOUT = Duration(seconds=5.0)
@@ -161,7 +161,7 @@ class Player:
         self.lead = (
             None
             if playback is None
-            else node.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
+            else node.create_publisher(LockstepLead, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
         )
         self.first = bag.start + round(options.start_offset * 1e9)  # bag time [ns] played at t0
         mean_period = (bag.end - bag.start) // max(bag.message_count - 1, 1)
@@ -310,10 +310,13 @@ class Player:
                 self.publishers[upcoming[0]].publish(upcoming[2])
                 published += 1
                 upcoming = next(timeline, None)
-            elif step.action in (Action.LEAD, Action.CLOCK):
-                clock = self.lead if step.action is Action.LEAD else self.clock
-                assert clock is not None and step.t_ns is not None
-                clock.publish(convert.clock_msg(step.t_ns))
+            elif step.action is Action.LEAD:
+                assert self.lead is not None and step.t_ns is not None
+                for name, taken in playback.barrier.leads().items():
+                    self.lead.publish(lockstep.lead_msg(step.t_ns, name, taken))
+            elif step.action is Action.CLOCK:
+                assert self.clock is not None and step.t_ns is not None
+                self.clock.publish(convert.clock_msg(step.t_ns))
             elif step.action is Action.DONE:
                 break
             elif step.action is Action.FAIL:

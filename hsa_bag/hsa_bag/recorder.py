@@ -20,9 +20,10 @@ is written; one that does not decode is left out and counted per topic: on /diag
 final summary line and in the bag's ``custom_data`` (``hsa_bag.undecodable``).
 
 **Timestamps** are receive times: the node clock (ROS time, i.e. system time, or /clock with
-``use_sim_time``) read in the subscription callback, in ns; in lockstep the lead clock's instant
-where that is ahead (:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before
-/clock). Header stamps inside the messages are untouched.
+``use_sim_time``) read in the subscription callback, in ns; in lockstep the instant the message
+was published in (:class:`hsa_common.lockstep.LeadClock`: a timer's messages can arrive before
+/clock, so a message is written once the next lead says which instant it belongs to). Header stamps
+inside the messages are untouched.
 
 Files, splitting and crash safety: :mod:`hsa_bag.storage`. The pending chunk is flushed at
 ``chunk_size`` bytes and every ``flush_period`` s, so a SIGKILL loses at most the last
@@ -285,7 +286,7 @@ class BagRecorder(Node):
         except SerdeError as exc:
             self._left_out(topic, exc)
             return
-        self._bag.write(rec.handle, self.lockstep_clock.now_ns(), data)
+        self.lockstep_clock.log(topic, partial(self._bag.write, rec.handle, data=data))
 
     def _left_out(self, topic: str, exc: SerdeError) -> None:
         """Count an undecodable message of ``topic``, note the counts in the bag and warn
@@ -328,7 +329,9 @@ class BagRecorder(Node):
         )
 
     def on_shutdown(self) -> None:
-        """Close the bag (summary, footer, final metadata.yaml) and say where it is."""
+        """Write what waits for its log time, close the bag (summary, footer, final metadata.yaml)
+        and say where it is."""
+        self.lockstep_clock.flush()
         self._bag.close()
         files = ", ".join(p.name for p in self._bag.files) if self._bag.info else "no file"
         left_out = (

@@ -10,10 +10,11 @@ and publishes an ``hsa_msgs/LockstepAck`` on ``ACK_TOPIC`` when the runner finds
 rclpy's events executor (or, with ``HSA_EXECUTOR=single``, a :class:`LockstepExecutor`). The
 decisions are in :mod:`hsa_core.sim.lockstep`; the contract is in docs/simulation.md. A node may add
 a readiness condition with a ``lockstep_ready() -> bool`` method (the recorder: every selected topic
-subscribed). A node whose log times are simulated time (the recorder) reads them from a
-:class:`LeadClock` kept as its ``lockstep_clock``: the coordinator sends each timer instant there
-before /clock moves, and the participant reports every move of that clock, so nothing a timer
-publishes at t reaches the node before its clock is at t.
+subscribed). A node whose log times are simulated time (the recorder) logs through a
+:class:`LeadClock` kept as its ``lockstep_clock``: the coordinator sends it each timer instant with
+the counts that precede it, and the participant reports every move of that clock; a message the node
+takes is logged once its instant is known (:class:`hsa_core.sim.lockstep.LogTimes`), whatever
+arrived first, the message or the clock of its instant.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import inspect
 import json
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack
 from typing import Any, Protocol
 
@@ -40,11 +41,10 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
-from rosgraph_msgs.msg import Clock as ClockMsg
 
 from hsa_common import convert
-from hsa_core.sim.lockstep import Report
-from hsa_msgs.msg import LockstepAck
+from hsa_core.sim.lockstep import LogTimes, Report
+from hsa_msgs.msg import LockstepAck, LockstepLead
 
 ACK_TOPIC = "/_lockstep/ack"
 """Hidden topic of the participants' reports (not recorded)."""
@@ -64,16 +64,16 @@ ACK_READER_QOS = QoSProfile(
 )
 """The simulator's subscription: deep enough for a burst of reports from every participant."""
 LEAD_TOPIC = "/_lockstep/lead"
-"""Hidden topic of the lead clock: each timer instant, sent to the nodes with a :class:`LeadClock`
-before /clock."""
+"""Hidden topic of the leads (``hsa_msgs/LockstepLead``): each timer instant, sent with /clock to
+each node with a :class:`LeadClock`."""
 LEAD_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=1,
+    depth=16,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
-"""Only the latest instant matters; reliable, as the coordinator sends each one once and waits for
-the reports."""
+"""Reliable: the coordinator sends each lead once (one per recording node; an instant finishes only
+once every one of them is there)."""
 UNCOUNTED = frozenset({"/clock", "/rosout", "/parameter_events", ACK_TOPIC, LEAD_TOPIC})
 UNWATCHED = UNCOUNTED - {"/clock", LEAD_TOPIC}
 """Topics whose discovery does not hold the start (every other subscription, the clocks included,
@@ -98,21 +98,54 @@ def enabled(node: Node) -> bool:
 
 
 class LeadClock:
-    """A node's simulated time for logging: the node clock, or the lead clock's instant if that is
-    ahead (lockstep)."""
+    """A node's log times in simulated time: :meth:`log` writes a message taken now at the clock of
+    the instant it was published in (lockstep: :class:`hsa_core.sim.lockstep.LogTimes`, fed with
+    the leads for this node; otherwise at once, at the node clock). ``taken`` is the node's
+    participant's count per topic (set by :class:`Participant`), the counts the leads refer to."""
 
     def __init__(self, node: Node) -> None:
         self.node = node
         self.lead_ns = 0
+        self.taken: Counter[str] | None = None
+        self._times: LogTimes | None = None
         if enabled(node):
-            node.create_subscription(ClockMsg, LEAD_TOPIC, self._lead, LEAD_QOS)
+            self._times = LogTimes()
+            node.create_subscription(LockstepLead, LEAD_TOPIC, self._lead, LEAD_QOS)
 
-    def _lead(self, msg: ClockMsg) -> None:
-        self.lead_ns = max(self.lead_ns, convert.stamp_ns(msg.clock))
+    def _lead(self, msg: LockstepLead) -> None:
+        if msg.node != self.node.get_fully_qualified_name():
+            return
+        t_ns = convert.stamp_ns(msg.clock)
+        assert self._times is not None
+        self._times.lead(t_ns, dict(zip(msg.topics, msg.taken)))
+        self.lead_ns = max(self.lead_ns, t_ns)
 
     def now_ns(self) -> int:
         """[ns] the later of the node clock and the latest lead instant."""
         return max(self.node.get_clock().now().nanoseconds, self.lead_ns)
+
+    def log(self, topic: str, write: Callable[[int], None]) -> None:
+        """Call ``write(t_ns)`` with the log time of the message of ``topic`` taken now: at once
+        off lockstep, else once its instant is known."""
+        if self._times is None or self.taken is None:
+            write(self.now_ns())
+            return
+        self._times.take(topic, self.taken[topic], self.now_ns(), write)
+
+    def flush(self) -> None:
+        """Write what is held (the node is ending: no later instant comes)."""
+        if self._times is not None:
+            self._times.flush()
+
+
+def lead_msg(t_ns: int, node: str, taken: Mapping[str, int]) -> LockstepLead:
+    """The lead of instant ``t_ns`` for ``node``, after ``taken`` messages per topic."""
+    return LockstepLead(
+        clock=convert.stamp_msg(t_ns),
+        node=node,
+        topics=list(taken),
+        taken=list(taken.values()),
+    )
 
 
 WAITABLE_PERIOD = 0.02
@@ -370,6 +403,8 @@ class Participant:
         # a recorder: instants wait for it
         self.lead_clock: LeadClock | None = getattr(node, "lockstep_clock", None)
         self.clock_acks = self.lead_clock is not None
+        if self.lead_clock is not None:
+            self.lead_clock.taken = self.taken  # the counts its leads refer to
         self._wrapped: set[int] = set()
         self._pubs: dict[str, list[Any]] = {}
         self._last: tuple | None = None

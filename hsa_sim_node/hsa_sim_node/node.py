@@ -57,7 +57,7 @@ from hsa_core.sim.playback import Action, Step
 from hsa_core.sim.run_conditions import plant_params, rest_strain_shift, run_disturbance
 from hsa_core.sim.sim_lockstep import SimLockstep
 from hsa_core.sim.world import MOCAP_PERIOD_NS, MocapSample, World, payload_schedule
-from hsa_msgs.msg import LockstepAck
+from hsa_msgs.msg import LockstepAck, LockstepLead
 from hsa_sim_node.mx28_emulator import (
     ADDR_GOAL_POSITION,
     ADDR_TORQUE_ENABLE,
@@ -293,7 +293,9 @@ class SimNode(Node):
             self._clock_pub = self.create_publisher(
                 Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
             )
-            self._lead_pub = self.create_publisher(Clock, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS)
+            self._lead_pub = self.create_publisher(
+                LockstepLead, lockstep.LEAD_TOPIC, lockstep.LEAD_QOS
+            )
             self.create_subscription(
                 LockstepAck, lockstep.ACK_TOPIC, self._on_ack, lockstep.ACK_READER_QOS
             )
@@ -379,7 +381,8 @@ class SimNode(Node):
                     return self._waiting(step)
             elif step.action is Action.LEAD:
                 self._traffic["leads"] += 1
-                self._lead_pub.publish(convert.clock_msg(step.t_ns))
+                for node, taken in self._barrier.leads().items():
+                    self._lead_pub.publish(lockstep.lead_msg(step.t_ns, node, taken))
             elif step.action is Action.START:
                 self.get_logger().info(
                     f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)"

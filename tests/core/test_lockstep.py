@@ -3,7 +3,7 @@ leavers."""
 
 from __future__ import annotations
 
-from hsa_core.sim.lockstep import DISCOVERY_SETTLE, Barrier, Report, ReportPacing
+from hsa_core.sim.lockstep import DISCOVERY_SETTLE, Barrier, LogTimes, Report, ReportPacing
 
 MS = 1_000_000
 
@@ -192,3 +192,38 @@ def test_a_participant_reports_as_soon_as_no_callback_is_ready() -> None:
     assert pacing.timeout() == 0.02
     pacing.ran()  # work again
     assert pacing.timeout() == 0.0
+
+
+def test_log_times_give_each_message_the_instant_it_was_published_in() -> None:
+    """A recorder at instant 25 ms takes messages 1-2 of /state (published before 50 ms) and, before
+    the lead of 50 ms, a tick published at 50 ms (its /clock and lead not there yet): the lead's
+    counts put the first two at the time they were taken and the tick at 50 ms."""
+    written: list[tuple[str, int]] = []
+    times = LogTimes()
+
+    def take(name: str, topic: str, count: int, now_ns: int) -> None:
+        times.take(topic, count, now_ns, lambda t: written.append((name, t)))
+
+    take("state 1", "/state", 1, 25 * MS)
+    take("state 2", "/state", 2, 25 * MS)
+    take("tick", "/phi_cmd", 1, 25 * MS)  # raced ahead of its /clock
+    assert written == []  # nothing is written before its instant is known
+    times.lead(50 * MS, {"/state": 2, "/phi_cmd": 0})
+    assert written == [("state 1", 25 * MS), ("state 2", 25 * MS)]
+    take("state 3", "/state", 3, 50 * MS)  # between 50 and 75 ms
+    times.lead(75 * MS, {"/state": 3, "/phi_cmd": 1})
+    assert written[2:] == [("tick", 50 * MS), ("state 3", 50 * MS)]
+    take("last", "/state", 4, 75 * MS)
+    times.flush()
+    assert written[4:] == [("last", 75 * MS)]
+
+
+def test_a_message_held_over_several_leads_takes_the_latest_instant_it_follows() -> None:
+    written: list[int] = []
+    times = LogTimes()
+    times.take("/diag", 1, 0, written.append)
+    times.lead(25 * MS, {"/diag": 0})
+    times.lead(50 * MS, {"/diag": 0})
+    assert written == []
+    times.lead(75 * MS, {"/diag": 1})  # published at 50 ms, before 75 ms
+    assert written == [50 * MS]

@@ -22,9 +22,11 @@ report of every participant the barrier decides:
   it has taken every message published on it, and no service request is unanswered;
 * ``lead_problem(t)`` — every participant with ``clock_acks`` (a recorder, whose log times are its
   clock) has reported a clock at t (None). /clock and an instant's messages travel on different
-  topics, so a loaded machine can deliver a message before the clock of its instant: the coordinator
-  first sends t to these participants alone (the lead clock) and moves /clock only once they are
-  there (``needs_lead``: some have joined);
+  topics, so a loaded machine can deliver a message before the clock of its instant: where a timer
+  is due the coordinator sends these participants a lead (``leads``: t, and per participant the
+  counts it had taken when the graph settled, all that precedes t) together with /clock, and
+  :class:`LogTimes` gives each message the instant it belongs to (``needs_lead``: some have
+  joined);
 * ``finish_problem(t)`` — instant t is finished (None): settled, no participant has a timer due at
   or before t left to run (a participant reports a new earliest timer once it ran the due ones; one
   that only saw the clock move need not report), and the ``clock_acks`` participants are at t
@@ -41,7 +43,8 @@ that hold the barrier.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 DISCOVERY_SETTLE = 0.5
@@ -201,6 +204,12 @@ class Barrier:
         behind = sorted(n for n, r in self.reports.items() if r.clock_acks and r.clock_ns < t_ns)
         return f"clock of {behind} not yet at {t_ns} ns" if behind else None
 
+    def leads(self) -> dict[str, Mapping[str, int]]:
+        """Per ``clock_acks`` participant, the counts it reported taken (its own, as reported): sent
+        with an instant's lead once the graph has settled, they are every message that precedes
+        the instant."""
+        return {n: r.taken for n, r in self.reports.items() if r.clock_acks}
+
     def next_due_ns(self) -> int | None:
         """The earliest timer of any participant, or None."""
         dues = [r.next_due_ns for r in self.reports.values() if r.next_due_ns is not None]
@@ -229,3 +238,51 @@ class ReportPacing:
         period while idle): the participant reports now, and waits a period for work from then
         on."""
         self.idle = True
+
+
+@dataclass
+class _Held:
+    """A message taken, not yet logged: its topic, its count on the topic, its log time so far."""
+
+    topic: str
+    count: int
+    t_ns: int
+    write: Callable[[int], None]
+
+
+class LogTimes:
+    """A recorder's log times in lockstep, without a round trip before /clock.
+
+    A message's log time is the clock of the instant it was published in. A message taken while the
+    recorder's clock is at an instant may still belong to the next one (a timer's message can arrive
+    before its /clock and lead), so each is held (``take``: its topic, its count on the topic as the
+    participant counts it, the clock now, and how to write it) until the next lead (``lead``: the
+    instant t and the counts taken before it): one counted within those precedes t and is written at
+    the time it was taken; a later one belongs to t or after (its time becomes at least t) and waits
+    for the following lead. ``flush`` writes what is left (the end of the run).
+    """
+
+    def __init__(self) -> None:
+        self._held: deque[_Held] = deque()
+
+    def take(self, topic: str, count: int, now_ns: int, write: Callable[[int], None]) -> None:
+        """Hold message ``count`` of ``topic``, taken at ``now_ns``, until its instant is known."""
+        self._held.append(_Held(topic, count, now_ns, write))
+
+    def lead(self, t_ns: int, taken: Mapping[str, int]) -> None:
+        """Instant ``t_ns`` begins after ``taken`` messages per topic: write those, in the order
+        taken; the others are at least at ``t_ns``."""
+        kept: deque[_Held] = deque()
+        for held in self._held:
+            if held.count <= taken.get(held.topic, 0):
+                held.write(held.t_ns)
+            else:
+                held.t_ns = max(held.t_ns, t_ns)
+                kept.append(held)
+        self._held = kept
+
+    def flush(self) -> None:
+        """Write every message held, at its time so far (no later instant will come)."""
+        while self._held:
+            held = self._held.popleft()
+            held.write(held.t_ns)

@@ -13,10 +13,11 @@ message and the wall time, and acts on each :class:`Step`:
   timers run at the instants they were due at, as in the recorded run); the first instant is the
   first message's log time. Before the clock moves to a new instant, everything published must be
   taken (``settle_problem``); where a timer is due, the participants that log in simulated time (a
-  recorder) get the instant first (``lead``) and must report it (``lead_problem``), so that what the
-  timer publishes cannot reach them before their clock; then /clock is published (``clock``) and the
-  instant must be finished (``finish_problem``: settled, and every timer due there has run); /clock
-  is sent again every ``resend`` s while that waits (it is best effort);
+  recorder) get the instant with the counts that precede it (``lead``;
+  :class:`hsa_core.sim.lockstep.LogTimes`), and without waiting /clock is published (``clock``);
+  the instant must then be finished (``finish_problem``: settled, every timer due there has run,
+  those participants' clocks at the instant); /clock is sent again every ``resend`` s while that
+  waits (it is best effort);
 * a message whose log time is the current instant is published (``publish``); after the last one the
   graph must settle once more (``done``);
 * waiting longer than ``timeout`` s of wall time in one instant (10 × ``timeout`` for the start) is
@@ -42,7 +43,7 @@ class Action(enum.StrEnum):
     START = "start"  # simulated time starts (simulator)
     RUN = "run"  # run the world to ``t_ns``, no /clock (simulator)
     INSTANT = "instant"  # run the world to the instant ``t_ns``, which must then settle (simulator)
-    LEAD = "lead"  # publish ``t_ns`` on the lead clock
+    LEAD = "lead"  # publish ``t_ns`` and Barrier.leads() on the lead topic
     CLOCK = "clock"  # publish /clock at ``t_ns`` (with a ``reason``: resent, the barrier holds)
     FINISH = "finish"  # the instant ``t_ns`` is finished (simulator)
     PUBLISH = "publish"  # the next message (player); the samples run to, up to ``t_ns`` (simulator)
@@ -97,11 +98,7 @@ class LockstepPlayback:
                     return Step(Action.CLOCK, self.instant, problem)
                 return failed
             self._progress(MOVE, now)
-        if self.phase == LEAD:
-            assert self.instant is not None
-            problem = self.barrier.lead_problem(self.instant)
-            if problem is not None:
-                return self._wait(problem, now, self.timeout)
+        if self.phase == LEAD:  # the lead is out: /clock follows at once
             return self._move_clock(now)
         if self.phase == MOVE:
             if next_ns is not None and self.instant is not None and next_ns <= self.instant:

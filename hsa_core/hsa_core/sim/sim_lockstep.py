@@ -15,12 +15,13 @@ emulated bus is idle, and acts on each :class:`~hsa_core.sim.playback.Step`:
   rather than one by one between world steps;
 * ``instant`` t: the next event is a participant's timer due, or ``sync_ns`` of simulated time have
   passed since the last instant; run the world to t. The graph must then settle (take everything
-  published); at a timer due the participants that log in simulated time get t first (``lead`` t,
-  when :meth:`~hsa_core.sim.lockstep.Barrier.needs_lead`) and report it (``lead_problem``), so
-  nothing a timer publishes at t can reach them before their clock; then the clock moves (``clock``
-  t) and the instant must finish (``finish_problem``, and the bus has executed every packet it
-  received), /clock being sent again every ``resend`` s while that waits (it is best effort); then
-  ``finish`` t: the bus writes reach the world at t and the samples available at t are published;
+  published); at a timer due the participants that log in simulated time get t with the counts
+  that precede it (``lead`` t, when :meth:`~hsa_core.sim.lockstep.Barrier.needs_lead`;
+  :class:`~hsa_core.sim.lockstep.LogTimes`), and without waiting the clock moves (``clock`` t);
+  the instant must then finish (``finish_problem``, their clocks at t included, and the bus has
+  executed every packet it received), /clock being sent again every ``resend`` s while that waits
+  (it is best effort); then ``finish`` t: the bus writes reach the world at t and the samples
+  available at t are published;
 * ``stop``: an expected participant has left, the graph is ending: simulated time stops (``done``
   thereafter);
 * ``fail``: one wait took longer than ``timeout`` s of wall time (``start_timeout``, if longer,
@@ -111,11 +112,7 @@ class SimLockstep:
                     return Step(Action.LEAD, self.instant)
                 return self._move_clock(now)
             self.phase = ADVANCE
-        if self.phase == LEAD:
-            problem = self.barrier.lead_problem(self.instant)
-            if problem is not None:
-                return self._wait(problem, now)
-            self._since = now
+        if self.phase == LEAD:  # the lead is out: /clock follows at once
             return self._move_clock(now)
         if self.phase == FINISH:
             problem = self.barrier.finish_problem(self.instant)

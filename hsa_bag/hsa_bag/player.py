@@ -312,8 +312,7 @@ class Player:
                 upcoming = next(timeline, None)
             elif step.action is Action.LEAD:
                 assert self.lead is not None and step.t_ns is not None
-                for name, taken in playback.barrier.leads().items():
-                    self.lead.publish(lockstep.lead_msg(step.t_ns, name, taken))
+                lockstep.publish_leads(self.lead, step.t_ns, playback.barrier.leads())
             elif step.action is Action.CLOCK:
                 assert self.clock is not None and step.t_ns is not None
                 self.clock.publish(convert.clock_msg(step.t_ns))

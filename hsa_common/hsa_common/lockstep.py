@@ -38,6 +38,7 @@ from rclpy.executors import (
 )
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
@@ -138,14 +139,18 @@ class LeadClock:
             self._times.flush()
 
 
-def lead_msg(t_ns: int, node: str, taken: Mapping[str, int]) -> LockstepLead:
-    """The lead of instant ``t_ns`` for ``node``, after ``taken`` messages per topic."""
-    return LockstepLead(
-        clock=convert.stamp_msg(t_ns),
-        node=node,
-        topics=list(taken),
-        taken=list(taken.values()),
-    )
+def publish_leads(publisher: Publisher, t_ns: int, leads: Mapping[str, Mapping[str, int]]) -> None:
+    """A coordinator's leads of instant ``t_ns``: one per node of ``leads``
+    (:meth:`hsa_core.sim.lockstep.Barrier.leads`), with the messages it took before the instant."""
+    for node, taken in leads.items():
+        publisher.publish(
+            LockstepLead(
+                clock=convert.stamp_msg(t_ns),
+                node=node,
+                topics=list(taken),
+                taken=list(taken.values()),
+            )
+        )
 
 
 WAITABLE_PERIOD = 0.02

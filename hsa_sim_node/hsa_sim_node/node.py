@@ -381,8 +381,7 @@ class SimNode(Node):
                     return self._waiting(step)
             elif step.action is Action.LEAD:
                 self._traffic["leads"] += 1
-                for node, taken in self._barrier.leads().items():
-                    self._lead_pub.publish(lockstep.lead_msg(step.t_ns, node, taken))
+                lockstep.publish_leads(self._lead_pub, step.t_ns, self._barrier.leads())
             elif step.action is Action.START:
                 self.get_logger().info(
                     f"lockstep: simulated time starts ({len(self._barrier.reports)} participants)"

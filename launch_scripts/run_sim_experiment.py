@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         "--rate",
         type=cli.positive,
         default=None,
-        help="[Hz] control rate (default: the profile's, 40 Hz for lab)",
+        help="[Hz] control rate (default: the run's or the profile's, 40 Hz for lab)",
     )
     cli.add_run_conditions(parser)
     parser.add_argument(

@@ -186,4 +186,5 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
     }
     assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
     assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
+    assert world["conditions"]["20231019_143126"]["control_period_ms"] == 25
     assert (out / "20231019_143126.png").stat().st_size > 10_000

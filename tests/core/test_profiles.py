@@ -17,6 +17,7 @@ from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sim import experiment
 from hsa_core.sim.disturbance import calibrated_world
 from hsa_core.sim.experiment import ExperimentConfig, profile_config, replay_config, run_experiment
+from hsa_core.sim.run_conditions import graph_arguments
 from hsa_core.task.trajectories import TimedReference, step_reference
 
 
@@ -103,7 +104,8 @@ def test_a_replay_takes_the_run_s_conditions_and_real_step_instants() -> None:
     )
     # the 09-25 list, experiments.md §2
     np.testing.assert_allclose(config.reference.p_des, step_reference("fpu").p_des)
-    pid = replay_config(reference.load_run("20230925_092200"))
+    pid_run = reference.load_run("20230925_092200")
+    pid = replay_config(pid_run)
     # the logbook's σ_a,eq leaves the fifth setpoint (y = 114.6 mm) without a plan (docs): the
     # plant keeps it, the controller's model (only the planner's, for PID) gets the nominal 1.0
     assert pid.gains == PidGains(10.0, 110.0, 0.25) and pid.plant_sigma_a_eq == pytest.approx(
@@ -111,6 +113,10 @@ def test_a_replay_takes_the_run_s_conditions_and_real_step_instants() -> None:
     )
     assert pid.sigma_a_eq == (1.0, 1.0)
     assert pid.rest_strain_shift == pytest.approx((0.02776, 0.02776), abs=5e-6)
+    # its own 38 ms ticks (runs.yaml), in the offline replay and in the graph's launch arguments
+    assert 1e3 / pid.rate == pytest.approx(38.0) and pid.integrator_dt == 0.025
+    graph = graph_arguments(pid_run.conditions.profile, run=pid_run)
+    assert 1e3 / float(graph["rate"]) == pytest.approx(38.0)
     epu = replay_config(reference.load_run("20231019_143126"), payload=0.2)
     assert (epu.material, epu.profile, epu.rate, epu.integrator_dt) == (
         "epu",

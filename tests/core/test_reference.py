@@ -4,6 +4,7 @@ instants are where the reference moves."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 
 import numpy as np
@@ -49,7 +50,10 @@ def test_conditions_are_the_logbook_s() -> None:
     assert (pid.material, pid.law, pid.tanh_slope) == ("fpu", ControllerKind.PID, None)
     assert pid.gains == PidGains(10.0, 110.0, 0.25)
     assert pid.sigma_a_eq == (1.02775671, 1.02775671) and pid.payload == 0.0
-    assert pid.date == datetime.date(2023, 9, 25) and pid.profile == load_profile("sep2023")
+    # the September profile with the run's own 38 ms ticks (runs.yaml; the test below)
+    assert pid.date == datetime.date(2023, 9, 25) and pid.profile == dataclasses.replace(
+        load_profile("sep2023"), control_period_ms=38
+    )
     assert (
         pid.profile.bus_baud == 2_000_000
         and pid.profile.velocity_estimator is VelocityEstimator.SMOOTHING_SPLINE_16
@@ -103,3 +107,28 @@ def test_an_unknown_run_is_a_one_line_error() -> None:
     ) as err:
         reference.load_run("20230925_000000")
     assert "\n" not in str(err.value)
+
+
+TICK_PERIODS_MS = {
+    "20230925_092200": 38,
+    "20230925_093236": 36,
+    "20230925_094023": 36,
+    "20231019_143126": 25,
+}
+"""Each run's control period [ms] as runs.yaml states it."""
+
+
+@pytest.mark.parametrize("bag", sorted(TICK_PERIODS_MS))
+def test_each_run_ticks_at_the_period_its_plotted_samples_show(bag: str) -> None:
+    """The plotted points are real samples, one per tick where the plot kept them all (realdata
+    README): the median of the one-period gaps (shorter than 1.4 x the 5th percentile of a trace's
+    gaps) of the p, phi and q traces together is the run's period to within half a millisecond,
+    and that period reaches the replay."""
+    run = reference.load_run(bag)
+    single = []
+    for trace in (run.pee, run.phi, run.q):
+        gaps = np.diff(trace.t) * 1e3
+        single.extend(gaps[gaps < 1.4 * np.percentile(gaps, 5)])
+    assert len(single) > 500
+    assert abs(float(np.median(single)) - TICK_PERIODS_MS[bag]) < 0.5
+    assert run.conditions.profile.control_period_ms == TICK_PERIODS_MS[bag]

@@ -371,6 +371,7 @@ def world_document(report: dict) -> dict:
         "conditions": {
             bag: {
                 "profile": row["profile"],
+                "control_period_ms": row["control_period_ms"],
                 "command_latency_ms": row["command_latency_ms"],
                 "note": "each run's command latency adds to actuation_latency (run_disturbance)",
             }
@@ -635,6 +636,7 @@ def main(argv: list[str] | None = None) -> int:
         per_run[r.bag] = {
             "note": r.note,
             "profile": r.config.profile,
+            "control_period_ms": round(1e3 / r.config.rate),
             "command_latency_ms": round(r.config.command_latency * 1e3),
             **rows,
         }

@@ -16,7 +16,7 @@ drifts by 0.01 mm every ~2.4 s, a drawing artefact, which is not a step).
 from __future__ import annotations
 
 import datetime
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +37,7 @@ class RunConditions:
     """A run's conditions (logbook): bag name, material, law, gains, σ_a,eq per rod (None where the
     logbook's value is not known: the material's nominal), payload [kg], date and the run profile
     of its period (hsa_core.runs.profiles: control period, integrator step, velocity estimator,
-    bus)."""
+    bus), with the run's own control period where the data give it."""
 
     bag: str
     material: str
@@ -167,7 +167,8 @@ def _conditions_table() -> dict[str, dict]:
 
 def conditions_of(bag: str, entry: dict) -> RunConditions:
     """Typed conditions of one run's entry (runs.yaml, paper_runs.yaml; its ``profile`` names a
-    packaged run profile, its ``sigma_a_eq`` may be null)."""
+    packaged run profile, its optional ``control_period_ms`` replaces that profile's period, its
+    ``sigma_a_eq`` may be null)."""
     law = ControllerKind(entry["law"])
     gains = (
         PidGains(**entry["gains"])
@@ -180,6 +181,9 @@ def conditions_of(bag: str, entry: dict) -> RunConditions:
         else datetime.date.fromisoformat(entry["date"])
     )
     sigma = entry["sigma_a_eq"]
+    profile = load_profile(str(entry["profile"]))
+    if "control_period_ms" in entry:
+        profile = replace(profile, control_period_ms=entry["control_period_ms"])
     return RunConditions(
         bag,
         str(entry["material"]),
@@ -188,7 +192,7 @@ def conditions_of(bag: str, entry: dict) -> RunConditions:
         None if sigma is None else (float(sigma[0]), float(sigma[1])),
         float(entry["payload"]),
         date,
-        load_profile(str(entry["profile"])),
+        profile,
     )
 
 

@@ -615,7 +615,7 @@ def main(argv: list[str] | None = None) -> int:
         "--rate",
         type=_rate,
         default=None,
-        help="control rate [Hz], must divide 1000 (default: the profile's)",
+        help="control rate [Hz], must divide 1000 (default: the run's or the profile's)",
     )
     parser.add_argument(
         "--duration",

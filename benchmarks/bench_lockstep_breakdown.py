@@ -7,10 +7,12 @@ default 0.5 Hz: 11 steps of 2 s) and samples every process of the graph from /pr
 CPU, voluntary and involuntary context switches of all its threads) every ``--sample`` s. Figures
 per simulated second are taken between sim_node's "simulated time starts" and its "barrier traffic"
 line at shutdown (which gives the simulated time reached), so start-up and the teardown do not
-count. Messages per kind: every recorded topic (from the bag) and the barrier's own traffic
-(sim_node's "barrier traffic" line at its shutdown: reports taken, /clock and lead-clock messages,
-instants, sample runs). CPU seconds are the figures to compare on a shared machine; wall figures
-carry the load they were taken at. Writes the run under ``--key`` in
+count. The start-up is reported apart (lockstep, ``start_up``): the wall time from the launch until
+each node logs "ready" and until simulated time starts, and the CPU each process had used by its
+last sample before that start. Messages per kind: every recorded topic (from the bag) and the
+barrier's own traffic (sim_node's "barrier traffic" line at its shutdown: reports taken, /clock and
+lead-clock messages, instants, sample runs). CPU seconds are the figures to compare on a shared
+machine; wall figures carry the load they were taken at. Writes the run under ``--key`` in
 benchmarks/results/lockstep_breakdown.json (``--out``; other keys are kept).
 
     .venv/bin/python benchmarks/bench_lockstep_breakdown.py [--setpoint-rate 0.5] [--clock lockstep]
@@ -130,6 +132,39 @@ class Sampler:
             entry["involuntary_switches"] += last[3] - first[3]
         return out
 
+    def at(self, t: float) -> dict[str, float]:
+        """Per process name: the CPU s it had used by its last sample at or before ``t``."""
+        last: dict[int, tuple[str, float, int, int]] = {}
+        for row_t, pid, s in self.rows:
+            if row_t <= t:
+                last[pid] = s
+        out: dict[str, float] = {}
+        for s in last.values():
+            out[s[0]] = out.get(s[0], 0.0) + s[1]
+        return out
+
+
+def start_up(log: str, launched: float, offset: float, sampler: Sampler) -> dict[str, object]:
+    """Launch to simulated time: wall s until each node logs "ready" and until simulated time
+    starts, and the CPU s each process had used by then (``launched``: monotonic; ``offset``: epoch
+    minus monotonic)."""
+    ready = {
+        node: round(float(t) - offset - launched, 2)
+        for t, node in re.findall(r"\[(\d+\.\d+)\] \[hsa\.(\w+)\]: ready$", log, re.M)
+    }
+    begin = float(
+        re.search(r"\[(\d+\.\d+)\] \[hsa\.sim_node\]: lockstep: simulated time starts", log).group(
+            1
+        )
+    )
+    cpu = sampler.at(begin - offset)
+    return {
+        "wall_s_until_ready_by_node": dict(sorted(ready.items(), key=lambda kv: kv[1])),
+        "wall_s_until_simulated_time": round(begin - offset - launched, 2),
+        "cpu_s_by_process": {k: round(v, 2) for k, v in sorted(cpu.items(), key=lambda kv: -kv[1])},
+        "cpu_s_total": round(sum(cpu.values()), 2),
+    }
+
 
 def report_causes(log: str) -> dict[str, dict[str, int]]:
     """Per participant, its reports by cause (topics taken since the previous one, a timer, the
@@ -213,6 +248,7 @@ def main() -> int:
         begin, end = stamps[0], stamps[-1]
         simulated, traffic = end - begin, {}
     per_process = sampler.between(begin - offset, end - offset)
+    launch = start_up(log, started, offset, sampler) if args.clock == "lockstep" else None
     with Bag(work / "bag") as reader:
         counts = {
             topic: sum(1 for _ in reader.messages([topic])) for topic in sorted(reader.topics)
@@ -242,6 +278,7 @@ def main() -> int:
         "total_wall_s_loaded_machine": round(time.monotonic() - started, 1),
         "cpu_s_per_simulated_s": round(total_cpu / simulated, 3),
         "per_process_per_simulated_s": per_s,
+        "start_up": launch,
         "recorded_messages_per_simulated_s": {
             t: round(n / simulated, 1) for t, n in counts.items()
         },

@@ -144,19 +144,16 @@ class Sampler:
         return out
 
 
-def start_up(log: str, launched: float, offset: float, sampler: Sampler) -> dict[str, object]:
-    """Launch to simulated time: wall s until each node logs "ready" and until simulated time
-    starts, and the CPU s each process had used by then (``launched``: monotonic; ``offset``: epoch
-    minus monotonic)."""
+def start_up(
+    log: str, launched: float, begin: float, offset: float, sampler: Sampler
+) -> dict[str, object]:
+    """Launch (``launched``, monotonic s) to simulated time (``begin``, the epoch stamp of its log
+    line; ``offset``: epoch minus monotonic): wall s until each node logs "ready" and until
+    ``begin``, and the CPU s each process had used by then."""
     ready = {
         node: round(float(t) - offset - launched, 2)
         for t, node in re.findall(r"\[(\d+\.\d+)\] \[hsa\.(\w+)\]: ready$", log, re.M)
     }
-    begin = float(
-        re.search(r"\[(\d+\.\d+)\] \[hsa\.sim_node\]: lockstep: simulated time starts", log).group(
-            1
-        )
-    )
     cpu = sampler.at(begin - offset)
     return {
         "wall_s_until_ready_by_node": dict(sorted(ready.items(), key=lambda kv: kv[1])),
@@ -248,7 +245,7 @@ def main() -> int:
         begin, end = stamps[0], stamps[-1]
         simulated, traffic = end - begin, {}
     per_process = sampler.between(begin - offset, end - offset)
-    launch = start_up(log, started, offset, sampler) if args.clock == "lockstep" else None
+    launch = start_up(log, started, begin, offset, sampler) if args.clock == "lockstep" else None
     with Bag(work / "bag") as reader:
         counts = {
             topic: sum(1 for _ in reader.messages([topic])) for topic in sorted(reader.topics)

@@ -56,6 +56,32 @@ def test_the_search_recovers_a_known_actuation_latency_and_a_flat_parameter_is_r
     assert not flat["identified"]
 
 
+def test_the_world_kept_is_refitted_without_the_parameters_it_does_not_keep() -> None:
+    """The truth's time constant (0) is the lower bound of its range, so it is not identified and
+    the world keeps the base's; the latency, searched together with a time constant the world does
+    not keep, is searched again alone on the base world and lands on the truth."""
+    run = synthetic_run(DisturbanceModel(actuation_latency=0.047))
+    fit = calibrate.fit_world(
+        [run],
+        ("actuation_latency", "servo_time_constant"),
+        DisturbanceModel(),
+        population=8,
+        generations=4,
+        scan_points=7,
+    )
+    assert fit.identification["servo_time_constant"]["status"] == "not identified (at bound)"
+    assert fit.identified == ("actuation_latency",) and fit.refit is not None
+    assert fit.kept == {
+        "actuation_latency": fit.refit.best["actuation_latency"],
+        "servo_time_constant": 0.0,
+    }
+    assert fit.kept["actuation_latency"] == pytest.approx(0.047, abs=1.5e-3)
+    kept = calibrate.deviations(run, [DisturbanceModel(**fit.kept)])[0]
+    assert kept == pytest.approx(fit.refit.objective, abs=1e-12) and kept < 1e-4
+    # the latency's interval is the second scan's, around the world kept
+    assert fit.identification["actuation_latency"]["best"] == fit.kept["actuation_latency"]
+
+
 def test_a_scan_whose_interval_reaches_a_bound_is_not_identified() -> None:
     """D falling to the scan's lower bound, or to the last value where the run is finite, moves by
     far more than the tolerance, yet the data put the minimum outside the range: not identified."""

@@ -729,7 +729,7 @@ def main(argv: list[str] | None = None) -> int:
             "evaluations": fit.refit.evaluations,
         },
         "kept": fit.kept,
-        "kept_objective_mm": round(float(pooled([[d] for d in kept_d])[0]) * 1e3, 4),
+        "kept_objective_mm": round(float(pooled(np.array(kept_d)[:, None])[0]) * 1e3, 4),
         "per_run": per_run,
         "leave_one_run_out": loo,
         "wall_s": round(wall, 1),

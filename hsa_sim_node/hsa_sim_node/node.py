@@ -196,6 +196,24 @@ SPECS = (
         read_only=True,
     ),
     ParamSpec(
+        "command_queue_depth",
+        0,
+        "a run's command path: goals through the September driver's queue of this depth, "
+        "one transaction at a time (0 = written at once; hsa_core.sim.command_queue)",
+        low=0,
+        high=100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "command_transaction",
+        0.0,
+        "[s] the command queue's transaction time, a whole number of ms (with "
+        "command_queue_depth > 0)",
+        low=0.0,
+        high=1.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "plant_sigma_a_eq",
         Parameter.Type.DOUBLE_ARRAY,
         "[-] the plant's axial rest strains of rods 1 and 2 where a run's plant and controller "
@@ -229,7 +247,12 @@ class SimNode(Node):
         model = load_model(self._p)
         declared = named_world(self._p["disturbance"], self._p["material"], self._p["seed"])
         shift = rest_strain_shift(model, self._p["plant_sigma_a_eq"] or None)
-        disturbance = run_disturbance(declared, self._p["command_latency"], shift)
+        disturbance = run_disturbance(
+            declared,
+            self._p["command_latency"],
+            shift,
+            (self._p["command_queue_depth"], self._p["command_transaction"]),
+        )
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"

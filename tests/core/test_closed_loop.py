@@ -115,21 +115,43 @@ def test_a_world_parameter_reaches_both_paths() -> None:
 
 
 def test_the_profile_s_command_latency_reaches_both_paths() -> None:
-    """The September profile's command latency (tick → goal on the bus) adds to the world's
+    """The October profile's command latency (tick → goal on the bus) adds to the world's
     actuation latency in the offline experiment and the batched loop alike (equal logs), and
     changes the run (in the declared world, whose own latency is 2 ms)."""
-    september = profiles.load_profile("sep2023")
+    october = profiles.load_profile("oct2023")
     config = profile_config(
-        september, "fpu", "psatid", reference=short(seconds=2.0), disturbance=DisturbanceModel()
+        october, "fpu", "psatid", reference=short(seconds=2.0), disturbance=DisturbanceModel()
     )
-    assert september.command_latency_ms > 0
-    assert config.command_latency == pytest.approx(september.command_latency_ms * 1e-3)
+    assert october.command_latency_ms > 0
+    assert config.command_latency == pytest.approx(october.command_latency_ms * 1e-3)
     spec, inputs, constants = closed_loop.prepare(config)
-    assert int(inputs.actuation_latency_ms) == 2 + september.command_latency_ms
+    assert int(inputs.actuation_latency_ms) == 2 + october.command_latency_ms
     after = np.asarray(assert_equal_to_the_offline_experiment(config).true_chiee)
     without = inputs._replace(actuation_latency_ms=jax.numpy.asarray(2))  # the world's own only
     before = np.asarray(closed_loop.compiled(spec, without, constants).true_chiee)
     assert np.max(np.abs(after - before)) > 1e-5  # it did change the world
+
+
+def test_the_september_command_queue_reaches_both_paths() -> None:
+    """The September profile's command queue (depth 10, 16 ms transactions) delays goals that
+    change at every tick (the task-space PID after a step) in the offline experiment and the
+    batched loop alike (equal logs, a 61 ms world latency: many writes in flight); without it the
+    run differs."""
+    september = profiles.load_profile("sep2023")
+    assert (september.command_queue_depth, september.command_transaction_ms) == (10, 16)
+    world = DisturbanceModel(actuation_latency=0.061)
+    # 12.6 s: a whole number of 36 ms ticks (the metrics' last step ends where the log does)
+    config = profile_config(
+        september, "fpu", "pid", reference=short(seconds=12.6), disturbance=world
+    )
+    assert config.world().command_queue_depth == 10
+    spec, inputs, constants = closed_loop.prepare(config)
+    assert (spec.queue_depth, spec.transaction_ms) == (10, 16)
+    queued = np.asarray(assert_equal_to_the_offline_experiment(config).true_chiee)
+    direct = dataclasses.replace(config, command_queue=(0, 0.0))
+    assert closed_loop.prepare(direct)[0].queue_depth == 0
+    without = np.asarray(closed_loop.compiled(*closed_loop.prepare(direct)).true_chiee)
+    assert np.max(np.abs(queued - without)) > 1e-3  # the queue delays the step's goals
 
 
 def test_a_plant_sigma_a_eq_reaches_both_paths_and_the_plant_only() -> None:

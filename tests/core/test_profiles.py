@@ -38,7 +38,10 @@ def test_the_profiles_hold_the_spec_s_conditions() -> None:
     assert (lab.control_period_ms, lab.integrator_dt, lab.rate) == (25, None, 40.0)
     assert all(p.sigma_a_eq is None and p.payload == 0.0 for p in (sep, oct_, lab))
     # reference_ros_graph.md §3, §5, §6 item 2; ecosystem.md §3.1 (derivation in profiles.yaml)
-    assert (sep.command_latency_ms, oct_.command_latency_ms, lab.command_latency_ms) == (11, 6, 0)
+    assert (sep.command_latency_ms, oct_.command_latency_ms, lab.command_latency_ms) == (0, 6, 0)
+    # September: per-motor keep-last-10 topics, one driver thread, 16 ms transactions (p&c §7-8)
+    assert (sep.command_queue_depth, sep.command_transaction_ms) == (10, 16)
+    assert oct_.command_queue_depth == lab.command_queue_depth == 0
     with pytest.raises(
         ValueError, match=r"^unknown run profile 'sep2024'; known: lab, sep2023, oct2023$"
     ):

@@ -35,6 +35,8 @@ def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
         "sigma_a_eq": "[]",
         "plant_sigma_a_eq": "[]",
         "command_latency": "0.0",
+        "command_queue_depth": "0",
+        "command_transaction": "0.0",
     }
     sep = graph_arguments(load_profile("sep2023"), sigma_a_eq=(0.98, 1.01), payload=0.2)
     assert 1000.0 / float(sep["rate"]) == pytest.approx(36.0, abs=1e-12)  # the period in whole ms
@@ -45,7 +47,9 @@ def test_a_profile_becomes_the_graphs_launch_arguments() -> None:
         "payload": "0.2",
         "sigma_a_eq": "[0.98, 1.01]",
         "plant_sigma_a_eq": "[]",
-        "command_latency": "0.011",
+        "command_latency": "0.0",
+        "command_queue_depth": "10",
+        "command_transaction": "0.016",
     }
     plant = graph_arguments(
         load_profile("lab"), sigma_a_eq=(1.0, 1.0), plant_sigma_a_eq=(1.03, 1.02)
@@ -63,6 +67,17 @@ def test_a_command_latency_adds_to_the_world_s_actuation_latency_only() -> None:
     assert run_disturbance(world, 0.0) is world
     with pytest.raises(ValueError, match="command_latency must be >= 0 s"):
         run_disturbance(world, -0.001)
+
+
+def test_a_command_queue_is_the_world_s_command_path_only() -> None:
+    world = DisturbanceModel(actuation_latency=0.05)
+    run = run_disturbance(world, 0.0, command_queue=(10, 0.016))
+    assert (run.command_queue_depth, run.command_transaction) == (10, 0.016)
+    assert dataclasses.replace(run, command_queue_depth=0, command_transaction=0.0) == world
+    with pytest.raises(ValueError, match="command_transaction must be a whole number of ms"):
+        run_disturbance(world, 0.0, command_queue=(10, 0.0155))
+    with pytest.raises(ValueError, match="command_queue_depth must be a whole number >= 0"):
+        DisturbanceModel(command_queue_depth=-1)
 
 
 def test_a_plant_sigma_shift_moves_the_plant_s_rest_strains_only() -> None:

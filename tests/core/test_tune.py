@@ -90,7 +90,7 @@ def test_the_named_world_and_profile_reach_the_tuning_loop(monkeypatch, capsys) 
     (config,) = seen
     assert config.disturbance == calibrated_world("fpu", seed=2)
     assert config.profile == "sep2023" and config.rate == pytest.approx(1e3 / 36)
-    assert config.command_latency == pytest.approx(0.011)
+    assert config.command_queue == (10, pytest.approx(0.016))
     with pytest.raises(SystemExit) as exc:
         tune.main(["--disturbance", "wood"])
     err = capsys.readouterr().err

@@ -50,6 +50,8 @@ def _values(tmp_path: Path) -> dict[str, str]:
         "plant_sigma_a_eq": "[1.03, 1.02]",
         "payload": "0.05",
         "command_latency": "0.012",
+        "command_queue_depth": "10",
+        "command_transaction": "0.016",
         "gains": str(package_share("hsa_core") / "config/gains/fpu_pid.yaml"),
         "sequencer_config": str(package_share("hsa_planner_node") / "config/star.yaml"),
         "setpoint_rate": "2.0",

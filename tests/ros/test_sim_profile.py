@@ -1,12 +1,14 @@
 """The lockstep graph under a run profile: launch_scripts/sim.launch.yaml with the September 2023
 conditions (36 ms control period, integrators at the nominal 25 ms, the 16-tick stand-in velocity
-estimator at the controller, hsa_core.sim.run_conditions.graph_arguments) and the calibrated FPU
+estimator at the controller, the command queue in sim_node's world,
+hsa_core.sim.run_conditions.graph_arguments) and the calibrated FPU
 world (``disturbance:=calibrated``, hsa_core.sim.disturbance.calibrated_world) equals the offline
 experiment under the same profile and world tick by tick, on a short FPU P-satI-D step schedule, as
 tests/ros/test_sim_in_the_loop.py checks for the lab default."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -63,9 +65,8 @@ def test_the_graph_in_the_september_profile_and_calibrated_world_equals_the_offl
     assert proc.returncode == 0, output[-5000:]
     reference = step_reference(np.asarray(step_reference("fpu").p_des[:STEPS]), period=STEP_PERIOD)
     world = calibrated_world("fpu")
-    offline = run_experiment(
-        profile_config(PROFILE, "fpu", "psatid", reference=reference, disturbance=world)
-    )
+    september = profile_config(PROFILE, "fpu", "psatid", reference=reference, disturbance=world)
+    offline = run_experiment(september)
     log = runlog_from_bag(bag).trimmed(STEPS * STEP_PERIOD)
     # ticks every 36 ms in 4 s, the first one after 16 tick samples
     assert len(log) == len(offline.log) == 112
@@ -73,3 +74,6 @@ def test_the_graph_in_the_september_profile_and_calibrated_world_equals_the_offl
     np.testing.assert_allclose(log.phi_sat, offline.log.phi_sat, rtol=0.0, atol=1e-9)
     np.testing.assert_allclose(log.chiee, offline.log.chiee, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(log.e_int, offline.log.e_int, rtol=0.0, atol=1e-9)
+    # the command queue reached sim_node's world: without it the run is another
+    direct = run_experiment(dataclasses.replace(september, command_queue=(0, 0.0)))
+    assert np.max(np.abs(direct.log.phi_sat - log.phi_sat)) > 1e-6

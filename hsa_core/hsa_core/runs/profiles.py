@@ -23,6 +23,8 @@ is not modelled. ``bus_baud`` is recorded as a condition. ``command_latency_ms``
 the period's controller side adds between a tick and the goal in force on the bus (its way of
 writing goals); it adds to the world's actuation latency
 (:func:`hsa_core.sim.run_conditions.run_disturbance`, the one place every path takes it from).
+``command_queue_depth`` and ``command_transaction_ms`` (depth 0: none) send the goals through the
+September driver's queue instead (:mod:`hsa_core.sim.command_queue`, by the same path).
 """
 
 from __future__ import annotations
@@ -53,8 +55,8 @@ class VelocityEstimator(str, enum.Enum):
 @dataclass(frozen=True)
 class RunProfile:
     """A named set-up: control period [ms], integrator step [s] (None: the period), estimator, bus
-    [bit/s], σ_a,eq per rod (None: the material's nominal), payload [kg], command latency [ms] and a
-    one-line description."""
+    [bit/s], σ_a,eq per rod (None: the material's nominal), payload [kg], command latency [ms], the
+    command queue's depth (0: none) and transaction time [ms], and a one-line description."""
 
     name: str
     description: str
@@ -65,6 +67,8 @@ class RunProfile:
     sigma_a_eq: tuple[float, float] | None
     payload: float
     command_latency_ms: int = 0
+    command_queue_depth: int = 0
+    command_transaction_ms: int = 0
 
     def __post_init__(self) -> None:
         """Reject a period that is not a whole positive number of ms, a non-positive step or a
@@ -93,11 +97,18 @@ class RunProfile:
             raise ValueError(
                 f"profile {self.name}: sigma_a_eq must be two values > 0, got {self.sigma_a_eq!r}"
             )
-        latency = self.command_latency_ms
-        if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
+        for field, value in (
+            ("command_latency_ms", self.command_latency_ms),
+            ("command_queue_depth", self.command_queue_depth),
+            ("command_transaction_ms", self.command_transaction_ms),
+        ):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(
+                    f"profile {self.name}: {field} must be a whole number >= 0, got {value!r}"
+                )
+        if self.command_queue_depth and not self.command_transaction_ms:
             raise ValueError(
-                f"profile {self.name}: command_latency_ms must be a whole number of "
-                f"ms >= 0, got {latency!r}"
+                f"profile {self.name}: a command queue needs command_transaction_ms >= 1"
             )
 
     @property
@@ -143,5 +154,7 @@ def _table() -> dict[str, RunProfile]:
             None if sigma is None else (float(sigma[0]), float(sigma[1])),
             float(entry["payload"]),
             entry["command_latency_ms"],
+            entry["command_queue_depth"],
+            entry["command_transaction_ms"],
         )
     return table

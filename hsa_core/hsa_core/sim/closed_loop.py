@@ -50,6 +50,7 @@ from hsa_core.model.params import HsaParams
 from hsa_core.model.wiring import load_wiring
 from hsa_core.runs.profiles import VelocityEstimator
 from hsa_core.sensing.estimation import derivative_coefficients
+from hsa_core.sim import command_queue
 from hsa_core.sim.experiment import ESTIMATOR_ORDER, ESTIMATOR_WINDOW, ExperimentConfig
 from hsa_core.sim.run_conditions import (
     SPLINE_WINDOW,
@@ -96,6 +97,8 @@ class LoopSpec:
     dt: float  # [s] the integrators' step: the config's integrator_dt, else 1/rate
     velocity_estimator: VelocityEstimator = VelocityEstimator.SAVITZKY_GOLAY_20
     goal_slots: int = 2  # goals in flight: an actuation latency up to goal_slots - 1 periods
+    queue_depth: int = 0  # the command queue's depth (0: goals written at the tick)
+    transaction_ms: int = 0  # its transaction time
 
 
 class LoopInputs(NamedTuple):
@@ -137,6 +140,7 @@ class _Carry(NamedTuple):
     pending: Array  # (goal_slots, motors) goals written, by write count mod goal_slots [ticks]
     pending_at: Array  # (goal_slots,) [ms] when each takes effect (-1: none)
     writes: Array  # goals written so far
+    queue: command_queue.QueueState | None  # the command queue (None: none)
     window: Array  # (N, 6) estimator window [q, chiee], oldest first
     stamps: Array  # (N,) their stamps [s]
     count: Array  # samples taken by the estimator
@@ -164,6 +168,7 @@ def prepare(
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     dist = config.world()
     lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
+    transaction_ms = round(dist.command_transaction * 1e3) if dist.command_queue_depth else 0
     if lat_m % GRID_NS or lat_a % GRID_NS:
         raise ValueError("latencies must be whole milliseconds")
     planner = Planner(model, config.planner)
@@ -204,7 +209,9 @@ def prepare(
         load_wiring().motor_map(model),
         1.0 / config.rate if config.integrator_dt is None else config.integrator_dt,
         config.velocity_estimator,
-        goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS),
+        goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS, transaction_ms),
+        dist.command_queue_depth,
+        transaction_ms,
     )
     inputs = LoopInputs(
         dist.plant_params(plant_params(model, config.payload)),
@@ -217,9 +224,12 @@ def prepare(
     return spec, inputs, LoopConstants(model, refs, jnp.asarray(ref_index))
 
 
-def goal_slots_for(latency_ms: int, period_ms: int) -> int:
+def goal_slots_for(latency_ms: int, period_ms: int, transaction_ms: int = 0) -> int:
     """The goals in flight at once with an actuation latency of ``latency_ms`` at a ``period_ms``
-    period."""
+    period: one write per tick, or with a command queue one per ``transaction_ms`` at most,
+    scheduled up to a period and a cycle (4 writes and a poll) ahead."""
+    if transaction_ms:
+        return (latency_ms + period_ms + 5 * transaction_ms) // transaction_ms + 2
     return latency_ms // period_ms + 2
 
 
@@ -353,14 +363,32 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         goal = neutral + motor_map.goal_offsets(phi, jnp)
         true_chiee = kinematics.end_effector_pose(plant, c.x[:3])
         log = TickLog(run, meas.chiee, ref.chiee_des, phi_cmd, info.saturated, true_chiee)
+        c = c._replace(ctrl=jnp.where(run, ctrl, c.ctrl))
+        if spec.queue_depth:
+            return serve(c, run, goal, t), log
+        return written(c, run, goal, t), log
+
+    def written(c: _Carry, write: Array, goal: Array, at: Array) -> _Carry:
+        """Where ``write``: ``goal`` written at ``at`` [ms], in force after the latency."""
         slot = c.writes % spec.goal_slots
-        c = c._replace(
-            ctrl=jnp.where(run, ctrl, c.ctrl),
-            pending=c.pending.at[slot].set(jnp.where(run, goal, c.pending[slot])),
-            pending_at=c.pending_at.at[slot].set(jnp.where(run, t + lat_a, c.pending_at[slot])),
-            writes=c.writes + run,
+        return c._replace(
+            pending=c.pending.at[slot].set(jnp.where(write, goal, c.pending[slot])),
+            pending_at=c.pending_at.at[slot].set(jnp.where(write, at + lat_a, c.pending_at[slot])),
+            writes=c.writes + write,
         )
-        return c, log
+
+    def serve(c: _Carry, run: Array, goal: Array, t: Array) -> _Carry:
+        """The command queue: the tick at t publishes ``goal`` (where ``run``), then the driver's
+        cycles that start before the next tick write theirs (at most one per transaction)."""
+        published = command_queue.publish(c.queue, goal, t, jnp)
+        queue = jax.tree_util.tree_map(lambda a, b: jnp.where(run, a, b), published, c.queue)
+        for _ in range(-(-period // spec.transaction_ms)):
+            active = command_queue.has_work(queue, jnp) & (queue.cursor < t + period)
+            after, done = command_queue.cycle(queue, spec.transaction_ms, jnp)
+            queue = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), after, queue)
+            for m in range(len(neutral)):
+                c = written(c, active & done.wrote[m], done.vectors[m], done.at[m])
+        return c._replace(queue=queue)
 
     window = (
         tick_window(jnp)
@@ -374,6 +402,7 @@ def rollout(spec: LoopSpec, inputs: LoopInputs, constants: LoopConstants) -> Tic
         jnp.tile(neutral, (spec.goal_slots, 1)),
         jnp.full(spec.goal_slots, -1),
         jnp.asarray(0),
+        command_queue.initial(neutral, spec.queue_depth, jnp) if spec.queue_depth else None,
         *window,
         jnp.zeros(4),
         jnp.zeros((queue, 3)),

@@ -36,6 +36,11 @@ hardware facts, and is not tuned to make a figure pass. Defaults (``DisturbanceM
   minus the model's. Both, with the other mismatch factors, are fitted to the real robot at rest by
   ``hsa_calibrate --static`` (:mod:`hsa_core.sysid.static_mismatch`; docs/simulation.md).
 
+* **A run's command path** — ``command_queue_depth`` (default 0: each goal is written at its tick)
+  and ``command_transaction``: a run whose goals went through the September driver's queue
+  (:mod:`hsa_core.sim.command_queue`). A condition of the run's period, set by
+  :func:`hsa_core.sim.run_conditions.run_disturbance` from its profile, not a world parameter to fit.
+
 :func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
 identified (``config/world/<material>.yaml``) and the adopted static mismatch
 (``config/world/<material>_static.yaml``) over the declared world; what no fit identified keeps
@@ -88,9 +93,14 @@ class DisturbanceModel:
     damping_scale: float = 1.0
     rest_strain_difference: float = 0.0
     shear_strain_offset: float = 0.0
+    # a run's command path (run_disturbance): goals through the September queue of this depth
+    # (0: written at once) with transactions of command_transaction [s], hsa_core.sim.command_queue
+    command_queue_depth: int = 0
+    command_transaction: float = 0.0
 
     def __post_init__(self) -> None:
-        """Reject negative noise or latency and non-positive scale factors."""
+        """Reject negative noise or latency, non-positive scale factors and a command queue
+        without a whole positive number of ms per transaction."""
         if len(self.pose_noise_std) != 3 or min(self.pose_noise_std) < 0.0:
             raise ValueError(f"pose_noise_std must be 3 values >= 0, got {self.pose_noise_std}")
         if self.measurement_latency < 0.0 or self.actuation_latency < 0.0:
@@ -109,6 +119,15 @@ class DisturbanceModel:
             raise ValueError("rest_strain_difference and shear_strain_offset must be finite")
         if not self.servo_max_speed > 0.0:
             raise ValueError("servo_max_speed must be > 0 (use math.inf for an ideal servo)")
+        depth = self.command_queue_depth
+        if isinstance(depth, bool) or not isinstance(depth, int) or depth < 0:
+            raise ValueError(f"command_queue_depth must be a whole number >= 0, got {depth!r}")
+        ms = self.command_transaction * 1e3
+        if depth and not (math.isfinite(ms) and ms >= 1.0 and abs(ms - round(ms)) < 1e-9):
+            raise ValueError(
+                "command_transaction must be a whole number of ms >= 1 with a command queue, "
+                f"got {self.command_transaction!r} s"
+            )
 
     @classmethod
     def none(cls) -> DisturbanceModel:

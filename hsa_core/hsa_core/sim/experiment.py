@@ -145,6 +145,9 @@ class ExperimentConfig:
     # [kg] the plant's point payload m_pl (the controller's model keeps the material's)
     payload: float = 0.0
     command_latency: float = 0.0  # [s] tick → goal on the bus (controller side; run_disturbance)
+    # the goals' path to the bus: the September queue's depth (0: none) and transaction [s]
+    # (hsa_core.sim.command_queue; run_disturbance)
+    command_queue: tuple[int, float] = (0, 0.0)
     # σ_a,eq per rod of the plant where it differs from the controller's model (default: the
     # model's); the disturbance's rest_strain_offset still adds to it
     plant_sigma_a_eq: tuple[float, float] | None = None
@@ -196,9 +199,11 @@ class ExperimentConfig:
         return default_world(self.material) if self.disturbance is None else self.disturbance
 
     def world(self) -> DisturbanceModel:
-        """The world of this run: :meth:`base_world` with the run's command latency and plant
-        σ_a,eq (:func:`hsa_core.sim.run_conditions.run_disturbance`)."""
-        return run_disturbance(self.base_world(), self.command_latency, self.rest_strain_shift)
+        """The world of this run: :meth:`base_world` with the run's command latency and queue and
+        its plant σ_a,eq (:func:`hsa_core.sim.run_conditions.run_disturbance`)."""
+        return run_disturbance(
+            self.base_world(), self.command_latency, self.rest_strain_shift, self.command_queue
+        )
 
     @property
     def name(self) -> str:
@@ -216,8 +221,9 @@ def profile_config(
     **options: object,
 ) -> ExperimentConfig:
     """The experiment of ``material`` and ``controller`` under ``profile``: its rate, integrator
-    step, estimator, command latency, σ_a,eq and payload (``sigma_a_eq`` / ``payload`` override the
-    profile's); ``options``: other ExperimentConfig fields (reference, gains, disturbance, ...)."""
+    step, estimator, command latency and queue, σ_a,eq and payload (``sigma_a_eq`` / ``payload``
+    override the profile's); ``options``: other ExperimentConfig fields (reference, gains,
+    disturbance, ...)."""
     return ExperimentConfig(
         material,
         controller,
@@ -226,6 +232,7 @@ def profile_config(
         velocity_estimator=profile.velocity_estimator,
         integrator_dt=profile.integrator_dt,
         command_latency=profile.command_latency_ms * 1e-3,
+        command_queue=(profile.command_queue_depth, profile.command_transaction_ms * 1e-3),
         sigma_a_eq=sigma_a_eq if sigma_a_eq is not None else profile.sigma_a_eq,
         payload=payload if payload is not None else profile.payload,
         **options,

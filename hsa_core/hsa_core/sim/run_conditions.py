@@ -130,20 +130,26 @@ def run_disturbance(
     disturbance: DisturbanceModel,
     command_latency: float,
     rest_strain_shift: tuple[float, float] = (0.0, 0.0),
+    command_queue: tuple[int, float] = (0, 0.0),
 ) -> DisturbanceModel:
     """The world of a run: ``disturbance`` with the controller side's ``command_latency`` [s]
-    (tick → goal written on the bus) added to its actuation latency, and the plant's σ_a,eq of rods
-    1 and 2 moved by ``rest_strain_shift`` [-] beyond the controller's model (a run whose plant and
-    controller had different σ_a,eq: ExperimentConfig.plant_sigma_a_eq)."""
+    (tick → goal written on the bus) added to its actuation latency, its ``command_queue`` (depth,
+    transaction [s]; depth 0: none) as the path its goals take to the bus
+    (:mod:`hsa_core.sim.command_queue`), and the plant's σ_a,eq of rods 1 and 2 moved by
+    ``rest_strain_shift`` [-] beyond the controller's model (a run whose plant and controller had
+    different σ_a,eq: ExperimentConfig.plant_sigma_a_eq)."""
     if not (command_latency >= 0.0):
         raise ValueError(f"command_latency must be >= 0 s, got {command_latency}")
     s1, s2 = (float(v) for v in rest_strain_shift)
     if not (math.isfinite(s1) and math.isfinite(s2)):
         raise ValueError(f"rest_strain_shift must be finite, got {rest_strain_shift}")
-    if not (command_latency or s1 or s2):
+    depth, transaction = command_queue
+    if not (command_latency or s1 or s2 or depth):
         return disturbance
     return dataclasses.replace(
         disturbance,
+        command_queue_depth=int(depth),
+        command_transaction=float(transaction) if depth else 0.0,
         actuation_latency=disturbance.actuation_latency + command_latency,
         rest_strain_offset=disturbance.rest_strain_offset + 0.5 * (s1 + s2),
         rest_strain_difference=disturbance.rest_strain_difference + (s2 - s1),
@@ -174,6 +180,8 @@ def graph_arguments(
         "velocity_estimator": profile.velocity_estimator.value,
         "payload": repr(float(payload if payload is not None else profile.payload)),
         "command_latency": repr(profile.command_latency_ms * 1e-3),
+        "command_queue_depth": str(profile.command_queue_depth),
+        "command_transaction": repr(profile.command_transaction_ms * 1e-3),
         "sigma_a_eq": _strains(sigma),
         "plant_sigma_a_eq": _strains(plant_sigma_a_eq),
     }

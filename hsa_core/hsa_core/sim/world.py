@@ -16,7 +16,9 @@ exactly):
   the executed twists of the paper's GBN records are ramp-like at that speed (spec identification.md
   §2.2); the MX-28's position loop (Position P gain 850, D and I 0 by default) is not otherwise
   characterised in the records. The plant sees the continuous shaft angle; Present Position reports
-  it rounded to whole ticks. Torque off freezes the shaft where it is.
+  it rounded to whole ticks. Torque off freezes the shaft where it is. A run whose goals went
+  through the September driver's queue (``DisturbanceModel.command_queue_depth``) has each motor's
+  goal written when that driver got to it (:mod:`hsa_core.sim.command_queue`), then the latency.
 * **Motion capture** — a sample every 5 ms (200 Hz), stamped with the instant the plant was at that
   pose, carrying the declared white noise, available ``measurement_latency`` after its stamp. Noise
   comes from one seeded generator, drawn sample by sample, so a seed fixes the whole run.
@@ -56,6 +58,7 @@ from hsa_core import resultcache
 from hsa_core.model import kinematics, simulation
 from hsa_core.model.actuation import RAD_PER_TICK, TICKS_PER_RAD, MotorMap
 from hsa_core.model.params import HsaParams
+from hsa_core.sim import command_queue
 from hsa_core.sim.disturbance import DisturbanceModel
 
 GRID_NS = 1_000_000
@@ -222,6 +225,12 @@ class World:
         self._latency_ns = seconds_to_ns(disturbance.actuation_latency)
         self._sample_latency_ns = seconds_to_ns(disturbance.measurement_latency)
         self._goals: deque[tuple[int, np.ndarray]] = deque()  # (effective at [ns], goal ticks)
+        self._queue = (
+            command_queue.initial(self.goal, disturbance.command_queue_depth)
+            if disturbance.command_queue_depth
+            else None
+        )
+        self._transaction_ms = round(disturbance.command_transaction * 1e3)
         self._payloads: list[
             tuple[int, int, float]
         ] = []  # (effective at [ns], order set, mass [kg]), sorted
@@ -233,10 +242,26 @@ class World:
     # does)
     def write_goals(self, ticks: ArrayLike, at_ns: int | None = None) -> None:
         """Goal Position of every motor written at ``at_ns`` (default: now); it takes effect after
-        the latency."""
+        the latency. With a command queue (``DisturbanceModel.command_queue_depth``) this is a tick
+        publishing them: the driver writes them when it gets to them
+        (:mod:`hsa_core.sim.command_queue`)."""
         at = self.t_ns if at_ns is None else int(at_ns)
         goal = np.asarray(ticks, dtype=np.float64).copy()
-        self._goals.append((to_grid(at + self._latency_ns), goal))
+        if self._queue is None:
+            self._goals.append((to_grid(at + self._latency_ns), goal))
+            return
+        at_ms = to_grid(at) // GRID_NS
+        self._serve(at_ms)
+        self._queue = command_queue.publish(self._queue, goal, at_ms)
+
+    def _serve(self, until_ms: int) -> None:
+        """The command queue's cycles that start before ``until_ms``: their writes take effect
+        after the latency."""
+        while command_queue.has_work(self._queue) and self._queue.cursor < until_ms:
+            self._queue, done = command_queue.cycle(self._queue, self._transaction_ms)
+            for m in np.flatnonzero(done.wrote):
+                at = int(done.at[m]) * GRID_NS
+                self._goals.append((to_grid(at + self._latency_ns), done.vectors[m].copy()))
 
     def set_torque(self, on: ArrayLike) -> None:
         """Torque Enable of every motor, from now on (off: the shaft stays where it is)."""
@@ -263,6 +288,8 @@ class World:
         reaching an instant on the 5 ms grid, sample the pose. Intervals without an event in between
         run as one jitted segment."""
         end = to_grid(t_ns)
+        if self._queue is not None:
+            self._serve(end // GRID_NS)
         while self.t_ns < end:
             t = self.t_ns
             while self._goals and self._goals[0][0] <= t:

@@ -31,6 +31,11 @@ control node published the goals without waiting for the driver (hsa_actuation_b
 tud-cor-sr/ros2-hsa at 2e59515, the version of 2023-09-25), so the driver's backlog does not show in
 the tick spacing.
 
+Every replay here keeps the September command path of session 24, when this analysis was made:
+11 ms of command latency and no command queue in the world (``SESSION_24_PATH``); the queue is this
+bench's own what-if. Since session 25 the ``sep2023`` profile sends its goals through the same
+queue (:mod:`hsa_core.sim.command_queue`), so its replays would otherwise queue twice.
+
     .venv/bin/python benchmarks/bench_pid_ramp.py [--out benchmarks/results/pid_ramp.json]
 """
 
@@ -56,6 +61,8 @@ WINDOWS = ((0.0, 0.15), (0.15, 0.6), (0.6, 5.0), (5.0, 9.3))
 LEVELS = (0.1, 0.25, 0.5, 0.75, 0.9, 1.0)
 GRID = np.arange(0.0, 9.3, 0.01)
 DEPTH = 10
+SESSION_24_PATH = {"command_queue": (0, 0.0), "command_latency": 0.011}
+"""The ``sep2023`` command path this analysis was made with (module docstring)."""
 
 
 def _interp(tt: np.ndarray, t: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -246,7 +253,7 @@ def open_loop(real, world, period: float, transaction: float | None, polls: bool
     from hsa_core.sim.run_conditions import plant_params
     from hsa_core.sim.world import World, seconds_to_ns
 
-    config = dataclasses.replace(replay_config(real), disturbance=world)
+    config = dataclasses.replace(replay_config(real), disturbance=world, **SESSION_24_PATH)
     model = config.model()
     motor_map = load_wiring().motor_map(model)
     cls = World if transaction is None else queued_world(transaction, period, polls)
@@ -295,7 +302,7 @@ def closed_loop(real, world, transaction: float | None = None, **config) -> dict
     from hsa_core.sim.experiment import replay_config, run_experiment
     from hsa_core.sim.world import World
 
-    cfg = dataclasses.replace(replay_config(real), disturbance=world, **config)
+    cfg = dataclasses.replace(replay_config(real), disturbance=world, **SESSION_24_PATH, **config)
     cls = World if transaction is None else queued_world(transaction, 1.0 / cfg.rate)
     started = time.perf_counter()
     with experiment_world(cls):

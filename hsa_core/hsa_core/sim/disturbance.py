@@ -39,7 +39,7 @@ hardware facts, and is not tuned to make a figure pass. Defaults (``DisturbanceM
 * **A run's command path** — ``command_queue_depth`` (default 0: each goal is written at its tick)
   and ``command_transaction``: a run whose goals went through the September driver's queue
   (:mod:`hsa_core.sim.command_queue`). A condition of the run's period, set by
-  :func:`hsa_core.sim.run_conditions.run_disturbance` from its profile, not a world parameter to fit.
+  :func:`hsa_core.sim.run_conditions.run_disturbance` from its profile, not a parameter to fit.
 
 :func:`calibrated_world` is a material's calibrated world: the parameters ``hsa_calibrate``
 identified (``config/world/<material>.yaml``) and the adopted static mismatch

@@ -155,3 +155,22 @@ def test_cli_writes_table_logs_and_figures(tmp_path, capsys) -> None:
         "actuation.png",
     }
     assert len(RunLog.load_npz(run_dir / "log.npz")) == 80
+
+
+def test_a_diverging_plant_ends_the_run_with_one_line() -> None:
+    """A world beyond the plant's integration limit (here 30 times the damping) fails at once,
+    naming the cause, instead of running on without a command."""
+    reference = step_reference(np.array([[0.0, 0.12]]), period=2.0)
+    config = ExperimentConfig(
+        "fpu", "pid", reference=reference, disturbance=DisturbanceModel(damping_scale=30.0)
+    )
+    with pytest.raises(RuntimeError, match=r"^fpu_pid: the simulated plant diverged by t = "):
+        run_experiment(config)
+
+
+def test_a_run_whose_controller_never_tracks_ends() -> None:
+    """No setpoint can be planned (far outside the workspace): the run ends after the last one plus
+    the duration and says so, instead of waiting forever for a first command."""
+    reference = step_reference(np.array([[0.5, 0.5]]), period=1.0)
+    with pytest.raises(RuntimeError, match="the controller never ran"):
+        run_experiment(ExperimentConfig("fpu", "psatid", reference=reference))

@@ -363,7 +363,9 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
     k = 0
     tick = period_ns
     bar = _progress(reference.duration, config.name) if progress else None
-    while end is None or tick < end:
+    # a run that has not tracked by the last setpoint plus the duration never will
+    give_up = points[-1] + seconds_to_ns(reference.duration)
+    while (tick < end) if end is not None else (tick <= give_up):
         instant = min(tick, world.next_sample_ns(), points[k] if k < len(points) else tick)
         world.advance_to(instant)
         if k < len(points) and points[k] == instant:
@@ -374,6 +376,11 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
                 failures.append((instant, result))
             k += 1
         if tick == instant:
+            if not np.all(np.isfinite(np.asarray(world.x))):
+                raise RuntimeError(
+                    f"{config.name}: the simulated plant diverged by t = {instant * 1e-9:.3f} s "
+                    "(a world beyond the plant's integration limit, e.g. its damping_scale)"
+                )
             if (
                 at_ticks
                 and newest is not None
@@ -422,7 +429,8 @@ def run_experiment(config: ExperimentConfig, progress: bool = False) -> Experime
         bar.close()
     if not rows:
         raise RuntimeError(
-            f"{config.name}: the controller never ran (no setpoint could be planned)"
+            f"{config.name}: the controller never ran (no setpoint could be planned, or no "
+            "state reached it)"
         )
 
     log = _to_runlog(rows, config, model, np.asarray(measured))

@@ -46,7 +46,7 @@ from hsa_common.model_params import (
     load_model,
     load_wiring_param,
 )
-from hsa_common.parameters import ParamSpec, declare
+from hsa_common.parameters import ParameterValidationError, ParamSpec, declare
 from hsa_common.runner import run
 from hsa_core.jaxsetup import configure_jax
 from hsa_core.rate_meter import RateMeter
@@ -247,12 +247,17 @@ class SimNode(Node):
         model = load_model(self._p)
         declared = named_world(self._p["disturbance"], self._p["material"], self._p["seed"])
         shift = rest_strain_shift(model, self._p["plant_sigma_a_eq"] or None)
-        disturbance = run_disturbance(
-            declared,
-            self._p["command_latency"],
-            shift,
-            (self._p["command_queue_depth"], self._p["command_transaction"]),
-        )
+        try:
+            disturbance = run_disturbance(
+                declared,
+                self._p["command_latency"],
+                shift,
+                (self._p["command_queue_depth"], self._p["command_transaction"]),
+            )
+        except ValueError as exc:  # the queue's depth and transaction together
+            raise ParameterValidationError(
+                f"parameters 'command_queue_depth', 'command_transaction': {exc}"
+            ) from exc
         self._map = wiring.motor_map(model, neutral_ticks=tuple(ticks))
         self._base = np.asarray(self._p["base_position"], dtype=np.float64)
         port = self._p["port"] or f"/tmp/hsa_ros_{os.environ.get('ROS_DOMAIN_ID', '0')}/ttyDXL"

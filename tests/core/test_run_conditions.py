@@ -74,6 +74,7 @@ def test_a_command_queue_is_the_world_s_command_path_only() -> None:
     run = run_disturbance(world, 0.0, command_queue=(10, 0.016))
     assert (run.command_queue_depth, run.command_transaction) == (10, 0.016)
     assert dataclasses.replace(run, command_queue_depth=0, command_transaction=0.0) == world
+    assert run_disturbance(run, 0.005).command_queue_depth == 10  # a latency keeps the queue
     with pytest.raises(ValueError, match="command_transaction must be a whole number of ms"):
         run_disturbance(world, 0.0, command_queue=(10, 0.0155))
     with pytest.raises(ValueError, match="command_queue_depth must be a whole number >= 0"):

@@ -146,10 +146,10 @@ def run_disturbance(
     depth, transaction = command_queue
     if not (command_latency or s1 or s2 or depth):
         return disturbance
+    queue = {"command_queue_depth": int(depth), "command_transaction": float(transaction)}
     return dataclasses.replace(
         disturbance,
-        command_queue_depth=int(depth),
-        command_transaction=float(transaction) if depth else 0.0,
+        **(queue if depth else {}),
         actuation_latency=disturbance.actuation_latency + command_latency,
         rest_strain_offset=disturbance.rest_strain_offset + 0.5 * (s1 + s2),
         rest_strain_difference=disturbance.rest_strain_difference + (s2 - s1),

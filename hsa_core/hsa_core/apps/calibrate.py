@@ -242,14 +242,16 @@ def simulate(run: PreparedRun, worlds: list[DisturbanceModel]) -> list[sim_to_re
 def deviations(run: PreparedRun, worlds: list[DisturbanceModel]) -> np.ndarray:
     """(len(worlds),) [m] D of the run in each world (inf where the sim lacks a step or is not
     finite)."""
-    out = []
-    for sim in simulate(run, worlds):
-        try:
-            d = sim_to_real.deviation(sim, run.robot, run.steps, run.horizon)
-        except ValueError:
-            d = math.inf
-        out.append(d if math.isfinite(d) else math.inf)
-    return np.array(out)
+    return np.array([deviation(run, sim) for sim in simulate(run, worlds)])
+
+
+def deviation(run: PreparedRun, sim: sim_to_real.StepRun) -> float:
+    """[m] D of one simulation of ``run`` (inf where it lacks a step or is not finite)."""
+    try:
+        d = sim_to_real.deviation(sim, run.robot, run.steps, run.horizon)
+    except ValueError:
+        return math.inf
+    return d if math.isfinite(d) else math.inf
 
 
 def base_world(bags: tuple[str, ...]) -> tuple[DisturbanceModel, str]:
@@ -696,26 +698,14 @@ def main(argv: list[str] | None = None) -> int:
     per_run, kept_d = {}, []
     for bag in args.runs:
         realizations = [r for r in runs if r.bag == bag]
-        d = np.array([deviations(r, [base, world]) for r in realizations])  # (seeds, 2)
+        sims = [simulate(r, [base, world]) for r in realizations]  # (seeds, 2)
+        d = np.array([[deviation(r, sim) for sim in pair] for r, pair in zip(realizations, sims)])
         kept_d.extend(d[:, 1])
-        r = realizations[0]  # its other measures and figure: the first realization
-        before, after = simulate(r, [base, world])
+        r, (before, after) = realizations[0], sims[0]  # other measures, figure: the first
         rows = {}
         for label, sim in (("base", before), ("calibrated", after)):
             c = sim_to_real.compare(sim, r.robot, r.steps)
-            d_step = np.sqrt(
-                np.mean(
-                    np.sum(
-                        (
-                            sim_to_real.aligned_responses(sim, r.steps)
-                            - sim_to_real.aligned_responses(r.robot, r.steps)
-                        )
-                        ** 2,
-                        -1,
-                    ),
-                    -1,
-                )
-            )
+            d_step = sim_to_real.step_deviations(sim, r.robot, r.steps)
             column = d[:, 0 if label == "base" else 1]
             rows[label] = {
                 "D_mm": round(float(pooled(column[:, None])[0]) * 1e3, 3),

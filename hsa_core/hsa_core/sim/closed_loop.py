@@ -168,7 +168,6 @@ def prepare(
         raise ValueError(f"rate must divide 1000 Hz (the world's 1 ms grid), got {config.rate}")
     dist = config.world()
     lat_m, lat_a = (seconds_to_ns(v) for v in (dist.measurement_latency, dist.actuation_latency))
-    transaction_ms = round(dist.command_transaction * 1e3) if dist.command_queue_depth else 0
     if lat_m % GRID_NS or lat_a % GRID_NS:
         raise ValueError("latencies must be whole milliseconds")
     planner = Planner(model, config.planner)
@@ -209,9 +208,9 @@ def prepare(
         load_wiring().motor_map(model),
         1.0 / config.rate if config.integrator_dt is None else config.integrator_dt,
         config.velocity_estimator,
-        goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS, transaction_ms),
+        goal_slots_for(lat_a // GRID_NS, period_ns // GRID_NS, dist.command_transaction_ms),
         dist.command_queue_depth,
-        transaction_ms,
+        dist.command_transaction_ms,
     )
     inputs = LoopInputs(
         dist.plant_params(plant_params(model, config.payload)),

@@ -129,6 +129,11 @@ class DisturbanceModel:
                 f"got {self.command_transaction!r} s"
             )
 
+    @property
+    def command_transaction_ms(self) -> int:
+        """[ms] the command queue's transaction time on the world's grid (0: no queue)."""
+        return round(self.command_transaction * 1e3) if self.command_queue_depth else 0
+
     @classmethod
     def none(cls) -> DisturbanceModel:
         """No disturbance: the plant is the model, sensing is exact and instantaneous, the servos

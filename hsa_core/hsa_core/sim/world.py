@@ -230,7 +230,6 @@ class World:
             if disturbance.command_queue_depth
             else None
         )
-        self._transaction_ms = round(disturbance.command_transaction * 1e3)
         self._payloads: list[
             tuple[int, int, float]
         ] = []  # (effective at [ns], order set, mass [kg]), sorted
@@ -258,7 +257,9 @@ class World:
         """The command queue's cycles that start before ``until_ms``: their writes take effect
         after the latency."""
         while command_queue.has_work(self._queue) and self._queue.cursor < until_ms:
-            self._queue, done = command_queue.cycle(self._queue, self._transaction_ms)
+            self._queue, done = command_queue.cycle(
+                self._queue, self.disturbance.command_transaction_ms
+            )
             for m in np.flatnonzero(done.wrote):
                 at = int(done.at[m]) * GRID_NS
                 self._goals.append((to_grid(at + self._latency_ns), done.vectors[m].copy()))

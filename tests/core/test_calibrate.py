@@ -168,6 +168,11 @@ def test_a_run_s_command_latency_adds_to_every_candidate_s_latency() -> None:
         (["--material", "fpu"], "argument --material: only with --static"),
         (["--write-world"], "argument --write-world: only with --static"),
         (["--static", "--material", "fpu", "--population", "4"], "--population: not with --static"),
+        (
+            ["--static", "--material", "fpu", "--noise-seeds", "4"],
+            "--noise-seeds: not with --static",
+        ),
+        (["--held-out-seeds", "-1"], "--held-out-seeds: must be an integer >= 0"),
     ],
 )
 def test_bad_arguments_are_one_line_refusals(argv: list[str], message: str, capsys) -> None:
@@ -193,12 +198,15 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
             "2",
             "--fit",
             "servo_time_constant",
+            "--held-out-seeds",
+            "0",
             "--out",
             str(out),
         ]
     )
     assert code == 0
     report = json.loads((out / "report.json").read_text())
+    assert report["held_out_noise"] is None
     row = report["per_run"]["20231019_143126"]
     assert len(row["calibrated"]["D_per_step_mm"]) == 1 and math.isfinite(row["calibrated"]["D_mm"])
     assert set(report["identification"]) == {"servo_time_constant"}
@@ -210,6 +218,7 @@ def test_the_cli_writes_world_report_and_figure_on_a_tiny_budget(tmp_path) -> No
         "status",
         "interval",
     }
+    assert world["held_out_noise_D_mm"] is None
     assert world["conditions"]["20231019_143126"]["profile"] == "oct2023"
     assert world["conditions"]["20231019_143126"]["command_latency_ms"] == 6
     assert world["conditions"]["20231019_143126"]["control_period_ms"] == 25
@@ -223,11 +232,20 @@ def test_noise_realizations_of_a_queued_run_are_pooled(tmp_path) -> None:
     out = tmp_path / "cal"
     argv = ["--runs", "20230925_093236", "--duration", "20", "--population", "2"]
     argv += ["--generations", "1", "--scan-points", "2", "--fit", "servo_time_constant"]
-    assert calibrate.main([*argv, "--noise-seeds", "2", "--out", str(out)]) == 0
+    argv += ["--noise-seeds", "2", "--held-out-seeds", "1"]
+    assert calibrate.main([*argv, "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["noise_seeds"] == 2
     row = report["per_run"]["20230925_093236"]["base"]
     one, two = row["D_per_noise_seed_mm"]
     assert one != two  # the queue makes the realizations differ
     assert row["D_mm"] == pytest.approx(math.sqrt((one**2 + two**2) / 2), abs=1e-3)
-    assert yaml.safe_load((out / "world.yaml").read_text())["noise_seeds"] == 2
+    # the world is then scored on a realization the fit did not see: seed 2, another run again
+    held = report["held_out_noise"]
+    assert held["seeds"] == [2]
+    (third,) = held["per_run"]["20230925_093236"]["base"]["D_per_noise_seed_mm"]
+    assert third not in (one, two)
+    world = yaml.safe_load((out / "world.yaml").read_text())
+    assert world["noise_seeds"] == 2
+    assert world["held_out_noise_D_mm"]["seeds"] == [2]
+    assert world["held_out_noise_D_mm"]["pooled"] == held["D_mm"]["calibrated"]

@@ -12,7 +12,7 @@ steps 1–10, first 9.3 s, 10 ms grid), pooled over the runs as sqrt(mean D²): 
 parameters for every run. A world whose runs depend on the mocap noise's realization (the
 September command queue: whether a goal changes at a tick decides the driver's backlog) is scored
 over several realizations of each run (``--noise-seeds``): the pooled D is then sqrt(mean over runs
-and realizations of D²), the D a new realization is expected to have, not the luckiest one.
+and realizations of D²), not the luckiest realization's D.
 
 * **Simulation**: the batched JAX loop (:mod:`hsa_core.sim.closed_loop`); a whole population of
   candidate worlds is one ``batch_rollout`` call per run (one compilation per run, whatever the
@@ -38,6 +38,9 @@ and realizations of D²), the D a new realization is expected to have, not the l
   fitted.
 * **Leave-one-run-out**: the search (and the refit of the parameters identified on all runs)
   repeated on all runs but one, and D of the left-out run in the world it gives.
+* **Held-out noise**: the world kept (and the base) scored on ``--held-out-seeds`` realizations of
+  every run the fit did not see (seeds after its own): a few realizations can flatter the world
+  that the search picked on them.
 
 ``python -m hsa_core.apps.calibrate`` / ``hsa_calibrate`` (:func:`main`) writes the world YAML, the
 fit report (JSON) and one figure per run. ``hsa_calibrate --static --material M`` fits the static
@@ -441,11 +444,49 @@ def fit_world(
     return WorldFit(first, ident, second, kept)
 
 
+def held_out_noise(
+    bags: tuple[str, ...],
+    seeds: range,
+    duration: float | None,
+    base: DisturbanceModel,
+    world: DisturbanceModel,
+) -> dict:
+    """The base and the kept ``world`` scored on noise realizations the fit did not see
+    (``seeds``): the pooled D over every run and realization, and each run's D per realization
+    [mm]."""
+    per_run, every = {}, []
+    for bag in bags:
+        realizations = [
+            prepare_run(bag, duration, dataclasses.replace(base, seed=k)) for k in seeds
+        ]
+        d = np.array(
+            [[deviation(r, sim) for sim in simulate(r, [base, world])] for r in realizations]
+        )
+        every.append(d)
+        per_run[bag] = {
+            label: {
+                "D_mm": round(float(pooled(d[:, i : i + 1])[0]) * 1e3, 3),
+                "D_per_noise_seed_mm": (d[:, i] * 1e3).round(3).tolist(),
+            }
+            for i, label in enumerate(("base", "calibrated"))
+        }
+    total = pooled(np.concatenate(every))
+    return {
+        "seeds": list(seeds),
+        "D_mm": {
+            "base": round(float(total[0]) * 1e3, 4),
+            "calibrated": round(float(total[1]) * 1e3, 4),
+        },
+        "per_run": per_run,
+    }
+
+
 def world_document(report: dict) -> dict:
     """The world YAML of a fit report: each parameter's value (the fitted one if identified, else
     the base world's), the fit's value (the refit's for a parameter it refitted, else the
     search's), the status, interval and scan (the evidence), and D per run in the base and the
-    calibrated world."""
+    calibrated world, left out and on held-out noise realizations."""
+    held = report.get("held_out_noise")
     return {
         "what": "DisturbanceModel fields fitted by hsa_calibrate to the paper's real step runs",
         "runs": report["runs"],
@@ -481,6 +522,13 @@ def world_document(report: dict) -> dict:
         },
         "leave_one_run_out_D_mm": {
             bag: row["D_left_out_mm"] for bag, row in report["leave_one_run_out"].items()
+        },
+        "held_out_noise_D_mm": None
+        if held is None
+        else {
+            "seeds": held["seeds"],
+            "pooled": held["D_mm"]["calibrated"],
+            **{bag: row["calibrated"]["D_mm"] for bag, row in held["per_run"].items()},
         },
     }
 
@@ -544,6 +592,8 @@ CLOSED_LOOP_ONLY = (
     "duration",
     "no_loo",
     "seed",
+    "noise_seeds",
+    "held_out_seeds",
     "world",
 )
 """Options of the closed-loop fit alone."""
@@ -627,6 +677,12 @@ def main(argv: list[str] | None = None) -> int:
         type=cli.positive_int,
         default=1,
         help="mocap noise realizations of each run (seeds 0..N-1) the pooled D is taken over",
+    )
+    parser.add_argument(
+        "--held-out-seeds",
+        type=cli.non_negative_int,
+        default=4,
+        help="score the world kept on M realizations the fit did not see (seeds N..N+M-1; 0: none)",
     )
     parser.add_argument("--out", type=Path, default=Path("out/calibrate"))
     parser.add_argument("--world", type=Path, default=None, help="also write the world YAML here")
@@ -731,6 +787,8 @@ def main(argv: list[str] | None = None) -> int:
             **rows,
         }
         _figure(r, {"base world": before, "calibrated world": after}, args.out / f"{r.bag}.png")
+    seeds = range(args.noise_seeds, args.noise_seeds + args.held_out_seeds)
+    held = held_out_noise(args.runs, seeds, args.duration, base, world) if seeds else None
     wall = time.perf_counter() - started
     report = {
         "fit": list(args.fit),
@@ -758,6 +816,9 @@ def main(argv: list[str] | None = None) -> int:
         "per_run_note": "D_mm over every noise realization (sqrt of the mean of D^2); the other "
         "measures and the figure: noise seed 0",
         "leave_one_run_out": loo,
+        "held_out_noise": held,
+        "held_out_noise_note": "the base and the kept world on noise realizations the fit did not "
+        "see (D_mm: sqrt of the mean of D^2 over every run and realization)",
         "wall_s": round(wall, 1),
         "devices": len(jax.devices()),
         "backend": jax.default_backend(),
@@ -768,6 +829,11 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(yaml.safe_dump(world_doc, sort_keys=False))
     for bag, row in per_run.items():
         print(f"{bag}: D {row['base']['D_mm']:.2f} -> {row['calibrated']['D_mm']:.2f} mm")
+    if held:
+        print(
+            f"on {len(held['seeds'])} noise realizations the fit did not see: pooled D "
+            f"{held['D_mm']['base']:.3f} -> {held['D_mm']['calibrated']:.3f} mm"
+        )
     print(f"kept {fit.kept} in {wall:.0f} s; report in {args.out / 'report.json'}")
     return 0
 

@@ -45,12 +45,25 @@ def planner() -> Iterator[None]:
     assert stop_process(proc) == 0
 
 
-def _sequencer(ns: str, *params: str) -> object:
-    """A setpoint_sequencer in namespace ns using the root planner's service."""
-    args = ["--ros-args", "-r", f"__ns:={ns}", "-r", "plan_setpoint:=/plan_setpoint"]
+def _sequencer(ns: str, *params: str, service: str = "/plan_setpoint") -> object:
+    """A setpoint_sequencer in namespace ns using the planning service ``service`` (the root
+    planner's by default)."""
+    args = ["--ros-args", "-r", f"__ns:={ns}", "-r", f"plan_setpoint:={service}"]
     for p in params:
         args += ["-p", p]
     return start_process([_exe("setpoint_sequencer"), *args])
+
+
+GATE = "/gate/plan_setpoint"
+"""A planning service that exists only once a test starts a planner for it (:func:`_open_gate`)."""
+
+
+def _open_gate() -> object:
+    """A second planner_node serving GATE, ready: a sequencer pointed at GATE starts its schedule
+    (service found, then its start delay) only from now on."""
+    proc = start_process([_exe("planner_node"), "--ros-args", "-r", f"plan_setpoint:={GATE}"])
+    wait_for_line(proc, "ready", timeout=180.0)
+    return proc
 
 
 def test_plan_setpoint_service(planner, ros_node) -> None:
@@ -123,19 +136,28 @@ def test_sequencer_schedule_failure_and_finish(planner, ros_node) -> None:
     ros_node.create_subscription(String, "/a/sequencer_status", keep("a_st"), qos.LATCHED)
     ros_node.create_subscription(Setpoint, "/b/setpoint", keep("b_sp"), qos.LATCHED)
     points = [*P_DES, *UNREACHABLE, *FPU_STEPS_20230925[2]]
-    # start_delay 2 s: the sequencers find the planner's service about when this node discovers
-    # them; a latched subscription matched after point 1 would get only the newest setpoint
+    # a latched subscription matched after point 1 would get only the newest setpoint: the
+    # sequencers wait for GATE, served only once this node has discovered their publishers (a
+    # fixed start delay was not enough beside two busy processes)
     custom = _sequencer(
         "/a",
         f"points:={points}",
         "rate:=2.0",
-        "start_delay:=2.0",
+        "start_delay:=1.0",
         "exit_on_finish:=true",
         "finish_hold:=0.5",
+        service=GATE,
     )
-    steps = _sequencer("/b", "rate:=2.0", "start_delay:=2.0")
+    steps = _sequencer("/b", "rate:=2.0", "start_delay:=1.0", service=GATE)
     bad = _sequencer("/c", "trajectory:=contour")
+    gate = None
     try:
+        topics = ("/a/setpoint", "/a/sequencer_status", "/b/setpoint")
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and not all(ros_node.count_publishers(t) for t in topics):
+            time.sleep(0.05)
+        assert all(ros_node.count_publishers(t) for t in topics), "sequencers not discovered"
+        gate = _open_gate()
         assert bad.wait(timeout=60.0) == 2
         assert "image_path" in bad.stdout.read()
 
@@ -189,5 +211,6 @@ def test_sequencer_schedule_failure_and_finish(planner, ros_node) -> None:
             [Time.from_msg(m.header.stamp).nanoseconds * 1e-9 for _, m in b[:3]]
         ) == pytest.approx([0.5, 0.5], abs=0.2)
     finally:
-        for proc in (custom, steps, bad):
-            stop_process(proc)
+        for proc in (custom, steps, bad, gate):
+            if proc is not None:
+                stop_process(proc)

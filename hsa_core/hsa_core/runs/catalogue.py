@@ -3,10 +3,11 @@
 The four packaged reference runs (:mod:`hsa_core.runs.reference`) carry their traces and their real
 step instants. The paper's other runs (spec experiments.md §7: the 0.2 kg payload steps, the
 star, flame, CSAIL and bat contours, the other EPU steps) are known by their conditions only
-(``config/realdata/paper_runs.yaml``, sources cited there): law, gains, σ_a,eq where the spec has
-it, payload, date, the run profile of the period and the trajectory. A step run plays the material's
-list at one point every 10 s. A contour run plays its contour at 8 Hz (experiments.md §3), traced
-from the original image, which is not packaged: :func:`replayable` takes the folder that holds it.
+(``config/realdata/paper_runs.yaml``, sources cited there): law, gains, σ_a,eq (the authors'
+logbook), payload, date, the run profile of the period and the trajectory. A step run plays the
+material's list at one point every 10 s. A contour run plays its contour at 8 Hz (experiments.md
+§3), traced from the original image, which is not packaged: :func:`replayable` takes the folder that
+holds it.
 
 :func:`replayable` returns what :func:`hsa_core.sim.experiment.replay_config` and
 :func:`hsa_core.sim.run_conditions.run_schedule` take (:class:`Replayable`): a packaged

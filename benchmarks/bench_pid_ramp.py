@@ -308,7 +308,7 @@ def closed_loop(real, world, transaction: float | None = None, **config) -> dict
     with experiment_world(cls):
         log = run_experiment(cfg).log
     wall = time.perf_counter() - started
-    sim = sim_to_real.StepRun(log.t, log.chiee[:, :2], log.chiee_des[:, :2], 110.0)
+    sim = sim_to_real.StepRun.of_log(log, 110.0)
     robot = sim_to_real.StepRun(real.t, real.p, real.p_des, 110.0)
     c = sim_to_real.compare(sim, robot)
     s_starts = step_instants(log.t, log.chiee_des[:, :2])

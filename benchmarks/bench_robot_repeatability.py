@@ -109,9 +109,7 @@ def main() -> int:
             world = calibrated_world("fpu", seed=seed)
             log = run_experiment(dataclasses.replace(replay_config(real), disturbance=world)).log
             realizations[bag].append(
-                sim_to_real.aligned_responses(
-                    sim_to_real.StepRun(log.t, log.chiee[:, :2], log.chiee_des[:, :2], 110.0)
-                )
+                sim_to_real.aligned_responses(sim_to_real.StepRun.of_log(log, 110.0))
             )
         sims[bag] = realizations[bag][0]
     a, b = RUNS

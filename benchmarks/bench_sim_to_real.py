@@ -153,7 +153,7 @@ def _deviation(config, seed: int, robot) -> float:
 
     world = dataclasses.replace(config.base_world(), seed=seed)
     log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-    sim = sim_to_real.StepRun(log.t, log.chiee[:, :2], log.chiee_des[:, :2], 110.0)
+    sim = sim_to_real.StepRun.of_log(log, 110.0)
     return sim_to_real.compare(sim, robot).deviation
 
 

@@ -52,7 +52,7 @@ def load_source(text: str, duration: float = STEP_RUN_DURATION, topic: str = TOP
         )
     log = load_run(path, topic)
     try:
-        run = StepRun(log.t, log.chiee[:, :2], log.chiee_des[:, :2], duration)
+        run = StepRun.of_log(log, duration)
     except ValueError as exc:
         raise BagError(f"{path}: cannot be compared: {exc}") from None
     return Source(run_name(path), "log" if path.suffix == ".npz" else "bag", run)

@@ -69,6 +69,12 @@ class StepRun:
         if n < 2 or np.any(np.diff(self.t) <= 0.0):
             raise ValueError("t must hold at least two increasing sample times")
 
+    @classmethod
+    def of_log(cls, log: Any, end: float) -> StepRun:
+        """The run of a tick log (``t``, ``chiee``, ``chiee_des``: the offline experiment's or a
+        bag's): its measured planar position and setpoint."""
+        return cls(log.t, log.chiee[:, :2], log.chiee_des[:, :2], end)
+
     @property
     def step_starts(self) -> np.ndarray:
         """[s] the instants of steps 1, 2, ... (where the setpoint moves)."""

@@ -124,8 +124,10 @@ def _same(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
 
 @dataclasses.dataclass
 class Figure:
-    """A _pee figure: its polylines [pt] by (colour, 'ref' | 'meas'), ticks [pt], labels."""
+    """A _pee figure (from the file ``source``): its polylines [pt] by (colour, 'ref' | 'meas'),
+    ticks [pt], labels."""
 
+    source: Path
     lines: dict
     x_ticks: list[tuple[float, float]]
     y_ticks: list[tuple[float, float]]
@@ -148,6 +150,7 @@ class Figure:
         if set(lines) != {(c, k) for c in (BLUE, ORANGE) for k in ("ref", "meas")}:
             raise ValueError(f"{pdf}: not a _pee figure of x and y over time")
         return cls(
+            pdf,
             lines,
             sorted(x_ticks),
             sorted(y_ticks, key=lambda p: p[1]),
@@ -235,11 +238,10 @@ class Recovered:
     instants: np.ndarray
 
 
-def recover(pdf: Path, library: list, material: str) -> tuple[Recovered, float]:
+def recover(figure: Figure, library: list, material: str) -> tuple[Recovered, float]:
     """The run of a _pee figure, and the largest tick residual of its position axis [pt]."""
     from hsa_core.task.trajectories import STEP_LISTS
 
-    figure = Figure.read(pdf)
     a, b = figure.time_axis()
     ya, yb, residual = figure.position_axis(library)
 
@@ -261,7 +263,9 @@ def recover(pdf: Path, library: list, material: str) -> tuple[Recovered, float]:
     instants = np.ceil(np.array(steps) / GRID - 1e-6) * GRID + GRID
     points = np.asarray(STEP_LISTS[material], dtype=np.float64)
     if len(instants) != len(points) - 1:
-        raise ValueError(f"{pdf}: {len(instants)} steps, the {material} list has {len(points) - 1}")
+        raise ValueError(
+            f"{figure.source}: {len(instants)} steps, the {material} list has {len(points) - 1}"
+        )
     p_des = points[np.searchsorted(instants, t + 1e-9, side="right")]
     return Recovered(t, p, p_des, instants), residual
 
@@ -289,7 +293,13 @@ def _simulate(config, seed: int):  # noqa: ANN001, ANN202 - ExperimentConfig →
 
     world = dataclasses.replace(config.base_world(), seed=seed)
     log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-    return sim_to_real.StepRun(log.t, log.chiee[:, :2], log.chiee_des[:, :2], 110.0)
+    return sim_to_real.StepRun.of_log(log, 110.0)
+
+
+def _step_run(run):  # noqa: ANN001, ANN202 - Recovered or ReferenceRun → StepRun
+    from hsa_core.analysis import sim_to_real
+
+    return sim_to_real.StepRun(run.t, run.p, run.p_des, 110.0)
 
 
 def _mm(v: float) -> float:
@@ -321,18 +331,17 @@ def main() -> int:
     from hsa_core.sim.experiment import replay_config
 
     started = time.perf_counter()
-    pdf = {b: args.figures_dir / b / f"{b}_pee.pdf" for b in PACKAGED + HELD_OUT}
+    figures = {b: Figure.read(args.figures_dir / b / f"{b}_pee.pdf") for b in PACKAGED + HELD_OUT}
     library: list = []
     for bag in PACKAGED:
-        _learn(Figure.read(pdf[bag]), reference.load_run(bag).pee, library)
+        _learn(figures[bag], reference.load_run(bag).pee, library)
     seeds = range(args.noise_seeds)
     validation = {}
     for bag in PACKAGED:
         real = reference.load_run(bag)
-        rec, residual = recover(pdf[bag], library, real.conditions.material)
+        rec, residual = recover(figures[bag], library, real.conditions.material)
         n = min(len(rec.t), len(real.t))
-        packaged = sim_to_real.StepRun(real.t, real.p, real.p_des, 110.0)
-        recovered = sim_to_real.StepRun(rec.t, rec.p, rec.p_des, 110.0)
+        packaged, recovered = _step_run(real), _step_run(rec)
         own = [_simulate(replay_config(real), s) for s in seeds]
         at_recovered = replay_config(_Replay(real.conditions, rec.instants, rec.t[-1] + GRID))
         validation[bag] = {
@@ -359,25 +368,24 @@ def main() -> int:
             },
         }
         print(f"{bag}: {json.dumps(validation[bag])}", flush=True)
-    epu_a, epu_b = (
-        reference.load_run("20231019_143126"),
-        recover(pdf["20231019_134251"], library, "epu")[0],
-    )
+    runs = {bag: catalogue.replayable(bag) for bag in HELD_OUT}
+    recoveries = {
+        bag: recover(figures[bag], library, run.conditions.material) for bag, run in runs.items()
+    }
     robot_vs_robot = _mm(
         sim_to_real.deviation(
-            sim_to_real.StepRun(epu_b.t, epu_b.p, epu_b.p_des, 110.0),
-            sim_to_real.StepRun(epu_a.t, epu_a.p, epu_a.p_des, 110.0),
+            _step_run(recoveries["20231019_134251"][0]),
+            _step_run(reference.load_run("20231019_143126")),
         )
     )
     print(
         f"robot 20231019_134251 (recovered) vs 20231019_143126: D {robot_vs_robot} mm", flush=True
     )
     held = {}
-    for bag in HELD_OUT:
-        run = catalogue.replayable(bag)
+    for bag, run in runs.items():
         cond = run.conditions
-        rec, residual = recover(pdf[bag], library, cond.material)
-        robot = sim_to_real.StepRun(rec.t, rec.p, rec.p_des, 110.0)
+        rec, residual = recoveries[bag]
+        robot = _step_run(rec)
         config = replay_config(_Replay(cond, rec.instants, rec.t[-1] + GRID))
         comparisons = [sim_to_real.compare(_simulate(config, s), robot) for s in seeds]
         d = np.array([c.deviation for c in comparisons])

@@ -36,11 +36,17 @@ def _exe(name: str) -> str:
     return find_executable("hsa_planner_node", name)
 
 
+def _start_planner(*args: str) -> object:
+    """A planner_node (FPU, static planner) with command-line ``args``, once it says it is ready."""
+    proc = start_process([_exe("planner_node"), *args])
+    wait_for_line(proc, "ready", timeout=180.0)
+    return proc
+
+
 @pytest.fixture(scope="module")
 def planner() -> Iterator[None]:
     """One planner_node (FPU, static planner) in the root namespace for the whole module."""
-    proc = start_process([_exe("planner_node")])
-    wait_for_line(proc, "ready", timeout=180.0)
+    proc = _start_planner()
     yield
     assert stop_process(proc) == 0
 
@@ -61,9 +67,7 @@ GATE = "/gate/plan_setpoint"
 def _open_gate() -> object:
     """A second planner_node serving GATE, ready: a sequencer pointed at GATE starts its schedule
     (service found, then its start delay) only from now on."""
-    proc = start_process([_exe("planner_node"), "--ros-args", "-r", f"plan_setpoint:={GATE}"])
-    wait_for_line(proc, "ready", timeout=180.0)
-    return proc
+    return _start_planner("--ros-args", "-r", f"plan_setpoint:={GATE}")
 
 
 def test_plan_setpoint_service(planner, ros_node) -> None:

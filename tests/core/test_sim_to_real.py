@@ -188,3 +188,24 @@ def test_deviation_per_step_and_the_side_by_side_table() -> None:
     np.testing.assert_allclose(table.overshoot[0], np.maximum(0.0, d @ [0.003, 0.004]), atol=1e-9)
     # a first-order response never passes its target
     np.testing.assert_array_equal(table.overshoot[1], 0.0)
+
+
+def test_realizations_split_into_a_systematic_and_a_random_part() -> None:
+    # Two realizations 1 mm to either side in x of a run 2 mm off in y: their mean is the run, 2 mm
+    # from the reference (systematic); each is 1 mm from the mean (spread); each is √5 mm off.
+    ref = step_run()
+    runs = [step_run(offset=(dx, 2e-3)) for dx in (-1e-3, 1e-3)]
+    split = sim_to_real.split_realizations(runs, ref)
+    assert split.systematic == pytest.approx(2e-3, rel=1e-9)
+    assert split.spread == pytest.approx(1e-3, rel=1e-9)
+    assert split.rms == pytest.approx(math.sqrt(5) * 1e-3, rel=1e-9)
+    assert split.systematic_per_step == pytest.approx(np.full(10, 2e-3), rel=1e-9)
+    # A slower realization differs just after its steps, not 5 s on.
+    late = sim_to_real.split_realizations([step_run(tau=0.3)], ref, window=(5.0, 9.3))
+    early = sim_to_real.split_realizations([step_run(tau=0.3)], ref, window=(0.0, 0.5))
+    assert late.systematic < 1e-6 < early.systematic
+    assert late.spread == early.spread == 0.0
+    with pytest.raises(ValueError, match="window"):
+        sim_to_real.split_realizations(runs, ref, window=(1.0, 10.0))
+    with pytest.raises(ValueError, match="realizations"):
+        sim_to_real.split_realizations([], ref)

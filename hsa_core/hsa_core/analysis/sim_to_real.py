@@ -26,6 +26,9 @@ s):
 * :func:`step_table` puts every per-step measure of a run and a reference side by side
   (``hsa_analyze --against``);
 * **onset time** (:func:`onset_times`): per step, the aligned time the progress first reaches 10 %;
+* **systematic and random parts** (:func:`split_realizations`): over several realizations of one
+  run (noise seeds), RMS over them of D² = D(their mean response)² + RMS of their distance from
+  that mean², exactly (each part over any window of the aligned responses);
 * :func:`compare` collects them as the sim-versus-real table: D, x peak-to-peak (max
   over steps), end error (median over steps), the median relative rise- and response-time
   differences and each run's RMSE.
@@ -191,6 +194,46 @@ def onset_times(
         t10 = np.nonzero((p - p[0]) @ span / (span @ span) >= 0.1)[0]
         out.append(t10[0] * grid if len(t10) else np.nan)
     return np.array(out)
+
+
+@dataclass(frozen=True)
+class Split:
+    """D of several realizations of one run against one reference, split [m]: ``rms`` (RMS over the
+    realizations of D), ``systematic`` (D of their mean response), ``spread`` (RMS distance of the
+    realizations from their mean response); rms² = systematic² + spread². ``systematic_per_step``
+    (steps,): the systematic part of each step alone."""
+
+    rms: float
+    systematic: float
+    spread: float
+    systematic_per_step: np.ndarray
+
+
+def split_realizations(
+    runs: list[StepRun],
+    ref: StepRun,
+    window: tuple[float, float] = (0.0, HORIZON),
+    steps: tuple[int, ...] = STEPS,
+    grid: float = GRID,
+) -> Split:
+    """D of ``runs`` (realizations of one run) against ``ref`` over the part [a, b) [s] of each
+    aligned response, split into its systematic and random parts (:class:`Split`)."""
+    a, b = window
+    if not 0.0 <= a < b <= HORIZON or not runs:
+        raise ValueError(f"need realizations and a window within [0, {HORIZON}] s, got {window}")
+    keep = slice(round(a / grid), round(b / grid))
+    sims = np.array([aligned_responses(r, steps, HORIZON, grid)[:, keep] for r in runs])
+    real = aligned_responses(ref, steps, HORIZON, grid)[:, keep]
+    mean = sims.mean(axis=0)
+    bias = np.sum((mean - real) ** 2, axis=-1)
+    scatter = np.sum((sims - mean) ** 2, axis=-1)
+    total = np.sum((sims - real) ** 2, axis=-1)
+    return Split(
+        float(np.sqrt(total.mean())),
+        float(np.sqrt(bias.mean())),
+        float(np.sqrt(scatter.mean())),
+        np.sqrt(bias.mean(axis=1)),
+    )
 
 
 def rmse(run: StepRun) -> float:

@@ -21,9 +21,18 @@ held-out runs, the packaged runs are recovered the same way and compared with th
 are held to each other (the realdata README gives 0.32 mm between them). Last, the EPU static
 mismatch fitted on one EPU run (config/world/epu_static.yaml, not adopted) is held to the other.
 
-    .venv/bin/python benchmarks/bench_held_out_runs.py --figures-dir DIR [--noise-seeds N]
+Contours (CONTOURS: the P-satI-D star, flame and CSAIL runs of 2023-09-25 and the "slow" ones of
+2023-10-19 that have a figure): the same figures, time labels read with the same glyph library, the
+runs replayed with their own conditions from the authors' images (``--image-dir``, as
+``hsa_experiment --run BAG --image-dir``), each compared with the robot's recovered run by
+sim_to_real.contour_deviation (aligned where the setpoints agree; the setpoints' distance there
+checks the recovery and the alignment).
 
-DIR holds the authors' ``data/experiments/`` (``<bag>/<bag>_pee.pdf``). Writes
+    .venv/bin/python benchmarks/bench_held_out_runs.py --figures-dir DIR --image-dir ASSETS \
+        [--noise-seeds N]
+
+DIR holds the authors' ``data/experiments/`` (``<bag>/<bag>_pee.pdf``), ASSETS their ``assets/``
+(star.png, tud_flame.jpeg, mit_csail.png, bat.png). Writes
 benchmarks/results/held_out_runs.json.
 """
 
@@ -44,6 +53,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGED = ("20231019_143126", "20230925_093236", "20230925_094023")
 HELD_OUT = ("20230925_142209", "20230925_142729", "20230925_143544", "20231019_134251")
+CONTOURS = (
+    "20230925_095416",
+    "20230925_102428",
+    "20230925_113825",
+    "20231019_072747",
+    "20231019_081703",
+    "20231019_082343",
+    "20231019_084914",
+)
+"""The P-satI-D contour runs with a _pee figure: star, flame, CSAIL of 2023-09-25 (sep2023) and the
+"slow" star, flame, CSAIL and bat S of 2023-10-19 (oct2023)."""
 BLUE, ORANGE = (0.121569, 0.466667, 0.705882), (1.0, 0.498039, 0.054902)
 MINUS = "\u2212"
 GRID = 0.01  # [s]
@@ -169,13 +189,26 @@ class Figure:
 
         return min(self.labels, key=distance)
 
-    def time_axis(self) -> tuple[float, float]:
-        """page x = a t + b: the ticks are 0, 20, 40 … s (their labels' glyph counts say so)."""
-        values = [20.0 * i for i in range(len(self.x_ticks))]
-        counts = [len(self.label(x, y, "x")) for x, y in self.x_ticks]
-        if counts != [len(str(int(v))) for v in values]:
-            raise ValueError(f"time axis ticks are not 0, 20, … s: label lengths {counts}")
-        a, b = np.polyfit(values, [x for x, _ in self.x_ticks], 1)
+    def time_axis(self, library: list | None = None) -> tuple[float, float]:
+        """page x = a t + b: without ``library`` the ticks are 0, 20, 40 … s (their labels' glyph
+        counts say so); with it, the ticks whose labels it reads (at least two)."""
+        if library is None:
+            values = [20.0 * i for i in range(len(self.x_ticks))]
+            counts = [len(self.label(x, y, "x")) for x, y in self.x_ticks]
+            if counts != [len(str(int(v))) for v in values]:
+                raise ValueError(f"time axis ticks are not 0, 20, … s: label lengths {counts}")
+            xs = [x for x, _ in self.x_ticks]
+        else:
+            values, xs = [], []
+            for x, y in self.x_ticks:
+                try:
+                    values.append(_read(self.label(x, y, "x"), library))
+                except ValueError:  # a digit no packaged figure shows
+                    continue
+                xs.append(x)
+            if len(values) < 2:
+                raise ValueError(f"{self.source}: fewer than two time labels read")
+        a, b = np.polyfit(values, xs, 1)
         return float(a), float(b)
 
     def position_axis(self, library: list) -> tuple[float, float, float]:
@@ -271,6 +304,72 @@ def recover(figure: Figure, library: list, material: str) -> tuple[Recovered, fl
     return Recovered(t, p, p_des, instants), residual
 
 
+def recover_contour(figure: Figure, library: list):  # noqa: ANN201 - sim_to_real.StepRun
+    """The run of a contour's _pee figure on the 10 ms grid where all four polylines are drawn:
+    measured p and reference p^d [m]."""
+    from hsa_core.analysis import sim_to_real
+
+    a, b = figure.time_axis(library)
+    ya, yb, _ = figure.position_axis(library)
+    lines = {
+        key: np.column_stack([(pts[:, 0] - b) / a, (pts[:, 1] - yb) / ya * 1e-3])
+        for key, pts in figure.lines.items()
+    }
+    first = max(line[0, 0] for line in lines.values())
+    last = min(line[-1, 0] for line in lines.values())
+    t = np.arange(np.ceil(first / GRID - 1e-9), np.floor(last / GRID + 1e-9) + 1) * GRID
+
+    def xy(kind: str) -> np.ndarray:
+        return np.column_stack([np.interp(t, *lines[(c, kind)].T) for c in (BLUE, ORANGE)])
+
+    return sim_to_real.StepRun(t, xy("meas"), xy("ref"), float(t[-1]))
+
+
+def _contour(run, robot, seeds: range) -> dict:  # noqa: ANN001 - CataloguedRun, StepRun
+    """A contour run replayed with its own conditions on ``seeds`` (one where its profile has no
+    command queue) against the robot's recovered run (sim_to_real.contour_deviation); a queued run
+    also without its queue (noise seed 0), to show what the queue does."""
+    from hsa_core.analysis import sim_to_real
+    from hsa_core.sim.experiment import replay_config
+
+    config = replay_config(run)
+    used = seeds if config.command_queue[0] else range(1)
+    end = config.reference.duration
+    comparisons = [sim_to_real.contour_deviation(_simulate(config, s, end), robot) for s in used]
+    d = np.array([c.deviation for c in comparisons])
+    first = comparisons[0]
+    cond = run.conditions
+    without = {}
+    if config.command_queue[0]:  # what the September command queue does here (noise seed 0)
+        plain = dataclasses.replace(config, command_queue=(0, 0.0))
+        c = sim_to_real.contour_deviation(_simulate(plain, 0, end), robot)
+        without = {
+            "without_command_queue_noise_seed_0": {
+                "D_mm": _mm(c.deviation),
+                "robot_trails_sim_by_s": round(c.lag, 2),
+                "D_mm_at_that_lag": _mm(c.deviation_at_lag),
+                "rmse_mm": {"sim": _mm(c.rmse[0]), "robot": _mm(c.rmse[1])},
+            }
+        }
+    return {
+        "material": cond.material,
+        "law": cond.law.value,
+        "profile": cond.profile.name,
+        "trajectory": run.contour.image if run.contour else None,
+        "sigma_a_eq": cond.sigma_a_eq,
+        "D_mm_per_noise_seed": [_mm(v) for v in d],
+        "D_mm_rms_noise_seeds": _mm(np.sqrt(np.mean(d**2))),
+        "noise_seed_0": {
+            "shift_s": round(first.shift, 2),
+            "setpoint_match_mm": _mm(first.setpoint_match),
+            "covered": round(first.covered, 3),
+            "rmse_mm": {"sim": _mm(first.rmse[0]), "robot": _mm(first.rmse[1])},
+            "robot_trails_sim_by_s": round(first.lag, 2),
+            "D_mm_at_that_lag": _mm(first.deviation_at_lag),
+        },
+    } | without
+
+
 @dataclasses.dataclass
 class _Replay:
     """A catalogued run at recovered step instants (what replay_config takes)."""
@@ -288,13 +387,13 @@ class _Replay:
         )
 
 
-def _simulate(config, seed: int):  # noqa: ANN001, ANN202 - ExperimentConfig → StepRun
+def _simulate(config, seed: int, end: float = 110.0):  # noqa: ANN001, ANN202 - ExperimentConfig → StepRun
     from hsa_core.analysis import sim_to_real
     from hsa_core.sim.experiment import run_experiment
 
     world = dataclasses.replace(config.base_world(), seed=seed)
     log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-    return sim_to_real.StepRun.of_log(log, 110.0)
+    return sim_to_real.StepRun.of_log(log, end)
 
 
 def _epu_static_check(held_out: _Replay, recovered: Recovered) -> dict:
@@ -361,6 +460,9 @@ def main() -> int:
     parser.add_argument(
         "--figures-dir", type=Path, required=True, help="the authors' data/experiments"
     )
+    parser.add_argument(
+        "--image-dir", type=Path, required=True, help="the authors' assets/ (the contours' images)"
+    )
     parser.add_argument("--noise-seeds", type=int, default=8)
     parser.add_argument(
         "--out", type=Path, default=ROOT / "benchmarks" / "results" / "held_out_runs.json"
@@ -369,7 +471,9 @@ def main() -> int:
     if args.noise_seeds < 1:
         parser.error("argument --noise-seeds: must be >= 1")
     missing = [
-        b for b in PACKAGED + HELD_OUT if not (args.figures_dir / b / f"{b}_pee.pdf").is_file()
+        b
+        for b in PACKAGED + HELD_OUT + CONTOURS
+        if not (args.figures_dir / b / f"{b}_pee.pdf").is_file()
     ]
     if missing:
         parser.error(f"argument --figures-dir: no <bag>/<bag>_pee.pdf for {', '.join(missing)}")
@@ -386,6 +490,11 @@ def main() -> int:
     for bag in PACKAGED:
         _learn(figures[bag], reference.load_run(bag).pee, library)
     seeds = range(args.noise_seeds)
+    contours = {}
+    for bag in CONTOURS:
+        robot = recover_contour(Figure.read(args.figures_dir / bag / f"{bag}_pee.pdf"), library)
+        contours[bag] = _contour(catalogue.replayable(bag, args.image_dir), robot, seeds)
+        print(f"{bag}: {json.dumps(contours[bag])}", flush=True)
     validation = {}
     for bag in PACKAGED:
         real = reference.load_run(bag)
@@ -471,9 +580,10 @@ def main() -> int:
     )
     doc = {
         "what": __doc__.splitlines()[0],
-        "command": "benchmarks/bench_held_out_runs.py --figures-dir DIR "
+        "command": "benchmarks/bench_held_out_runs.py --figures-dir DIR --image-dir ASSETS "
         f"--noise-seeds {args.noise_seeds}",
-        "source": "tud-phi/hsa-planar-control at f1ed958, data/experiments/<bag>/<bag>_pee.pdf",
+        "source": "tud-phi/hsa-planar-control at f1ed958, data/experiments/<bag>/<bag>_pee.pdf "
+        "and assets/ (the contours' images)",
         "world": "calibrated (hsa_core.sim.disturbance.calibrated_world); each run's own "
         "conditions",
         "validation_on_packaged_runs": validation,
@@ -483,6 +593,7 @@ def main() -> int:
         },
         "held_out": held,
         "epu_static_mismatch_fitted_on_one_run": epu_static,
+        "contours": contours,
         "wall_s": round(time.perf_counter() - started, 1),
         "machine": {
             "platform": platform.platform(),

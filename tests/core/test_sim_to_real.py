@@ -209,3 +209,39 @@ def test_realizations_split_into_a_systematic_and_a_random_part() -> None:
         sim_to_real.split_realizations(runs, ref, window=(1.0, 10.0))
     with pytest.raises(ValueError, match="realizations"):
         sim_to_real.split_realizations([], ref)
+
+
+def contour_run(delay: float, offset=(0.0, 0.0), lag: float = 0.0) -> StepRun:
+    """A circle of 20 mm radius traced once in 30 s from ``delay`` (at rest at its first point
+    before and its last after, until 40 s), followed ``lag`` s late, plus a constant ``offset``."""
+    t = np.round(np.arange(0.0, 40.0, 0.01), 9)
+
+    def circle(s: np.ndarray) -> np.ndarray:
+        a = 2 * math.pi * np.clip(s, 0.0, 30.0) / 30.0
+        return np.stack([0.02 * np.sin(a), 0.12 + 0.02 * (1 - np.cos(a))], axis=1)
+
+    return StepRun(t, circle(t - delay - lag) + np.asarray(offset), circle(t - delay), 40.0)
+
+
+def test_a_contour_is_aligned_on_its_setpoints_and_compared_where_both_exist() -> None:
+    ref = contour_run(2.0)
+    run = contour_run(3.5, offset=(0.0, 1e-3))  # starts 1.5 s later in its own log, 1 mm off
+    c = sim_to_real.contour_deviation(run, ref)
+    assert c.shift == pytest.approx(1.5, abs=1e-9)
+    assert c.setpoint_match == pytest.approx(0.0, abs=1e-12)
+    assert c.deviation == pytest.approx(1e-3, rel=1e-9)
+    assert c.rmse == pytest.approx((1e-3, 0.0), abs=1e-12)
+    assert c.covered == pytest.approx(1 - 1.5 / 40.0, abs=0.001)
+    # a run that lags its setpoints is that far from a reference that does not
+    lagging = sim_to_real.contour_deviation(contour_run(2.0, lag=0.5), ref)
+    speed = 2 * math.pi * 0.02 / 30.0  # [m/s] along the circle
+    assert lagging.shift == pytest.approx(0.0, abs=1e-9)
+    assert lagging.deviation == pytest.approx(speed * 0.5 * math.sqrt(30.0 / 40.0), rel=0.01)
+    # ... and the reference leads it by those 0.5 s, where the two coincide
+    assert lagging.lag == pytest.approx(-0.5, abs=1e-9)
+    assert lagging.deviation_at_lag < 1e-9
+    assert c.lag == pytest.approx(0.0, abs=1e-9)
+    assert c.deviation_at_lag == pytest.approx(1e-3, rel=1e-9)
+    short = StepRun(ref.t[:1000], ref.p[:1000], ref.p_des[:1000], 10.0)  # a quarter of it
+    with pytest.raises(ValueError, match="overlap"):
+        sim_to_real.contour_deviation(short, ref)

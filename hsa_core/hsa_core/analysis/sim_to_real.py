@@ -29,6 +29,12 @@ s):
 * **systematic and random parts** (:func:`split_realizations`): over several realizations of one
   run (noise seeds), RMS over them of D² = D(their mean response)² + RMS of their distance from
   that mean², exactly (each part over any window of the aligned responses);
+* **contour deviation** (:func:`contour_deviation`): for a run without steps (a contour), the run
+  is aligned with the reference at the time shift that brings their setpoints closest (RMS over
+  the reference's samples), and D is the RMS of ‖p_run − p_ref‖ over the reference's samples that
+  the shifted run covers, on the reference's own sample times; and how far the reference trails
+  the run along the contour (the further time shift of the run's p, within ± 0.5 s, that brings it
+  closest to the reference's p; negative: the reference leads) with D at that lag;
 * :func:`compare` collects them as the sim-versus-real table: D, x peak-to-peak (max
   over steps), end error (median over steps), the median relative rise- and response-time
   differences and each run's RMSE.
@@ -233,6 +239,72 @@ def split_realizations(
         float(np.sqrt(bias.mean())),
         float(np.sqrt(scatter.mean())),
         np.sqrt(bias.mean(axis=1)),
+    )
+
+
+@dataclass(frozen=True)
+class ContourComparison:
+    """A contour run against a reference [m, s]: D, the shift (the run's time of the reference's
+    t = 0), the setpoints' RMS distance at that shift, each run's RMS of ‖p^d − p‖ over the covered
+    samples (run, reference), the fraction of the reference's samples covered, and the lag by which
+    the reference trails the run with D at that lag (over the samples covered at every lag
+    searched)."""
+
+    deviation: float
+    shift: float
+    setpoint_match: float
+    rmse: tuple[float, float]
+    covered: float
+    lag: float
+    deviation_at_lag: float
+
+
+CONTOUR_LAG = 0.5
+"""[s] how far the lag of a contour run is searched either way."""
+
+
+def contour_deviation(
+    run: StepRun, ref: StepRun, search: float = 5.0, grid: float = GRID
+) -> ContourComparison:
+    """``run`` against ``ref`` as the module docstring's contour deviation; the shift is searched
+    on ``grid`` within ± ``search`` s of aligning the two runs' first samples, the lag on ``grid``
+    within ± :data:`CONTOUR_LAG`."""
+
+    def at(r: StepRun, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(t, r.t, values[:, i]) for i in range(2)], axis=1)
+
+    def covered(shift: float, margin: float = 0.0) -> np.ndarray:
+        return (ref.t + shift - margin >= run.t[0]) & (ref.t + shift + margin <= run.t[-1])
+
+    def distance(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+    best: tuple[float, float] | None = None
+    for shift in run.t[0] - ref.t[0] + np.arange(-search, search + grid / 2, grid):
+        m = covered(shift)
+        if m.mean() < 0.5:
+            continue
+        d = distance(at(run, ref.t[m] + shift, run.p_des), ref.p_des[m])
+        if best is None or d < best[0]:
+            best = (d, float(shift))
+    if best is None:
+        raise ValueError("the runs do not overlap by half the reference at any shift searched")
+    match, shift = best
+    m = covered(shift)
+    p = at(run, ref.t[m] + shift, run.p)
+    p_des = at(run, ref.t[m] + shift, run.p_des)
+    inner = covered(shift, CONTOUR_LAG)
+    lags = np.arange(-CONTOUR_LAG, CONTOUR_LAG + grid / 2, grid)
+    at_lag = [distance(at(run, ref.t[inner] + shift - lag, run.p), ref.p[inner]) for lag in lags]
+    best_lag = int(np.argmin(at_lag))
+    return ContourComparison(
+        distance(p, ref.p[m]),
+        shift,
+        match,
+        (distance(p, p_des), distance(ref.p[m], ref.p_des[m])),
+        float(m.mean()),
+        float(lags[best_lag]),
+        at_lag[best_lag],
     )
 
 

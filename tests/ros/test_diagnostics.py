@@ -22,8 +22,9 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 GRAPH = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
 READY = re.compile(r"\[hsa\.(\w+)\]: ready")
-# [s] a status must follow `ready` within this (1 Hz reports, loaded 2-core machine)
-DIAGNOSTICS_DELAY = 4.0
+# [s] a status must follow `ready` within this: 1 Hz reports, with room for a loaded 2-core machine
+# (4 s was exceeded once, 5.1 s, beside two busy processes with a cold JAX cache)
+DIAGNOSTICS_DELAY = 10.0
 # node -> (a status name it publishes, values that status must carry)
 EXPECTED = {
     "sim_node": ("sim_node: world", ()),

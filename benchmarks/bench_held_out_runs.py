@@ -335,14 +335,16 @@ def _contour(run, robot, seeds: range) -> dict:  # noqa: ANN001 - CataloguedRun,
     config = replay_config(run)
     used = seeds if config.command_queue[0] else range(1)
     end = config.reference.duration
-    comparisons = [sim_to_real.contour_deviation(_simulate(config, s, end), robot) for s in used]
+    comparisons = [
+        sim_to_real.contour_deviation(_simulate(config, end, seed=s), robot) for s in used
+    ]
     d = np.array([c.deviation for c in comparisons])
     first = comparisons[0]
     cond = run.conditions
     without = {}
     if config.command_queue[0]:  # what the September command queue does here (noise seed 0)
         plain = dataclasses.replace(config, command_queue=(0, 0.0))
-        c = sim_to_real.contour_deviation(_simulate(plain, 0, end), robot)
+        c = sim_to_real.contour_deviation(_simulate(plain, end, seed=0), robot)
         without = {
             "without_command_queue_noise_seed_0": {
                 "D_mm": _mm(c.deviation),
@@ -387,13 +389,12 @@ class _Replay:
         )
 
 
-def _simulate(config, seed: int, end: float = 110.0):  # noqa: ANN001, ANN202 - ExperimentConfig → StepRun
+def _simulate(config, end: float = 110.0, **world):  # noqa: ANN001, ANN003, ANN202 - ExperimentConfig → StepRun
+    """``config`` replayed in its base world with the fields ``world`` replaced, up to ``end``."""
     from hsa_core.analysis import sim_to_real
     from hsa_core.sim.experiment import run_experiment
 
-    world = dataclasses.replace(config.base_world(), seed=seed)
-    log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-    return sim_to_real.StepRun.of_log(log, end)
+    return sim_to_real.StepRun.of_log(run_experiment(config.in_world(**world)).log, end)
 
 
 def _epu_static_check(held_out: _Replay, recovered: Recovered) -> dict:
@@ -406,7 +407,7 @@ def _epu_static_check(held_out: _Replay, recovered: Recovered) -> dict:
     from hsa_core.analysis import sim_to_real
     from hsa_core.runs import reference
     from hsa_core.sim.disturbance import WORLD_DIR
-    from hsa_core.sim.experiment import replay_config, run_experiment
+    from hsa_core.sim.experiment import replay_config
 
     fields = yaml.safe_load((WORLD_DIR / "epu_static.yaml").read_text())["fields"]
     worlds = {
@@ -425,9 +426,7 @@ def _epu_static_check(held_out: _Replay, recovered: Recovered) -> dict:
     for name, extra in worlds.items():
         out[name] = {}
         for case, (config, robot) in cases.items():
-            world = dataclasses.replace(config.base_world(), **extra)
-            log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-            c = sim_to_real.compare(sim_to_real.StepRun.of_log(log, 110.0), robot)
+            c = sim_to_real.compare(_simulate(config, **extra), robot)
             out[name][case] = {
                 "D_mm": _mm(c.deviation),
                 "end_error_last2s_median_mm": {
@@ -501,7 +500,7 @@ def main() -> int:
         rec, residual = recover(figures[bag], library, real.conditions.material)
         n = min(len(rec.t), len(real.t))
         packaged, recovered = _step_run(real), _step_run(rec)
-        own = [_simulate(replay_config(real), s) for s in seeds]
+        own = [_simulate(replay_config(real), seed=s) for s in seeds]
         at_recovered = replay_config(_Replay(real.conditions, rec.instants, rec.t[-1] + GRID))
         validation[bag] = {
             "tick_residual_pt": round(residual, 4),
@@ -522,7 +521,8 @@ def main() -> int:
                     _mm(sim_to_real.deviation(s, recovered)) for s in own
                 ],
                 "run_at_recovered_instants_vs_recovered_trace": [
-                    _mm(sim_to_real.deviation(_simulate(at_recovered, s), recovered)) for s in seeds
+                    _mm(sim_to_real.deviation(_simulate(at_recovered, seed=s), recovered))
+                    for s in seeds
                 ],
             },
         }
@@ -546,7 +546,7 @@ def main() -> int:
         rec, residual = recoveries[bag]
         robot = _step_run(rec)
         config = replay_config(_Replay(cond, rec.instants, rec.t[-1] + GRID))
-        comparisons = [sim_to_real.compare(_simulate(config, s), robot) for s in seeds]
+        comparisons = [sim_to_real.compare(_simulate(config, seed=s), robot) for s in seeds]
         d = np.array([c.deviation for c in comparisons])
         first = comparisons[0]
         held[bag] = {

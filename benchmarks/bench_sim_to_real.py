@@ -151,9 +151,7 @@ def _deviation(config, seed: int, robot) -> float:
     from hsa_core.analysis import sim_to_real
     from hsa_core.sim.experiment import run_experiment
 
-    world = dataclasses.replace(config.base_world(), seed=seed)
-    log = run_experiment(dataclasses.replace(config, disturbance=world)).log
-    sim = sim_to_real.StepRun.of_log(log, 110.0)
+    sim = sim_to_real.StepRun.of_log(run_experiment(config.in_world(seed=seed)).log, 110.0)
     return sim_to_real.compare(sim, robot).deviation
 
 

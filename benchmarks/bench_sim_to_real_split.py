@@ -24,7 +24,6 @@ Writes benchmarks/results/sim_to_real_split.json.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -84,14 +83,7 @@ def main() -> int:
         robot = robots[bag] = sim_to_real.StepRun(real.t, real.p, real.p_des, 110.0)
         config = replay_config(real)
         sims = [
-            sim_to_real.StepRun.of_log(
-                run_experiment(
-                    dataclasses.replace(
-                        config, disturbance=dataclasses.replace(config.base_world(), seed=s)
-                    )
-                ).log,
-                110.0,
-            )
+            sim_to_real.StepRun.of_log(run_experiment(config.in_world(seed=s)).log, 110.0)
             for s in range(args.noise_seeds if config.command_queue[0] else 2)
         ]
         whole = sim_to_real.split_realizations(sims, robot)

@@ -107,6 +107,18 @@ def test_noise_is_seeded() -> None:
     assert np.all(noise == noise[0])  # same seed, same sample
 
 
+def test_in_world_replaces_fields_of_the_base_world_only() -> None:
+    config = ExperimentConfig("fpu", "psatid", command_latency=0.03)
+    seeded = config.in_world(seed=5)
+    assert seeded.disturbance.seed == 5
+    assert config.base_world().seed != 5
+    assert seeded.disturbance.actuation_latency == config.base_world().actuation_latency
+    # the run's own conditions still apply on top of the new base world
+    assert seeded.world().actuation_latency == config.world().actuation_latency
+    with pytest.raises(TypeError):
+        config.in_world(no_such_field=1.0)
+
+
 @pytest.fixture(scope="module")
 def epu_run():
     """Two 5 s EPU steps with P-satI-D and the paper's gains under the default disturbance."""

@@ -48,6 +48,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -197,6 +198,12 @@ class ExperimentConfig:
         """The world this run names: ``disturbance``, or the material's
         :func:`~hsa_core.sim.disturbance.default_world`."""
         return default_world(self.material) if self.disturbance is None else self.disturbance
+
+    def in_world(self, **fields: Any) -> ExperimentConfig:
+        """This run in its base world with ``fields`` replaced (e.g. a mocap noise ``seed``)."""
+        return dataclasses.replace(
+            self, disturbance=dataclasses.replace(self.base_world(), **fields)
+        )
 
     def world(self) -> DisturbanceModel:
         """The world of this run: :meth:`base_world` with the run's command latency and queue and

@@ -25,13 +25,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+import results_doc
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,14 +133,9 @@ def main() -> int:
         },
         "scans": scans,
         "wall_s": round(time.perf_counter() - started, 1),
-        "machine": {
-            "platform": platform.platform(),
-            "cpus": os.cpu_count(),
-            "load_1min": os.getloadavg()[0],
-        },
     }
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {args.out} ({out['wall_s']} s)")
+    results_doc.write(args.out, out)
+    print(f"({out['wall_s']} s)")
     return 0
 
 

@@ -41,14 +41,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import platform
 import re
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
+import results_doc
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGED = ("20231019_143126", "20230925_093236", "20230925_094023")
@@ -595,14 +594,8 @@ def main() -> int:
         "epu_static_mismatch_fitted_on_one_run": epu_static,
         "contours": contours,
         "wall_s": round(time.perf_counter() - started, 1),
-        "machine": {
-            "platform": platform.platform(),
-            "cpus": os.cpu_count(),
-            "load_1min": os.getloadavg()[0],
-        },
     }
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    results_doc.write(args.out, doc)
     return 0
 
 

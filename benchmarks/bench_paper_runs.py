@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
 import time
 from pathlib import Path
+
+import results_doc
 
 from hsa_core.jaxsetup import configure_jax
 
@@ -99,14 +98,8 @@ def main() -> int:
         "command": "benchmarks/bench_paper_runs.py"
         + (" --image-dir DIR (the authors' assets/)" if args.image_dir else ""),
         "rows": rows,
-        "machine": {
-            "platform": platform.platform(),
-            "cpus": os.cpu_count(),
-            "load_1min": os.getloadavg()[0],
-        },
     }
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    results_doc.write(args.out, doc)
     return 0
 
 

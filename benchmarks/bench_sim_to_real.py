@@ -43,13 +43,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+import results_doc
 
 from hsa_core.jaxsetup import configure_jax
 
@@ -281,14 +279,8 @@ def main() -> int:
             "rmse_relative": 0.10,
         },
         "rows": rows,
-        "machine": {
-            "platform": platform.platform(),
-            "cpus": os.cpu_count(),
-            "load_1min": os.getloadavg()[0],
-        },
     }
-    args.out.write_text(json.dumps(result_doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    results_doc.write(args.out, result_doc)
     return 0
 
 

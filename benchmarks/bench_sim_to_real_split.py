@@ -25,12 +25,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+import results_doc
 
 ROOT = Path(__file__).resolve().parents[1]
 WINDOWS = ((0.0, 0.15), (0.15, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 2.0), (2.0, 9.3))
@@ -128,14 +127,8 @@ def main() -> int:
         "robot_pair_D_mm": {f"{PAIR[0]} vs {PAIR[1]}": _mm(pair)},
         "runs": runs,
         "wall_s": round(time.perf_counter() - started, 1),
-        "machine": {
-            "platform": platform.platform(),
-            "cpus": os.cpu_count(),
-            "load_1min": os.getloadavg()[0],
-        },
     }
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    results_doc.write(args.out, doc)
     return 0
 
 

@@ -3,7 +3,7 @@
 Clones the committed ``--ref`` (default HEAD) of this checkout into a temporary directory, runs
 ``./test.sh`` there as ``.ci/run`` does (bootstrap included: a fresh virtual environment from the
 package cache), optionally beside ``--burners`` processes that keep a core busy each, and writes
-the wall time, pytest's own time and the outcome under ``--key`` in
+the wall time, pytest's own time, the outcome and the ten slowest tests under ``--key`` in
 benchmarks/results/suite.json (``--out``; other keys are kept). The user's package cache is not
 cleared (a first run on a new machine also downloads the wheels). The JAX compilation and result
 cache is the user's (``HSA_JAX_CACHE_DIR``, default ``~/.cache/hsa_ros/jax``: warm after an earlier
@@ -29,6 +29,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SUMMARY = re.compile(r"=+ (.*) in ([\d.]+)s")
+DURATION = re.compile(r"\s*[\d.]+s (call|setup|teardown) ")
+
+
+def slowest(log: str, n: int = 10) -> list[str]:
+    """The first ``n`` lines of pytest's "slowest durations" table (``--durations``, pytest.ini)."""
+    lines = log.splitlines()
+    heads = [i for i, line in enumerate(lines) if "slowest" in line and "durations" in line]
+    if not heads:
+        return []
+    return [line.strip() for line in lines[heads[0] + 1 :] if DURATION.match(line)][:n]
 
 
 def outcome(log: str) -> tuple[str, float | None]:
@@ -94,6 +104,7 @@ def main() -> int:
         "wall_s": round(wall, 1),
         "pytest_s": pytest_s,
         "target_wall_s": 900.0,
+        "slowest_tests": slowest(log),
     }
     results = json.loads(args.out.read_text()) if args.out.exists() else {}
     results[args.key] = result

@@ -12,8 +12,9 @@ Stop signals: SIGINT (Ctrl-C), SIGTERM, SIGHUP (terminal or ssh session closed) 
 (Ctrl-\\) all stop the node the same way; a SIGHUP ignored at start (``nohup``) stays ignored. A
 stop signal that arrives while the node is still being created (parameter checks, JAX compilation)
 ends the process at once with exit 0: construction never touches the hardware (the driver enables
-torque from the executor), so there is nothing to stop yet. The node also stops when the process
-that started it ends, even by SIGKILL: the kernel sends it SIGTERM then
+torque from the executor), so there is nothing to stop yet; a signal the kernel handed to another
+thread of the process is sent on to the main thread (:func:`watch_stop`). The node also stops when
+the process that started it ends, even by SIGKILL: the kernel sends it SIGTERM then
 (:mod:`hsa_common.parent_death`).
 
 Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the Python
@@ -90,6 +91,10 @@ STUCK_AFTER = 10.0
 stderr: a stop takes well under a second, so by then it is stuck, and the launcher's SIGKILL would
 otherwise leave no trace of where."""
 
+HANDLER_WAIT = 0.1
+"""[s] how long the stop watch waits for the main thread to run the stop handler before sending it
+the signal itself (:func:`watch_stop`)."""
+
 # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
 _DUMP_LOCK = threading.Lock()
 _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
@@ -113,14 +118,16 @@ def run_nodes(
     stop: list[int] = []
     starting = threading.Event()
     starting.set()
+    handled = threading.Event()
 
     def on_stop(signum: int, _frame: object) -> None:
+        handled.set()
         stop.append(signum)
-        if starting.is_set():
+        if starting.is_set() and len(stop) == 1:  # a second signal must not break the unwinding
             raise StopBeforeReady(signum)  # unwinds the node's construction: nothing is running yet
 
     parent_death.on_stop_signals(on_stop)
-    watch_stop()
+    watch_stop(handled)
     logger = rclpy.logging.get_logger(name)
     if tie is parent_death.Tie.ORPHANED:
         logger.fatal(
@@ -324,16 +331,21 @@ def spin_lockstep_events(
             participant.idle()
 
 
-def watch_stop() -> None:
+def watch_stop(handled: threading.Event) -> None:
     """Arm the stuck-stop report: a thread that learns of the first stop signal from the
     interpreter's wakeup fd, which the C-level handler writes even while the main thread is blocked
-    in rcl or DDS and runs no Python."""
+    in rcl or DDS and runs no Python. If the stop handler has not run (``handled``) within
+    ``HANDLER_WAIT``, it sends the signal to the main thread: the kernel may give a process's signal
+    to any of its threads, and a main thread asleep in a system call would then not run the handler
+    until that call returns (a node's construction, for example)."""
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
     signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
 
     def watch() -> None:
-        os.read(read_fd, 1)
+        signum = os.read(read_fd, 1)[0]
+        if signum in parent_death.STOP_SIGNALS and not handled.wait(HANDLER_WAIT):
+            signal.pthread_kill(threading.main_thread().ident, signum)
         with _DUMP_LOCK:
             if not _TEARDOWN.is_set():  # the teardown's shorter dump comes first
                 faulthandler.dump_traceback_later(STUCK_AFTER, exit=False)

@@ -3,9 +3,12 @@ holds the GIL still ends, with the exit code it was meant to have."""
 
 from __future__ import annotations
 
+import ctypes
+import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -74,6 +77,36 @@ def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -
     assert "stopped before ready" in output and "ready\n" not in output.replace(
         "before ready", ""
     ), output
+
+
+def _unblocked_thread(pid: int, sig: signal.Signals) -> int:
+    """A thread of ``pid`` other than its main thread that does not block ``sig``."""
+    for tid in sorted(int(t) for t in os.listdir(f"/proc/{pid}/task")):
+        status = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+        blocked = int(
+            next(ln for ln in status.splitlines() if ln.startswith("SigBlk:")).split()[1], 16
+        )
+        if tid != pid and not blocked & (1 << (sig - 1)):
+            return tid
+    raise AssertionError(f"every thread of {pid} but the main one blocks {sig.name}")
+
+
+def test_a_stop_that_reaches_another_thread_during_construction_ends_the_node() -> None:
+    """The kernel may hand a process's signal to any thread that does not block it (seen in the
+    suite on a loaded machine): Python then runs the handler only when the main thread next runs
+    Python, and a main thread asleep in a system call would not. The runner must end the node all
+    the same."""
+    proc = start_process([sys.executable, str(PEERS / "slow_start.py")])
+    try:
+        wait_for_line(proc, "constructing")
+        tid = _unblocked_thread(proc.pid, signal.SIGTERM)
+        assert ctypes.CDLL(None, use_errno=True).tgkill(proc.pid, tid, signal.SIGTERM) == 0
+        output, _ = proc.communicate(timeout=40)  # the construction alone lasts 60 s
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, output
+    assert "stopped before ready" in output, output
 
 
 def test_a_refused_node_ends_with_2_without_the_interpreters_teardown() -> None:

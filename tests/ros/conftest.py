@@ -209,16 +209,26 @@ class CollectedProcess:
         return code
 
 
+ATTEMPTS = 3
+ANSWER_TIMEOUT = 10.0  # [s]
+
+
+def call_answered(client: Client, request: object) -> object | None:
+    """The answer to an idempotent ``request``, sent up to ``ATTEMPTS`` times (each waiting
+    ``ANSWER_TIMEOUT``); None if none came. ``wait_for_service`` sees the server's request reader,
+    but the server may not yet have matched this client's response reader, and DDS then drops the
+    answer (rmw_fastrtps waits at most 100 ms for it: ros2/rmw_fastrtps#390, #467)."""
+    for _ in range(ATTEMPTS):
+        response = client.call(request, timeout_sec=ANSWER_TIMEOUT)
+        if response is not None:
+            return response
+    return None
+
+
 class ParameterClient:
     """Set and get single parameters of a running node through its parameter services (arrays come
-    back as lists). A request without an answer is sent again (at most ``ATTEMPTS`` times, each
-    waiting ``ANSWER_TIMEOUT``): ``wait_for_service`` sees the server's request reader, but the
-    server may not yet have matched this client's response reader, and DDS then drops the answer
-    (rmw_fastrtps waits at most 100 ms for it: ros2/rmw_fastrtps#390, #467); both requests are
-    idempotent."""
-
-    ATTEMPTS = 3
-    ANSWER_TIMEOUT = 10.0  # [s]
+    back as lists); a request without an answer is sent again (:func:`call_answered`: both requests
+    are idempotent)."""
 
     def __init__(self, node: Node, target: str) -> None:
         self._setter = node.create_client(SetParameters, f"{target}/set_parameters")
@@ -232,27 +242,18 @@ class ParameterClient:
         request = SetParameters.Request(
             parameters=[Parameter(name, value=value).to_parameter_msg()]
         )
-        response = self._call(self._setter, request)
+        response = call_answered(self._setter, request)
         assert response is not None, f"no answer to setting {name}"
         return response.results[0]
 
     def get(self, name: str) -> object:
         """The current value of one parameter."""
-        response = self._call(self._getter, GetParameters.Request(names=[name]))
+        response = call_answered(self._getter, GetParameters.Request(names=[name]))
         assert response is not None, f"no answer to getting {name}"
         value = parameter_value_to_python(response.values[0])
         return (
             list(value) if isinstance(value, (list, tuple)) or hasattr(value, "tolist") else value
         )
-
-    def _call(self, client: Client, request: object) -> object | None:
-        """The answer to ``request``, sent up to ATTEMPTS times (class docstring); None if none
-        came."""
-        for _ in range(self.ATTEMPTS):
-            response = client.call(request, timeout_sec=self.ANSWER_TIMEOUT)
-            if response is not None:
-                return response
-        return None
 
 
 def write_step_sequence(path: Path, steps: int) -> None:

@@ -26,7 +26,7 @@ from hsa_core.model.params import CONFIG_DIR
 from hsa_dynamixel_driver.bus import DynamixelBus
 from hsa_msgs.msg import PlanarActuation
 from hsa_sim_node.mx28_emulator import HW_OVERLOAD, MX28Emulator
-from tests.ros.conftest import stop_process, wait_for_line, wait_until
+from tests.ros.conftest import call_answered, stop_process, wait_for_line, wait_until
 from tests.ros.driver_fixtures import driver, emulator
 from tests.ros.driver_harness import IDS, NEUTRAL, PHI_MAX, clamp_range, torque
 
@@ -173,7 +173,7 @@ def test_goals_clamped_rate_limited_held_by_the_watchdog_and_stopped_by_hardware
     )
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
-    answer = client.call(SetBool.Request(data=True), timeout_sec=10.0)
+    answer = call_answered(client, SetBool.Request(data=True))
     assert answer is not None and not answer.success and "overload" in answer.message
     assert proc.poll() is None
 
@@ -185,9 +185,9 @@ def test_set_torque_service_reconnect_after_unplug_and_sigterm_turns_torque_off(
     assert wait_until(lambda: torque(emulator) == {True}, timeout=10.0)
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
-    off = client.call(SetBool.Request(data=False), timeout_sec=10.0)
+    off = call_answered(client, SetBool.Request(data=False))
     assert off is not None and off.success and torque(emulator) == {False}
-    on = client.call(SetBool.Request(data=True), timeout_sec=10.0)
+    on = call_answered(client, SetBool.Request(data=True))
     assert on is not None and on.success and torque(emulator) == {True}
 
     emulator.unplug()
@@ -213,7 +213,7 @@ def test_start_far_from_the_stored_neutral_keeps_torque_off(
     wait_for_line(proc, "torque stays off", timeout=30.0)  # the refusal at activation
     client = ros_node.create_client(SetBool, "set_torque")
     assert client.wait_for_service(timeout_sec=10.0)
-    answer = client.call(SetBool.Request(data=True), timeout_sec=10.0)
+    answer = call_answered(client, SetBool.Request(data=True))
     assert answer is not None and not answer.success and "neutral" in answer.message
     assert torque(emulator) == {False}
 

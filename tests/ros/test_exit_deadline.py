@@ -60,25 +60,6 @@ def test_a_node_stuck_in_destroy_node_ends_with_its_code_and_its_stack() -> None
     assert "Timeout (0:00:05)!" in output and "in destroy_node" in output, output
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_a_stop_during_construction_ends_the_node_at_once(sig: signal.Signals) -> None:
-    """A stop signal while the node is still being created ends it with exit 0, without waiting for
-    the construction (a simulator compiling its world once needed the launcher's SIGTERM
-    escalation)."""
-    proc = start_process([sys.executable, str(PEERS / "slow_start.py")])
-    try:
-        wait_for_line(proc, "constructing")
-        proc.send_signal(sig)
-        output, _ = proc.communicate(timeout=40)  # the construction alone lasts 60 s
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, output
-    assert "stopped before ready" in output and "ready\n" not in output.replace(
-        "before ready", ""
-    ), output
-
-
 def _unblocked_thread(pid: int, sig: signal.Signals) -> int:
     """A thread of ``pid`` other than its main thread that does not block ``sig``."""
     for tid in sorted(int(t) for t in os.listdir(f"/proc/{pid}/task")):
@@ -91,22 +72,36 @@ def _unblocked_thread(pid: int, sig: signal.Signals) -> int:
     raise AssertionError(f"every thread of {pid} but the main one blocks {sig.name}")
 
 
-def test_a_stop_that_reaches_another_thread_during_construction_ends_the_node() -> None:
-    """The kernel may hand a process's signal to any thread that does not block it (seen in the
-    suite on a loaded machine): Python then runs the handler only when the main thread next runs
-    Python, and a main thread asleep in a system call would not. The runner must end the node all
-    the same."""
+@pytest.mark.parametrize(
+    ("sig", "to_thread"),
+    [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGTERM, True)],
+    ids=["SIGINT", "SIGTERM", "SIGTERM-to-another-thread"],
+)
+def test_a_stop_during_construction_ends_the_node_at_once(
+    sig: signal.Signals, to_thread: bool
+) -> None:
+    """A stop signal while the node is still being created ends it with exit 0, without waiting for
+    the construction (a simulator compiling its world once needed the launcher's SIGTERM
+    escalation). Also when it reaches another thread: the kernel may hand a process's signal to any
+    thread that does not block it (seen in the suite on a loaded machine), and Python runs the
+    handler only when the main thread next runs Python, which a main thread asleep in a system call
+    would not."""
     proc = start_process([sys.executable, str(PEERS / "slow_start.py")])
     try:
         wait_for_line(proc, "constructing")
-        tid = _unblocked_thread(proc.pid, signal.SIGTERM)
-        assert ctypes.CDLL(None, use_errno=True).tgkill(proc.pid, tid, signal.SIGTERM) == 0
+        if to_thread:
+            tid = _unblocked_thread(proc.pid, sig)
+            assert ctypes.CDLL(None, use_errno=True).tgkill(proc.pid, tid, sig) == 0
+        else:
+            proc.send_signal(sig)
         output, _ = proc.communicate(timeout=40)  # the construction alone lasts 60 s
     finally:
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, output
-    assert "stopped before ready" in output, output
+    assert "stopped before ready" in output and "ready\n" not in output.replace(
+        "before ready", ""
+    ), output
 
 
 def test_a_refused_node_ends_with_2_without_the_interpreters_teardown() -> None:

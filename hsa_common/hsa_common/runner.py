@@ -22,9 +22,11 @@ Executor: rclpy's C++ ``EventsExecutor`` by default (a third of the CPU of the P
 benchmarks/bench_graph.py), ``HSA_EXECUTOR=single`` selects the latter. The stop signals only set a
 flag (rclpy's own handlers are off): a ``KeyboardInterrupt`` raised inside a callback would
 interrupt it half-way — e.g. a bus transaction — and the events executor logs that as a fatal
-callback error. Nodes without an ``on_shutdown`` hook tear down at a lower CPU priority
-(``TEARDOWN_NICE``): when a whole graph stops at once on two cores, the driver's torque-off (and the
-simulator's bus answering it) must not queue behind them.
+callback error. In a process of neither the driver nor the simulator (no node ``stops_first``),
+every thread drops to a lower CPU priority (``TEARDOWN_NICE``) after the ``on_shutdown`` hooks and
+waits ``TEARDOWN_DELAY`` before the middleware teardown: when a whole graph stops at once on two
+cores, the driver's torque-off and the simulator's bus answering it must not queue behind the other
+nodes' teardown, nor behind the discovery work it sets off in every other process.
 
 After its hook and rclpy's shutdown (which destroys the middleware participant, and so removes its
 Fast DDS shared-memory files from /dev/shm) a node leaves with ``os._exit``, a refused one too: what
@@ -49,6 +51,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import NoReturn, Protocol, runtime_checkable
 
@@ -73,9 +76,13 @@ from hsa_common.parameters import ParameterValidationError
 from hsa_core.sim.lockstep import ReportPacing
 
 TEARDOWN_NICE = 5
-"""Niceness of a node's teardown when it has no on_shutdown hook: below the driver's torque-off in a
-graph stop, but not starved (at 19 the launcher's SIGTERM escalation hit every node on a busy
-machine; docs/launch.md, "Teardown bounds")."""
+"""Niceness added to every thread of a process that does not stop first, for its teardown: below the
+driver's torque-off in a graph stop, but not starved (at 19 the launcher's SIGTERM escalation hit
+every node on a busy machine; docs/launch.md, "Teardown bounds")."""
+TEARDOWN_DELAY = 0.15
+"""[s] wait of a process that does not stop first between its hooks and its middleware teardown:
+longer than a graph stop's torque-off takes (< 100 ms, the requirement)."""
+TASKS = "/proc/self/task"
 SPIN_PERIOD = 0.02
 """[s] longest spin_once wait: bounds how late a stop request is noticed when no callback runs (<
 100 ms torque-off)."""
@@ -86,10 +93,11 @@ node prints every thread's stack and, ``TEARDOWN_DUMP`` later, ends with its exi
 (docs/launch.md, "Teardown bounds")."""
 TEARDOWN_DUMP = 1.0
 """[s] time left for the stack dump before the deadline ends the process."""
-STUCK_AFTER = 10.0
+STUCK_AFTER = 8.0
 """[s] after the first stop signal, a node still running prints every thread's stack (once) to
-stderr: a stop takes well under a second, so by then it is stuck, and the launcher's SIGKILL would
-otherwise leave no trace of where."""
+stderr: a stop takes well under a second, so by then it is stuck, and the launcher's SIGKILL (10 s
+after its SIGINT with its default timeouts, as ros2 launch's) would otherwise leave no trace of
+where."""
 
 HANDLER_WAIT = 0.1
 """[s] how long the stop watch waits for the main thread to run the stop handler before sending it
@@ -193,12 +201,11 @@ def run_nodes(
     finally:
         if rclpy.ok():
             participant.idle(leaving=True)
-        hooks = [node for node in nodes if isinstance(node, ShutdownHook)]
-        for node in hooks:
-            node.on_shutdown()
-        if not hooks:
-            # nothing safety-relevant left: the driver's torque-off goes first in a graph stop
-            os.nice(TEARDOWN_NICE)
+        _shut_down(nodes)
+        if not any(isinstance(node, StopsFirst) and node.stops_first for node in nodes):
+            # the driver's torque-off and the simulated bus go first in a graph stop
+            lower_priority(TEARDOWN_NICE)
+            time.sleep(TEARDOWN_DELAY)
         executor.shutdown(timeout_sec=1.0)
         _bounded_teardown(nodes, 1 if failed else exit_code(nodes))
     _exit(exit_code(nodes))
@@ -242,6 +249,20 @@ def _shut_down(nodes: Sequence[Node]) -> None:
             node.on_shutdown()
 
 
+def lower_priority(niceness: int) -> None:
+    """Add ``niceness`` to the nice value of every thread of this process (at most 19): on Linux a
+    thread's nice value is its own, and ``os.nice`` changes only the calling thread's; the
+    middleware's threads do the heavy part of a teardown. Threads created later inherit the nice
+    value of the thread that creates them."""
+    tids = [int(tid) for tid in os.listdir(TASKS)] if os.path.isdir(TASKS) else [0]
+    for tid in tids:
+        try:
+            now = os.getpriority(os.PRIO_PROCESS, tid)
+            os.setpriority(os.PRIO_PROCESS, tid, min(now + niceness, 19))
+        except ProcessLookupError:
+            pass  # the thread ended since the listing
+
+
 def exit_code(nodes: Sequence[Node]) -> int:
     """The first non-zero ``exit_code`` a node set (0 if none did)."""
     codes = (int(node.exit_code) for node in nodes if isinstance(node, ExitStatus))
@@ -260,6 +281,14 @@ class ExitStatus(Protocol):
     """A node that sets its process's exit code (non-zero: the run failed)."""
 
     exit_code: int
+
+
+@runtime_checkable
+class StopsFirst(Protocol):
+    """A node whose stop must not wait behind other nodes' teardown in a graph stop (the driver:
+    torque off; the simulator: the bus that executes it); its process skips ``TEARDOWN_DELAY``."""
+
+    stops_first: bool
 
 
 @runtime_checkable

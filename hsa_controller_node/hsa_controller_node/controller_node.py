@@ -32,7 +32,6 @@ publishes and logs.
 
 from __future__ import annotations
 
-import os
 from collections import deque
 from typing import Any
 
@@ -47,7 +46,7 @@ from hsa_common import convert, qos
 from hsa_common.diagnostics import Diagnostics
 from hsa_common.model_params import load_model, load_wiring_param
 from hsa_common.parameters import declare, guard_updates
-from hsa_common.runner import TEARDOWN_NICE, run
+from hsa_common.runner import run
 from hsa_controller_node import scheduling
 from hsa_controller_node.messages import INFO_STATE, command_msg, repeated_info, tracking_info
 from hsa_controller_node.parameters import SPECS, check_combination, ee_gains, gains, tuning
@@ -161,12 +160,10 @@ class ControllerNode(Node):
         )
 
     def on_shutdown(self) -> None:
-        """Before the runner's teardown: back to normal scheduling, at the teardown niceness of the
-        nodes without a hook, so that in a graph stop the driver's torque-off never waits behind
-        this node (hsa_common.runner)."""
+        """Before the runner's teardown: back to normal scheduling (the runner then lowers it
+        further, so that in a graph stop the driver's torque-off never waits behind this node)."""
         if self._p["realtime_priority"] > 0:
             scheduling.apply(0)
-        os.nice(TEARDOWN_NICE)
 
     def _apply(self, changes: dict[str, Any]) -> None:
         """Apply accepted run-time updates to the running controller; the integrator state is

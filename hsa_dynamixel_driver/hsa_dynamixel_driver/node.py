@@ -52,6 +52,9 @@ class DynamixelDriver(LifecycleNode):
     """Writes the newest phi_cmd as clamped goal ticks and publishes the servos' present state, at
     ``rate``."""
 
+    # a graph stop's torque-off: the runner tears this process down without delay
+    stops_first = True
+
     def __init__(self) -> None:
         """Declare the parameters, fix the configured neutral and create the graph interface."""
         super().__init__("dynamixel_driver")

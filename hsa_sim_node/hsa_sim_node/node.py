@@ -237,6 +237,8 @@ class SimNode(Node):
 
     # the runner must not make this node a participant of its own barrier
     lockstep_coordinator = True
+    # the emulated bus executes a graph stop's torque-off: no teardown delay
+    stops_first = True
 
     def __init__(self) -> None:
         super().__init__("sim_node")

@@ -131,3 +131,22 @@ def test_remove_unused_removes_only_what_no_live_process_uses(tmp_path) -> None:
     assert {p.name for p in directory.iterdir()} == {
         n for names in groups.values() for n in names
     } - gone | {*young}
+
+
+def test_the_teardown_priority_reaches_every_thread() -> None:
+    # os.nice would change the calling thread's only (Linux: a thread's nice value is its own)
+    child = (
+        "import os, threading; from hsa_common import runner; "
+        "started, done = threading.Event(), threading.Event(); "
+        "t = threading.Thread(target=lambda: (started.set(), done.wait())); t.start(); "
+        "started.wait(); runner.lower_priority(3); "
+        "later = threading.Thread(target=lambda: print(os.getpriority(os.PRIO_PROCESS, 0))); "
+        "later.start(); later.join(); "
+        "print(os.getpriority(os.PRIO_PROCESS, 0), os.getpriority(os.PRIO_PROCESS, t.native_id)); "
+        "done.set()"
+    )
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    out = subprocess.run(
+        [sys.executable, "-c", child], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert [int(v) for v in out] == [min(before + 3, 19)] * 3, out

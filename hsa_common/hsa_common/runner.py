@@ -106,6 +106,7 @@ the signal itself (:func:`watch_stop`)."""
 # orders the stop watch's stack dump and the teardown's (one faulthandler timer)
 _DUMP_LOCK = threading.Lock()
 _TEARDOWN = threading.Event()  # set once the runner bounds rclpy's teardown
+_STUCK_DUMP_AT: list[float] = []  # monotonic time of the stuck-stop dump, once armed
 
 
 def run(node_factory: Callable[[], Node], name: str, args: list[str] | None = None) -> NoReturn:
@@ -214,10 +215,12 @@ def run_nodes(
 def _bounded_teardown(nodes: Sequence[Node], code: int) -> None:
     """Destroy ``nodes`` and shut rclpy down; the middleware's teardown may hang holding the GIL, so
     past ``TEARDOWN_LIMIT`` every thread's stack is printed and :mod:`hsa_common.exit_deadline` ends
-    the process with ``code``."""
+    the process with ``code``. A stuck-stop dump still to come is not postponed by this one."""
     with _DUMP_LOCK:
         _TEARDOWN.set()  # from now on the stop watch leaves this dump alone
-        faulthandler.dump_traceback_later(TEARDOWN_LIMIT)
+        now = time.monotonic()
+        due = [at - now for at in _STUCK_DUMP_AT if at > now]
+        faulthandler.dump_traceback_later(min([TEARDOWN_LIMIT, *due]))
     exit_deadline.arm(TEARDOWN_LIMIT + TEARDOWN_DUMP, code)
     for node in nodes:
         node.destroy_node()
@@ -376,8 +379,9 @@ def watch_stop(handled: threading.Event) -> None:
         if signum in parent_death.STOP_SIGNALS and not handled.wait(HANDLER_WAIT):
             signal.pthread_kill(threading.main_thread().ident, signum)
         with _DUMP_LOCK:
-            if not _TEARDOWN.is_set():  # the teardown's shorter dump comes first
+            if not _TEARDOWN.is_set():  # else the teardown's dump is armed, no later than this
                 faulthandler.dump_traceback_later(STUCK_AFTER, exit=False)
+                _STUCK_DUMP_AT.append(time.monotonic() + STUCK_AFTER)
 
     threading.Thread(target=watch, name="stop-watch", daemon=True).start()
 

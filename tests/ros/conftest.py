@@ -33,7 +33,9 @@ GRAPH_STOP = ("--sigterm-timeout", "20")
 """Launcher options of a test whose graph must end cleanly (exit 0): its nodes get 20 s, not 5,
 between SIGINT and SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside
 two busy processes a bridge, a planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM +
-5 s and were SIGKILLed (launcher exit 137)."""
+5 s and were SIGKILLed (launcher exit 137). Some of those may have been a hang rather than a slow
+teardown: in session 29 a kinematics_node whose spin never ended was SIGKILLed the same way
+(docs/launch.md, "Teardown bounds")."""
 SIM_GRAPH = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
 SIM_STEPS, SIM_STEP_PERIOD = 3, 2.0
 """The schedule of the session's sim run (sim_step_bag): the first FPU steps, s per setpoint."""

@@ -252,18 +252,27 @@ def _shut_down(nodes: Sequence[Node]) -> None:
             node.on_shutdown()
 
 
+def each_thread(action: Callable[[int], object]) -> None:
+    """Call ``action(tid)`` for every thread of this process (Linux: /proc/self/task; elsewhere
+    once, with 0: the calling thread); a thread that ended since the listing is skipped."""
+    tids = [int(tid) for tid in os.listdir(TASKS)] if os.path.isdir(TASKS) else [0]
+    for tid in tids:
+        try:
+            action(tid)
+        except ProcessLookupError:
+            pass
+
+
 def lower_priority(niceness: int) -> None:
     """Add ``niceness`` to the nice value of every thread of this process (at most 19): on Linux a
     thread's nice value is its own, and ``os.nice`` changes only the calling thread's; the
     middleware's threads do the heavy part of a teardown. Threads created later inherit the nice
     value of the thread that creates them."""
-    tids = [int(tid) for tid in os.listdir(TASKS)] if os.path.isdir(TASKS) else [0]
-    for tid in tids:
-        try:
-            now = os.getpriority(os.PRIO_PROCESS, tid)
-            os.setpriority(os.PRIO_PROCESS, tid, min(now + niceness, 19))
-        except ProcessLookupError:
-            pass  # the thread ended since the listing
+    each_thread(
+        lambda tid: os.setpriority(
+            os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + niceness, 19)
+        )
+    )
 
 
 def exit_code(nodes: Sequence[Node]) -> int:

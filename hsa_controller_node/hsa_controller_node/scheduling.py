@@ -15,8 +15,9 @@ from __future__ import annotations
 import os
 import threading
 
+from hsa_common.runner import each_thread
+
 POLICY = os.SCHED_RR
-TASKS = "/proc/self/task"
 
 
 def describe(priority: int) -> str:
@@ -51,8 +52,4 @@ def apply(priority: int) -> None:
     """Put every thread of this process under SCHED_RR at ``priority`` (0: under the normal
     SCHED_OTHER). Raises OSError when the OS refuses (see ``refusal``)."""
     policy, param = (POLICY if priority > 0 else os.SCHED_OTHER), os.sched_param(priority)
-    for tid in os.listdir(TASKS):
-        try:
-            os.sched_setscheduler(int(tid), policy, param)
-        except ProcessLookupError:
-            pass  # the thread ended since the listing
+    each_thread(lambda tid: os.sched_setscheduler(tid, policy, param))

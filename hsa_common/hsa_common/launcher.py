@@ -49,7 +49,7 @@ from typing import Any, BinaryIO
 
 import yaml
 
-from hsa_common import fastdds_shm, parent_death, rosenv
+from hsa_common import fastdds_shm, parent_death, rosenv, stacks
 from hsa_core import cli
 
 # innermost first: $(var a_$(var b)) nests
@@ -57,6 +57,9 @@ _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s$]+)*)\s*\)")
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+STACKS_WAIT = 1.0
+"""[s] how long a stuck process has to print its stacks before SIGKILL."""
 
 # The keys the real parsers read (launch 3.4.3
 # ExecuteProcess/DeclareLaunchArgument/SetLaunchConfiguration.parse, launch_ros 0.26.6 Node.parse;
@@ -460,6 +463,20 @@ class Launcher:
                 "process uses"
             )
 
+    def _report_stuck(self, procs: list[Process]) -> None:
+        """Say where each process that ignored SIGINT and SIGTERM is stuck: its threads as the
+        kernel sees them, then its Python stacks (:mod:`hsa_common.stacks`; a process not started
+        by the runner ends on that signal instead)."""
+        for p in procs:
+            self._say(
+                f"[launch] {p.name} (PID {p.popen.pid}) did not stop on SIGINT or SIGTERM; its "
+                "threads, then its Python stacks:"
+            )
+            for line in stacks.kernel_view(p.popen.pid):
+                self._say(f"[launch]   {line}")
+            p.popen.send_signal(stacks.SIGNAL)
+        time.sleep(STACKS_WAIT)
+
     def stop(self) -> int:
         """SIGINT all children, escalate after timeouts, and report how each ended."""
         for sig, timeout in (
@@ -473,6 +490,8 @@ class Launcher:
             if sig == signal.SIGINT:
                 self._interrupt(alive)
             else:
+                if sig == signal.SIGKILL:
+                    self._report_stuck(alive)
                 for p in alive:
                     p.popen.send_signal(sig)
             deadline = time.monotonic() + timeout

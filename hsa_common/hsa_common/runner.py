@@ -70,7 +70,7 @@ from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from hsa_common import exit_deadline, lockstep, parent_death, rosenv
+from hsa_common import exit_deadline, lockstep, parent_death, rosenv, stacks
 from hsa_common.middleware_errors import MiddlewareErrors
 from hsa_common.parameters import ParameterValidationError
 from hsa_core.sim.lockstep import ReportPacing
@@ -122,6 +122,7 @@ def run_nodes(
     DDS participant), one executor; the nodes are created in order and their ``on_shutdown`` hooks
     run in that order; the exit code is the first non-zero ``exit_code`` of the nodes."""
     rosenv.ensure_for_node()
+    stacks.enable()  # the launcher asks a stuck process where it is
     # before the SIGHUP handler: an ignored SIGHUP means nohup
     tie = parent_death.tie_to_parent(signal.SIGTERM)
     stop: list[int] = []

@@ -4,6 +4,7 @@ holds the GIL still ends, with the exit code it was meant to have."""
 from __future__ import annotations
 
 import ctypes
+import re
 import os
 import signal
 import subprocess
@@ -115,3 +116,36 @@ def test_a_refused_node_ends_with_2_without_the_interpreters_teardown() -> None:
             proc.kill()
     assert proc.returncode == 2, output
     assert "refusing to start: parameter 'max_iteration'" in output, output
+
+
+def test_the_launcher_says_where_a_node_that_ignores_its_stop_is_stuck(tmp_path) -> None:
+    """A node stuck in native code with the GIL ignores SIGINT and SIGTERM; before SIGKILL the
+    launcher prints its threads as the kernel sees them and its Python stacks, and exits 137."""
+    graph = tmp_path / "stuck.launch.yaml"
+    graph.write_text(
+        f"launch:\n- executable: {{cmd: '{sys.executable} {PEERS / 'stuck_spin.py'}', "
+        "name: stuck_spin, output: screen}\n"
+    )
+    launcher = start_process(
+        [
+            sys.executable,
+            "-m",
+            "hsa_common.launcher",
+            "--sigterm-timeout",
+            "1",
+            "--sigkill-timeout",
+            "1",
+            str(graph),
+        ]
+    )
+    try:
+        wait_for_line(launcher, "stuck now", timeout=60.0)
+        launcher.send_signal(signal.SIGINT)
+        output, _ = launcher.communicate(timeout=30.0)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+    assert launcher.returncode == 128 + signal.SIGKILL, output
+    assert "stuck_spin (PID" in output and "did not stop on SIGINT or SIGTERM" in output, output
+    assert re.search(r"\[launch\]   thread \d+ 'python[^']*' state S wchan \S+", output), output
+    assert 'in hang_in_native_code' in output and "stuck_spin exited with -9" in output, output

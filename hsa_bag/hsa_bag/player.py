@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import signal
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -140,7 +139,7 @@ class Player:
         options: Options,
         classes: dict[str, type],
         node: Node,
-        stop: threading.Event,
+        stop: parent_death.StopFlag,
         playback: LockstepPlayback | None = None,
     ) -> None:
         self.bag = bag
@@ -360,10 +359,10 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-    stop = threading.Event()
+    stop = parent_death.StopFlag()
     rclpy.init(args=["bag_player", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     # as every node: a closed terminal or Ctrl-\ stops it
-    parent_death.on_stop_signals(lambda *_: stop.set())
+    parent_death.on_stop_signals(lambda signum, _frame: stop.set(signum))
     node = rclpy.create_node("bag_player")
     try:
         try:

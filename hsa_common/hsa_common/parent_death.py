@@ -29,6 +29,7 @@ from __future__ import annotations
 import ctypes
 import enum
 import os
+import select
 import signal
 import sys
 from collections.abc import Callable
@@ -89,7 +90,41 @@ def alive(pid: int) -> bool:
 
 def on_stop_signals(handler: Callable[[int, object], None]) -> None:
     """Install ``handler`` for :data:`STOP_SIGNALS`; a SIGHUP ignored at start (``nohup``) stays
-    ignored. Call it after :func:`tie_to_parent`, which reads that disposition."""
+    ignored. Call it after :func:`tie_to_parent`, which reads that disposition. The handler must
+    take no lock (:class:`StopFlag`): Python runs a handler on the main thread between two
+    instructions, also inside a handler that is already running, and then waits forever for a lock
+    that thread holds itself."""
     for sig in STOP_SIGNALS:
         if sig != signal.SIGHUP or signal.getsignal(sig) != signal.SIG_IGN:
             signal.signal(sig, handler)
+
+
+class StopFlag:
+    """The stop signals received so far, set from a signal handler without a lock and waited for
+    from any thread. ``threading.Event.set`` takes a lock: a second signal that lands while the
+    first handler holds it deadlocks the main thread (a Ctrl-C to a graph's process group delivers
+    two). ``set`` appends to a list and writes a byte to a pipe that is never read, so every
+    ``wait`` returns at once from then on."""
+
+    def __init__(self) -> None:
+        self.signals: list[int] = []
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+
+    def set(self, signum: int = 0) -> None:
+        """Record ``signum`` (safe in a signal handler, also re-entered)."""
+        self.signals.append(signum)
+        try:
+            os.write(self._write, b"\0")
+        except BlockingIOError:  # the pipe is full: it is readable already
+            pass
+
+    def is_set(self) -> bool:
+        """Whether a stop signal has arrived."""
+        return bool(self.signals)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until a stop signal has arrived or ``timeout`` [s] has passed; whether one has."""
+        if not self.signals:
+            select.select([self._read], [], [], timeout)
+        return bool(self.signals)

@@ -125,19 +125,17 @@ def run_nodes(
     stacks.enable()  # the launcher asks a stuck process where it is
     # before the SIGHUP handler: an ignored SIGHUP means nohup
     tie = parent_death.tie_to_parent(signal.SIGTERM)
-    stop: list[int] = []
-    starting = threading.Event()
-    starting.set()
-    handled = threading.Event()
+    stopped = parent_death.StopFlag()  # the handler takes no lock (on_stop_signals)
+    stop = stopped.signals
+    starting = True
 
     def on_stop(signum: int, _frame: object) -> None:
-        handled.set()
-        stop.append(signum)
-        if starting.is_set() and len(stop) == 1:  # a second signal must not break the unwinding
+        stopped.set(signum)
+        if starting and len(stop) == 1:  # a second signal must not break the unwinding
             raise StopBeforeReady(signum)  # unwinds the node's construction: nothing is running yet
 
     parent_death.on_stop_signals(on_stop)
-    watch_stop(handled)
+    watch_stop(stopped)
     logger = rclpy.logging.get_logger(name)
     if tie is parent_death.Tie.ORPHANED:
         logger.fatal(
@@ -164,7 +162,7 @@ def run_nodes(
             # a later node failed or a stop came: the nodes made so far stop first
             _shut_down(nodes)
             raise
-        starting.clear()
+        starting = False
     except StopBeforeReady:
         logger.info("stopped before ready")
         _bounded_teardown(nodes, 0)
@@ -373,7 +371,7 @@ def spin_lockstep_events(
             participant.idle()
 
 
-def watch_stop(handled: threading.Event) -> None:
+def watch_stop(handled: parent_death.StopFlag) -> None:
     """Arm the stuck-stop report: a thread that learns of the first stop signal from the
     interpreter's wakeup fd, which the C-level handler writes even while the main thread is blocked
     in rcl or DDS and runs no Python. If the stop handler has not run (``handled``) within

@@ -11,7 +11,7 @@ import subprocess
 import sys
 import time
 
-from hsa_common import fastdds_shm, parent_death
+from hsa_common import fastdds_shm, parent_death, rosenv
 from tests.ros.conftest import wait_until
 
 TIE = "from hsa_common import parent_death; print(parent_death.tie_to_parent().name, flush=True)"
@@ -150,3 +150,58 @@ def test_the_teardown_priority_reaches_every_thread() -> None:
         [sys.executable, "-c", child], capture_output=True, text=True, check=True
     ).stdout.split()
     assert [int(v) for v in out] == [min(before + 3, 19)] * 3, out
+
+
+FLOOD = """
+import os, signal, sys, threading
+from hsa_common import parent_death
+flag = parent_death.StopFlag()
+signal.signal(signal.SIGUSR2, lambda signum, _frame: flag.set(signum))
+def flood():
+    for _ in range(20000):
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGUSR2)
+flooder = threading.Thread(target=flood)
+flooder.start()
+while flooder.is_alive():
+    flag.set(0)  # the handler runs inside this call, again and again
+flooder.join()
+print(flag.wait(0.0), 0 in flag.signals, signal.SIGUSR2 in flag.signals)
+"""
+
+
+def test_a_stop_flag_set_by_a_handler_that_interrupts_its_own_set_never_blocks() -> None:
+    # threading.Event.set takes a lock there and waited forever for it (a Ctrl-C to a graph's
+    # process group once deadlocked sim_node's stop handler that way)
+    out = subprocess.run([sys.executable, "-c", FLOOD], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == ["True"] * 3, out.stderr
+
+
+def test_a_burst_of_stop_signals_ends_a_node_with_0(tmp_path) -> None:
+    """Stop signals arriving while the node's stop handler runs (the process group's SIGINT, the
+    launcher's, the stop watch's) must not leave it running."""
+    node = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from rclpy.node import Node; from hsa_common.runner import run; "
+            "run(lambda: Node('signal_burst'), 'signal_burst')",
+        ],
+        env=rosenv.ros_environment(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert node.stdout is not None
+        for line in node.stdout:
+            if "ready" in line:
+                break
+        for _ in range(3000):
+            if node.poll() is not None:
+                break
+            os.kill(node.pid, signal.SIGINT)
+        code = node.wait(timeout=60)
+    finally:
+        if node.poll() is None:
+            node.kill()
+    assert code == 0, node.stdout.read()

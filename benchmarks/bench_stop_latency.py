@@ -80,8 +80,9 @@ def stop_once(workdir: Path) -> dict:
         "graph_ended_s": round(ended, 2),
         "launcher_exit": code,
     }
-    if code != 0:  # what the launcher printed last: which node did not end, and its stacks
-        run["output_tail"] = output[-6000:]
+    if code != 0:  # which node did not end and where it was stuck, or what the launcher said last
+        stuck = output.find("did not stop on SIGINT or SIGTERM")
+        run["output_tail"] = output[max(0, stuck - 2000) :] if stuck >= 0 else output[-6000:]
     return run
 
 

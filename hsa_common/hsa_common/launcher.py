@@ -21,8 +21,10 @@ the group stops all of them. Fail fast: a process that exits non-zero while the 
 graph; the launcher names it with its last error line and exits with its code. On SIGINT, SIGTERM,
 SIGHUP (terminal closed) or SIGQUIT to the launcher, or when an ``on_exit: shutdown`` process ends,
 the launcher sends SIGINT to every child, then SIGTERM after ``--sigterm-timeout`` and SIGKILL after
-``--sigkill-timeout``. A launcher killed outright cannot: its children get SIGTERM from the kernel
-then (``HSA_PARENT_PID``, :mod:`hsa_common.parent_death`). Before starting and after stopping, the
+``--sigkill-timeout``; before the SIGKILL it prints where each child still running is stuck (its
+threads as the kernel sees them, and its Python stacks: :mod:`hsa_common.stacks`). A launcher
+killed outright cannot: its children get SIGTERM from the kernel then (``HSA_PARENT_PID``,
+:mod:`hsa_common.parent_death`). Before starting and after stopping, the
 launcher removes the Fast DDS shared-memory files that no live process uses (left by killed
 processes; :mod:`hsa_common.fastdds_shm`).
 """

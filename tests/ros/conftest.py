@@ -34,11 +34,19 @@ GRAPH_STOP = ("--sigterm-timeout", "20")
 between SIGINT and SIGTERM. They tear down at nice 5 (hsa_common.runner.TEARDOWN_NICE), and beside
 two busy processes a bridge, a planner and a sequencer each once outlasted SIGINT + 5 s + SIGTERM +
 5 s and were SIGKILLed (launcher exit 137). Some of those may have been a hang rather than a slow
-teardown: in session 29 a kinematics_node whose spin never ended was SIGKILLed the same way
+teardown: the runner's stop handler could deadlock on a second signal until session 30
 (docs/launch.md, "Teardown bounds")."""
 SIM_GRAPH = Path(__file__).parents[2] / "launch_scripts" / "sim.launch.yaml"
 SIM_STEPS, SIM_STEP_PERIOD = 3, 2.0
 """The schedule of the session's sim run (sim_step_bag): the first FPU steps, s per setpoint."""
+
+
+def launcher_story(output: str, tail: int = 4000) -> str:
+    """What a failed launch's output says: from where the launcher reports a process stuck in its
+    stop (its threads and stacks, hsa_common.stacks) to the end, else the last ``tail``
+    characters."""
+    stuck = output.find("did not stop on SIGINT or SIGTERM")
+    return output[output.rfind("\n", 0, stuck) + 1 :] if stuck >= 0 else output[-tail:]
 
 
 def start_process(args: list[str], **popen: object) -> subprocess.Popen:

@@ -4,8 +4,8 @@ holds the GIL still ends, with the exit code it was meant to have."""
 from __future__ import annotations
 
 import ctypes
-import re
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -148,4 +148,4 @@ def test_the_launcher_says_where_a_node_that_ignores_its_stop_is_stuck(tmp_path)
     assert launcher.returncode == 128 + signal.SIGKILL, output
     assert "stuck_spin (PID" in output and "did not stop on SIGINT or SIGTERM" in output, output
     assert re.search(r"\[launch\]   thread \d+ 'python[^']*' state S wchan \S+", output), output
-    assert 'in hang_in_native_code' in output and "stuck_spin exited with -9" in output, output
+    assert "in hang_in_native_code" in output and "stuck_spin exited with -9" in output, output

@@ -19,7 +19,14 @@ import pytest
 
 from hsa_common import qos
 from hsa_msgs.msg import PlanarActuation
-from tests.ros.conftest import PEERS, CollectedProcess, start_process, stop_process, wait_for_line
+from tests.ros.conftest import (
+    PEERS,
+    CollectedProcess,
+    launcher_story,
+    start_process,
+    stop_process,
+    wait_for_line,
+)
 from tests.ros.driver_fixtures import drivers
 from tests.ros.driver_harness import (
     IDS,
@@ -207,7 +214,7 @@ def test_sim_graph_ctrl_c_turns_torque_off_within_100_ms(tmp_path, ros_node) -> 
     assert 0.0 < latency < BOUND, (
         f"torque off {latency * 1e3:.1f} ms after SIGINT:\n{driver_lines[-3000:]}"
     )
-    assert code == 0, output[-4000:]
+    assert code == 0, launcher_story(output)
 
 
 def test_sigterm_to_the_launcher_turns_the_drivers_torque_off_within_100_ms(

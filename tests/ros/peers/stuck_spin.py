@@ -1,7 +1,7 @@
 """A node under ``hsa_common.runner.run`` whose timer callback hangs in native code holding the GIL
 (it locks a pthread mutex it already holds, through ctypes.PyDLL: a deadlock, as a node stuck in
-the middleware has): no Python of its own runs, so it ignores SIGINT and SIGTERM. test_exit_deadline proves that the launcher then says
-where it is stuck before SIGKILL.
+the middleware has): no Python of its own runs, so it ignores SIGINT and SIGTERM.
+test_exit_deadline proves that the launcher then says where it is stuck before SIGKILL.
 """
 
 import ctypes

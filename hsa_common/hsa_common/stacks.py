@@ -1,11 +1,12 @@
 """A stuck process's stacks, asked for by the launcher before it kills the process.
 
-Why: a node that ignores SIGINT and SIGTERM is stuck in native code, usually holding the GIL, so
-no Python thread of its own can report where (the runner's timed dumps are armed from Python). The
-launcher sends :data:`SIGNAL` before SIGKILL: :func:`enable` has made it print every Python
-thread's stack from the C signal handler (``faulthandler.register``), which needs no GIL. The
-launcher adds what the kernel says of each thread (:func:`kernel_view`: name, state, where it
-sleeps), which shows native waits the Python stacks cannot.
+Why: a node that ignores SIGINT and SIGTERM is stuck, in native code holding the GIL or on a lock
+its main thread waits for, and then no Python thread of its own may be able to report where (the
+runner's timed dumps are armed from Python). The launcher sends :data:`SIGNAL` before SIGKILL:
+:func:`enable` has made it print every Python thread's stack from the C signal handler
+(``faulthandler.register``), which needs no GIL. The launcher adds what the kernel says of each
+thread (:func:`kernel_view`: name, state, where it sleeps), which shows native waits the Python
+stacks cannot.
 """
 
 from __future__ import annotations

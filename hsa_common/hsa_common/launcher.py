@@ -472,7 +472,7 @@ class Launcher:
         for p in procs:
             self._say(
                 f"[launch] {p.name} (PID {p.popen.pid}) did not stop on SIGINT or SIGTERM; its "
-                "threads, then its Python stacks:"
+                "threads, then (a node under hsa_common.runner) its Python stacks:"
             )
             for line in stacks.kernel_view(p.popen.pid):
                 self._say(f"[launch]   {line}")

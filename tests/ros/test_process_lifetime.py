@@ -11,8 +11,8 @@ import subprocess
 import sys
 import time
 
-from hsa_common import fastdds_shm, parent_death, rosenv
-from tests.ros.conftest import wait_until
+from hsa_common import fastdds_shm, parent_death
+from tests.ros.conftest import start_process, wait_for_line, wait_until
 
 TIE = "from hsa_common import parent_death; print(parent_death.tie_to_parent().name, flush=True)"
 
@@ -176,32 +176,25 @@ def test_a_stop_flag_set_by_a_handler_that_interrupts_its_own_set_never_blocks()
     assert out.returncode == 0 and out.stdout.split() == ["True"] * 3, out.stderr
 
 
-def test_a_burst_of_stop_signals_ends_a_node_with_0(tmp_path) -> None:
+def test_a_burst_of_stop_signals_ends_a_node_with_0() -> None:
     """Stop signals arriving while the node's stop handler runs (the process group's SIGINT, the
     launcher's, the stop watch's) must not leave it running."""
-    node = subprocess.Popen(
+    node = start_process(
         [
             sys.executable,
             "-c",
             "from rclpy.node import Node; from hsa_common.runner import run; "
             "run(lambda: Node('signal_burst'), 'signal_burst')",
-        ],
-        env=rosenv.ros_environment(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
+        ]
     )
     try:
-        assert node.stdout is not None
-        for line in node.stdout:
-            if "ready" in line:
-                break
+        wait_for_line(node, "ready", timeout=120.0)
         for _ in range(3000):
             if node.poll() is not None:
                 break
             os.kill(node.pid, signal.SIGINT)
-        code = node.wait(timeout=60)
+        output, _ = node.communicate(timeout=60)
     finally:
         if node.poll() is None:
             node.kill()
-    assert code == 0, node.stdout.read()
+    assert node.returncode == 0, output

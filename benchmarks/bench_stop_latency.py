@@ -29,6 +29,8 @@ from pathlib import Path
 
 import results_doc
 
+from hsa_common.launcher import STUCK
+
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "launch_scripts" / "sim.launch.yaml"
 BOUND_MS = 100.0
@@ -81,7 +83,7 @@ def stop_once(workdir: Path) -> dict:
         "launcher_exit": code,
     }
     if code != 0:  # which node did not end and where it was stuck, or what the launcher said last
-        stuck = output.find("did not stop on SIGINT or SIGTERM")
+        stuck = output.find(STUCK)
         run["output_tail"] = output[max(0, stuck - 2000) :] if stuck >= 0 else output[-6000:]
     return run
 

@@ -62,6 +62,8 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 STACKS_WAIT = 1.0
 """[s] how long a stuck process has to print its stacks before SIGKILL."""
+STUCK = "did not stop on SIGINT or SIGTERM"
+"""The words that open the launcher's report on a process it is about to SIGKILL."""
 
 # The keys the real parsers read (launch 3.4.3
 # ExecuteProcess/DeclareLaunchArgument/SetLaunchConfiguration.parse, launch_ros 0.26.6 Node.parse;
@@ -471,8 +473,8 @@ class Launcher:
         by the runner ends on that signal instead)."""
         for p in procs:
             self._say(
-                f"[launch] {p.name} (PID {p.popen.pid}) did not stop on SIGINT or SIGTERM; its "
-                "threads, then (a node under hsa_common.runner) its Python stacks:"
+                f"[launch] {p.name} (PID {p.popen.pid}) {STUCK}; its threads, then (a node under "
+                "hsa_common.runner) its Python stacks:"
             )
             for line in stacks.kernel_view(p.popen.pid):
                 self._say(f"[launch]   {line}")

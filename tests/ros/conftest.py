@@ -23,7 +23,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
 from hsa_common import rosenv
-from hsa_common.launcher import find_executable
+from hsa_common.launcher import STUCK, find_executable
 from hsa_core.task.trajectories import step_reference
 
 PEERS = Path(__file__).parent / "peers"
@@ -45,7 +45,7 @@ def launcher_story(output: str, tail: int = 4000) -> str:
     """What a failed launch's output says: from where the launcher reports a process stuck in its
     stop (its threads and stacks, hsa_common.stacks) to the end, else the last ``tail``
     characters."""
-    stuck = output.find("did not stop on SIGINT or SIGTERM")
+    stuck = output.find(STUCK)
     return output[output.rfind("\n", 0, stuck) + 1 :] if stuck >= 0 else output[-tail:]
 
 

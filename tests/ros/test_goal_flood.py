@@ -95,6 +95,7 @@ def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros
     diagnostics = DiagnosticsLog(ros_node)
     pub = ros_node.create_publisher(PlanarActuation, "phi_cmd", qos.COMMAND)
     assert wait_until(lambda: pub.get_subscription_count() >= 1, timeout=10.0)
+    held = emulator.goal_ticks()
     began, began_ns, sent = time.monotonic(), ros_node.get_clock().now().nanoseconds, 0
 
     def counted(s, v) -> bool:
@@ -114,7 +115,13 @@ def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros
     assert 1 <= len(lines) <= most, (
         f"{len(lines)} log lines for {sent} commands in {flooded_s:.1f} s:\n{''.join(lines[:5])}"
     )
-    assert not dh.goal_writes(emulator, began), "a non-finite command reached the bus"
+    # the held pose may be written again (seen once under load, 2.3 s into the flood: a torque-on
+    # holds the present positions); any other goal came from a command
+    moved = [w for w in dh.goal_writes(emulator, began) if w.value != held[w.dxl_id]]
+    assert not moved, (
+        f"a non-finite command reached the bus: {moved[:4]}; held {held}; torque writes "
+        f"{emulator.writes(dh.ADDR_TORQUE, began)[:8]}"
+    )
     fault(
         f"1 kHz flood of non-finite phi_cmd ({sent} in {flooded_s:.0f} s)",
         f"{values['rejected']} rejected "

@@ -21,3 +21,11 @@ if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
 ROS_DOMAIN_ID = rosenv.apply(rosenv.reserve_domain_id())
 # the test process is an entry point like any other (hsa_core's import sets nothing)
 configure_jax()
+
+
+def pytest_collection_modifyitems(items: list) -> None:
+    """Files with a test marked slow first, each group in its collected order: with two workers
+    (pytest.ini, `--no-loadscope-reorder`) the longest files start early instead of one worker
+    finishing the colcon build alone at the end."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)

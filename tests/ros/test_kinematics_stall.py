@@ -176,11 +176,13 @@ def deep_queue() -> Iterator[NodeProcess]:
 
 
 def test_a_backlog_longer_than_the_history_is_not_published(deep_queue, ros_node) -> None:
+    # (published [s]: the writer's source timestamp, as in the first test, not the arrival here,
+    # which counts this test's own delays too; state)
     received: list[tuple[float, PlanarState]] = []
     ros_node.create_subscription(
         PlanarState,
         f"{NS}/state",
-        lambda m: received.append((ros_node.get_clock().now().nanoseconds * 1e-9, m)),
+        lambda m, info: received.append((info["source_timestamp"] * 1e-9, m)),
         BEST_EFFORT,
     )
     feeder = PoseFeeder(ros_node, f"{NS}/ee_pose")

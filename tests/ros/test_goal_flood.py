@@ -124,8 +124,7 @@ def test_non_finite_flood_is_counted_and_logged_throttled(emulator, drivers, ros
     )
     fault(
         f"1 kHz flood of non-finite phi_cmd ({sent} in {flooded_s:.0f} s)",
-        f"{values['rejected']} rejected "
-        f"(counted in /diagnostics), {len(lines)} WARN lines (throttled to one per 5 s), no goal "
-        "but the held pose written",
+        f"{values['rejected']} rejected (counted in /diagnostics), {len(lines)} WARN lines "
+        f"(throttled to one per {THROTTLE_S:g} s), no goal but the held pose written",
         "none needed",
     )
